@@ -1,0 +1,3 @@
+from gcs.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,48 @@
+"""The `gcs` command. Each subcommand lives in the module that owns its feature and exposes
+`add_arguments(parser)` and `run(args) -> int`; this file only lists them."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from gcs import __version__
+
+#: subcommand -> (module, one-line help). Modules are imported only when their command runs.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("gcs.demo", "start the simulated vehicle and the ground station together (no hardware needed)"),
+    "status": ("gcs.status", "connect to a vehicle and print link health, rates requested vs achieved"),
+    "sim": ("gcs.sim.command", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
+    "estimate": ("gcs.estimators.offline", "run an attitude estimator over a log or CSV and write its output CSV"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gcs",
+        description="MAVLink ground station and telemetry server for flight tests.",
+    )
+    parser.add_argument("--version", action="version", version=f"gcs {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Links to a vehicle: transports, MAVLink framing, link state and counters, forwarding."""

@@ -1,0 +1,116 @@
+"""Attitude algebra shared by every part: quaternions, rotation matrices, Euler angles.
+
+Conventions (DESIGN.md): a quaternion is (w, x, y, z), unit, and rotates body (FRD) vectors
+into the earth frame (NED): v_ned = R(q) v_body. Euler angles are Z-Y-X (yaw, pitch, roll), in
+radians, as MAVLink ATTITUDE carries them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p ⊗ q (apply q first, then p)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ]
+    )
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion with a non-negative scalar part (q and -q are the same rotation)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Quaternion of a rotation by |v| radians about v (exact, also for tiny angles)."""
+    angle = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    if angle < 1e-12:
+        return np.array([1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2]])
+    s = math.sin(0.5 * angle) / angle
+    return np.array([math.cos(0.5 * angle), v[0] * s, v[1] * s, v[2] * s])
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix R (body→earth) of a unit quaternion."""
+    w, x, y, z = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion of a rotation matrix (Shepperd's method, stable for every rotation)."""
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    if trace > 0:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    return quat_normalize(np.array(q))
+
+
+def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Quaternion of Z-Y-X Euler angles in radians."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return np.array(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ]
+    )
+
+
+def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
+    """Z-Y-X Euler angles (roll, pitch, yaw) in radians, yaw in (-pi, pi]."""
+    w, x, y, z = q
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def matrix_to_euler(R: np.ndarray) -> tuple[float, float, float]:
+    """Z-Y-X Euler angles (roll, pitch, yaw) in radians of a body→earth rotation matrix."""
+    pitch = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+    roll = math.atan2(R[2, 1], R[2, 2])
+    yaw = math.atan2(R[1, 0], R[0, 0])
+    return roll, pitch, yaw
+
+
+def wrap_pi(angle: float) -> float:
+    """Angle wrapped into (-pi, pi]."""
+    a = math.fmod(angle + math.pi, 2 * math.pi)
+    if a <= 0:
+        a += 2 * math.pi
+    return a - math.pi
