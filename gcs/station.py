@@ -1,0 +1,65 @@
+"""The ground station's live core for one vehicle: link, forwarding outputs, vehicle state
+and stream requests, run together in one event loop. `gcs status`, `gcs demo` and the
+server all start one of these."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+
+from gcs.bus import MessageBus
+from gcs.link.connection import Link
+from gcs.link.forward import Output
+from gcs.vehicle.state import VehicleState
+from gcs.vehicle.streams import StreamPlan, StreamRequester
+
+
+@dataclass
+class StationConfig:
+    connect: str
+    baud: int | str = 57600
+    speed: float = 1.0
+    outputs: list[str] = field(default_factory=list)
+    heartbeat_timeout: float = 3.0
+    plan: StreamPlan = field(default_factory=StreamPlan)
+    request_streams: bool = True
+
+
+class GroundStation:
+    def __init__(self, config: StationConfig, bus: MessageBus | None = None) -> None:
+        self.config = config
+        self.bus = bus or MessageBus()
+        self.link = Link(
+            config.connect, bus=self.bus, baud=config.baud, speed=config.speed,
+            heartbeat_timeout=config.heartbeat_timeout,
+        )
+        self.vehicle = VehicleState(self.link)
+        self.streams = StreamRequester(self.link, config.plan)
+        self.vehicle.add_reboot_listener(self.streams.request_again)
+        self.outputs = [Output(address, self.link) for address in config.outputs]
+        self._tasks: list[asyncio.Task] = []
+
+    async def start(self) -> None:
+        """Start every part as a task of the running loop."""
+        parts = [self.link.run(), self.vehicle.run(), *(o.run() for o in self.outputs)]
+        if self.config.request_streams:
+            parts.append(self.streams.run())
+        self._tasks = [asyncio.create_task(p) for p in parts]
+
+    async def stop(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+
+    async def link_finished(self) -> None:
+        """Returns when the link has ended by itself (a replayed log reached its end)."""
+        await self._tasks[0]
+
+    def status(self) -> dict:
+        return {
+            "link": self.link.status(),
+            "vehicle": self.vehicle.as_dict(),
+            "streams": self.streams.report(),
+            "outputs": [o.status() for o in self.outputs],
+        }
