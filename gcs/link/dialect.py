@@ -1,13 +1,14 @@
 """The one MAVLink dialect gcs speaks, and packet encoding in either protocol version.
 
-The ArduPilot dialect (`ardupilotmega`, which includes `common`) so APM-era messages such as
-AHRS and SENSOR_OFFSETS decode. The v2.0 module parses MAVLink 1 and 2 packets alike; an
+pymavlink's `all` dialect: ArduPilot's `ardupilotmega` (so APM-era messages such as AHRS and
+SENSOR_OFFSETS decode) plus every other public dialect, so that as few packets as possible
+are of an unknown id (those cannot be CRC-checked, see framing.py). The v2.0 module parses MAVLink 1 and 2 packets alike; an
 `Encoder` writes MAVLink 1 for vehicles that only speak it (APM 2.5) and MAVLink 2 otherwise.
 """
 
 from __future__ import annotations
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.dialects.v20 import all as mavlink
 
 MAVLink = mavlink.MAVLink
 MAVLinkMessage = mavlink.MAVLink_message

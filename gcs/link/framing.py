@@ -25,7 +25,7 @@ class FramingCounters:
     crc_errors: int = 0
     malformed: int = 0  # frame candidates rejected before the CRC (impossible length or flags)
     bytes_skipped: int = 0  # bytes that belonged to no valid packet
-    unknown: int = 0  # valid-looking frames of message ids outside the dialect
+    unknown: int = 0  # frame candidates with a message id outside the dialect (skipped)
     lost: dict[tuple[int, int], int] = field(default_factory=dict)
     mavlink1: int = 0
     mavlink2: int = 0
@@ -102,25 +102,20 @@ class MavlinkDecoder:
             seq, sysid, compid = buf[i + 2], buf[i + 3], buf[i + 4]
             length = header + plen + 2
         cls = _MAP.get(msgid)
-        if cls is not None and (plen > cls.unpacker.size or (v2 and plen == 0)):
+        if cls is None:
+            # No CRC_EXTRA to check it with, so indistinguishable from garbage: skip it.
+            c.unknown += 1
+            return 0
+        if plen > cls.unpacker.size or (v2 and plen == 0):
             c.malformed += 1
             return 0
         if n - i < length:
             return 0 if final else None
-        if cls is None:
-            # No CRC_EXTRA to check it with: accept only if a frame or the end follows.
-            after = i + length
-            if after < n and buf[after] not in (MARKER_V1, MARKER_V2):
-                c.malformed += 1
-                return 0
-            c.unknown += 1
-            msg = mavlink.MAVLink_unknown(msgid, bytes(buf[i:after]))
-        else:
-            try:
-                msg = self._mav.decode(buf[i : i + length])
-            except MAVError:
-                c.crc_errors += 1
-                return 0
+        try:
+            msg = self._mav.decode(buf[i : i + length])
+        except MAVError:
+            c.crc_errors += 1
+            return 0
         c.packets += 1
         if v2:
             c.mavlink2 += 1
