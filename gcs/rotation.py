@@ -114,3 +114,16 @@ def wrap_pi(angle: float) -> float:
     if a <= 0:
         a += 2 * math.pi
     return a - math.pi
+
+
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
+    """Spherical interpolation from q0 (u = 0) to q1 (u = 1) along the shorter arc."""
+    d = float(np.dot(q0, q1))
+    if d < 0.0:
+        q1, d = -q1, -d
+    if d > 0.9995:  # nearly equal: normalised linear interpolation is exact to rounding
+        q = q0 + u * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(d)
+    s = math.sin(theta)
+    return (math.sin((1.0 - u) * theta) / s) * q0 + (math.sin(u * theta) / s) * q1

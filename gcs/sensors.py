@@ -7,6 +7,7 @@ function below, named after the source unit.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,3 +58,249 @@ class BaroSample:
     pressure: float
     temperature: float
     source: str = ""
+
+
+# --- unit conversions: one function per source unit -------------------------------------------
+
+#: Standard gravity (m/s²) used by MAVLink's milli-g fields.
+G0 = 9.80665
+
+
+def mg_to_mps2(value: float) -> float:
+    """Milli-g (RAW_IMU / SCALED_IMU* accel) → m/s²."""
+    return value * (G0 / 1000.0)
+
+
+def mrad_to_rads(value: float) -> float:
+    """Milli-radian per second (RAW_IMU / SCALED_IMU* gyro) → rad/s."""
+    return value * 1e-3
+
+
+def mgauss_to_gauss(value: float) -> float:
+    """Milli-gauss (RAW_IMU / SCALED_IMU* mag) → gauss."""
+    return value * 1e-3
+
+
+def degE7_to_deg(value: int) -> float:
+    """Degrees × 10^7 (GPS_RAW_INT lat/lon) → degrees."""
+    return value * 1e-7
+
+
+def cdeg_to_rad(value: float) -> float:
+    """Centidegrees (GPS_RAW_INT cog) → radians."""
+    return math.radians(value * 0.01)
+
+
+def cm_to_m(value: float) -> float:
+    """Centimetres, or cm/s (GPS_RAW_INT vel) → metres, or m/s."""
+    return value * 0.01
+
+
+def mm_to_m(value: float) -> float:
+    """Millimetres (GPS_RAW_INT alt) → metres."""
+    return value * 0.001
+
+
+def hpa_to_pa(value: float) -> float:
+    """Hectopascal (SCALED_PRESSURE press_abs) → pascal."""
+    return value * 100.0
+
+
+def cdegc_to_degc(value: float) -> float:
+    """Centi-degrees Celsius (SCALED_PRESSURE temperature) → °C."""
+    return value * 0.01
+
+
+def usec_to_s(value: int) -> float:
+    """Microseconds (time_usec, DataFlash TimeUS, ULog timestamp) → seconds."""
+    return value * 1e-6
+
+
+def ms_to_s(value: int) -> float:
+    """Milliseconds (time_boot_ms) → seconds."""
+    return value * 1e-3
+
+
+#: MAVLink's "unknown" marker for GPS_RAW_INT vel / cog (UINT16_MAX).
+UINT16_UNKNOWN = 65535
+
+
+# --- MAVLink messages → samples ------------------------------------------------------------------
+
+
+def _imu_from_scaled(msg, t: float) -> ImuSample:
+    """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled)."""
+    gyro = np.array([mrad_to_rads(msg.xgyro), mrad_to_rads(msg.ygyro), mrad_to_rads(msg.zgyro)])
+    accel = np.array([mg_to_mps2(msg.xacc), mg_to_mps2(msg.yacc), mg_to_mps2(msg.zacc)])
+    mag = np.array([mgauss_to_gauss(msg.xmag), mgauss_to_gauss(msg.ymag), mgauss_to_gauss(msg.zmag)])
+    if not mag.any():
+        mag = None  # an all-zero field means "no compass", not a zero field
+    return ImuSample(t, gyro, accel, mag, msg.get_type())
+
+
+def imu_from_raw_imu(msg) -> ImuSample:
+    """RAW_IMU: time_usec since boot; accel mG, gyro mrad/s, mag mgauss (ArduPilot's scaled values)."""
+    return _imu_from_scaled(msg, usec_to_s(msg.time_usec))
+
+
+def imu_from_scaled_imu(msg) -> ImuSample:
+    """SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: time_boot_ms; same units as RAW_IMU."""
+    return _imu_from_scaled(msg, ms_to_s(msg.time_boot_ms))
+
+
+def imu_from_highres_imu(msg) -> ImuSample:
+    """HIGHRES_IMU (PX4): already SI — m/s², rad/s, gauss; time_usec since boot."""
+    return ImuSample(
+        usec_to_s(msg.time_usec),
+        np.array([msg.xgyro, msg.ygyro, msg.zgyro], dtype=float),
+        np.array([msg.xacc, msg.yacc, msg.zacc], dtype=float),
+        np.array([msg.xmag, msg.ymag, msg.zmag], dtype=float),
+        "HIGHRES_IMU",
+    )
+
+
+def gps_from_gps_raw_int(msg) -> GpsSample:
+    """GPS_RAW_INT: lat/lon degE7, alt mm, vel cm/s, cog cdeg (65535 = unknown), time_usec.
+
+    The NED velocity is built from ground speed and course (GPS_RAW_INT has no vertical speed,
+    so vd = 0); it is None when either is unknown.
+    """
+    speed = math.nan if msg.vel == UINT16_UNKNOWN else cm_to_m(msg.vel)
+    course = math.nan if msg.cog == UINT16_UNKNOWN else cdeg_to_rad(msg.cog)
+    vel_ned = None
+    if math.isfinite(speed) and math.isfinite(course):
+        vel_ned = np.array([speed * math.cos(course), speed * math.sin(course), 0.0])
+    return GpsSample(
+        usec_to_s(msg.time_usec),
+        degE7_to_deg(msg.lat),
+        degE7_to_deg(msg.lon),
+        mm_to_m(msg.alt),
+        speed,
+        course,
+        vel_ned,
+        int(msg.fix_type),
+        "GPS_RAW_INT",
+    )
+
+
+def baro_from_scaled_pressure(msg) -> BaroSample:
+    """SCALED_PRESSURE*: press_abs hPa, temperature cdegC, time_boot_ms."""
+    return BaroSample(
+        ms_to_s(msg.time_boot_ms), hpa_to_pa(msg.press_abs), cdegc_to_degc(msg.temperature), msg.get_type()
+    )
+
+
+#: MAVLink message type → converter.
+CONVERTERS = {
+    "RAW_IMU": imu_from_raw_imu,
+    "SCALED_IMU": imu_from_scaled_imu,
+    "SCALED_IMU2": imu_from_scaled_imu,
+    "SCALED_IMU3": imu_from_scaled_imu,
+    "HIGHRES_IMU": imu_from_highres_imu,
+    "GPS_RAW_INT": gps_from_gps_raw_int,
+    "SCALED_PRESSURE": baro_from_scaled_pressure,
+    "SCALED_PRESSURE2": baro_from_scaled_pressure,
+    "SCALED_PRESSURE3": baro_from_scaled_pressure,
+}
+
+
+def sample_from_message(msg) -> ImuSample | GpsSample | BaroSample | None:
+    """The sample a pymavlink message carries, or None for message types that carry no sensor data."""
+    convert = CONVERTERS.get(msg.get_type())
+    return convert(msg) if convert else None
+
+
+# --- log records → samples (DataFlash .bin, ULog) ----------------------------------------------
+
+
+def imu_from_dataflash(record) -> ImuSample:
+    """DataFlash IMU record: TimeUS µs, GyrX/Y/Z rad/s, AccX/Y/Z m/s² (body FRD, no magnetometer)."""
+    return ImuSample(
+        usec_to_s(record.TimeUS),
+        np.array([record.GyrX, record.GyrY, record.GyrZ], dtype=float),
+        np.array([record.AccX, record.AccY, record.AccZ], dtype=float),
+        None,
+        "IMU[%d]" % getattr(record, "I", 0),
+    )
+
+
+def gps_from_dataflash(record) -> GpsSample:
+    """DataFlash GPS record: TimeUS µs, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg, VZ m/s (down), Status."""
+    speed = float(record.Spd)
+    course = math.radians(record.GCrs)
+    vel_ned = np.array([speed * math.cos(course), speed * math.sin(course), float(getattr(record, "VZ", 0.0))])
+    return GpsSample(
+        usec_to_s(record.TimeUS),
+        float(record.Lat),
+        float(record.Lng),
+        float(record.Alt),
+        speed,
+        course,
+        vel_ned,
+        int(record.Status),
+        "GPS",
+    )
+
+
+def imu_from_ulog_sensor_combined(timestamp_us: int, gyro_rad, accelerometer_m_s2) -> ImuSample:
+    """ULog `sensor_combined` row: timestamp µs, gyro_rad[3] rad/s, accelerometer_m_s2[3] (body FRD)."""
+    return ImuSample(
+        usec_to_s(timestamp_us),
+        np.asarray(gyro_rad, dtype=float),
+        np.asarray(accelerometer_m_s2, dtype=float),
+        None,
+        "sensor_combined",
+    )
+
+
+# --- reference attitudes and the vehicle clock ---------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSample:
+    """An attitude someone else estimated (or the simulator's truth), Z-Y-X Euler in rad.
+
+    source: "onboard" (ATTITUDE), "ahrs2" (AHRS2), "truth" (SIMSTATE), or a log's equivalent.
+    """
+
+    t: float
+    roll: float
+    pitch: float
+    yaw: float
+    source: str = ""
+
+
+#: MAVLink attitude message → reference name.
+REFERENCE_MESSAGES = {"ATTITUDE": "onboard", "AHRS2": "ahrs2", "SIMSTATE": "truth"}
+
+#: Messages whose time_usec is microseconds since boot (others may carry UNIX or GPS time).
+_BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
+
+
+class VehicleClock:
+    """The latest vehicle time (s since boot) seen from each system, for messages without one.
+
+    Timestamped messages are those with `time_boot_ms`, plus RAW_IMU / HIGHRES_IMU `time_usec`.
+    A message without a timestamp (AHRS2, SIMSTATE) is given the vehicle time of the most recent
+    timestamped message from the same system that arrived before it; see gcs.estimators.compare.
+    """
+
+    def __init__(self) -> None:
+        self.latest: dict[int, float] = {}
+
+    def observe(self, msg) -> float | None:
+        """Update from msg and return the vehicle time to assign to it (None: nothing seen yet)."""
+        system = msg.get_srcSystem()
+        if hasattr(msg, "time_boot_ms"):
+            self.latest[system] = ms_to_s(msg.time_boot_ms)
+        elif msg.get_type() in _BOOT_USEC_MESSAGES:
+            self.latest[system] = usec_to_s(msg.time_usec)
+        return self.latest.get(system)
+
+
+def attitude_from_message(msg, t: float) -> AttitudeSample | None:
+    """ATTITUDE / AHRS2 / SIMSTATE (roll, pitch, yaw in rad) at vehicle time t, else None."""
+    source = REFERENCE_MESSAGES.get(msg.get_type())
+    if source is None:
+        return None
+    return AttitudeSample(t, float(msg.roll), float(msg.pitch), float(msg.yaw), source)

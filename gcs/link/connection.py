@@ -119,6 +119,7 @@ class Link:
         self._transport: Transport | None = None
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
         self._state_listeners: list[Callable[[LinkState, LinkState], None]] = []
+        self._send_listeners: list[Callable[[bytes], None]] = []
         self._connected = asyncio.Event()
 
     # ---- public API -------------------------------------------------------------------
@@ -135,6 +136,11 @@ class Link:
     def add_state_listener(self, callback: Callable[[LinkState, LinkState], None]) -> None:
         """callback(old, new) on every state change, in the event loop."""
         self._state_listeners.append(callback)
+
+    def add_send_listener(self, callback: Callable[[bytes], None]) -> None:
+        """callback(packet) for every packet sent to the vehicle (ours and forwarded ones),
+        so a recording holds both directions."""
+        self._send_listeners.append(callback)
 
     async def wait_connected(self, timeout: float | None = None) -> bool:
         try:
@@ -157,6 +163,8 @@ class Link:
         self._transport.write(packet)
         self.stats.bytes_out += len(packet)
         self.stats.packets_out += 1
+        for callback in self._send_listeners:
+            callback(packet)
 
     def status(self) -> dict:
         now = time.monotonic()

@@ -1,0 +1,143 @@
+"""The `gcs estimate` contract: header, one row per IMU sample, --list, clear bad-input errors."""
+
+import csv
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from synthetic import Z_UP, spinning
+
+from gcs.estimators import offline
+from gcs.rotation import euler_to_quat
+
+LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
+HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
+
+
+def write_csv(path, samples, gps=None):
+    cols = "t,gx,gy,gz,ax,ay,az,mx,my,mz" + (",vn,ve,vd" if gps is not None else "")
+    with open(path, "w") as fh:
+        fh.write(cols + "\n")
+        for i, s in enumerate(samples):
+            row = [s.t, *s.gyro, *s.accel, *(s.mag if s.mag is not None else ("", "", ""))]
+            if gps is not None:
+                row += list(gps[i])
+            fh.write(",".join(str(v) for v in row) + "\n")
+
+
+def estimate(*argv):
+    return offline.main([str(a) for a in argv])
+
+
+def read_out(path):
+    with open(path) as fh:
+        return fh.readline().strip(), list(csv.reader(fh))
+
+
+@pytest.mark.parametrize("name", ["dcm", "kf"])
+def test_csv_one_row_per_sample_in_a_z_up_frame(tmp_path, name):
+    samples, _ = spinning(euler_to_quat(0.0, 0.0, 0.5), [0.0, 0.0, 0.2], rate=100, duration=2, frame=Z_UP)
+    write_csv(tmp_path / "in.csv", samples)
+    assert estimate(tmp_path / "in.csv", "--estimator", name, "--out", tmp_path / "out.csv") == 0
+    header, rows = read_out(tmp_path / "out.csv")
+    assert header == HEADER and len(rows) == len(samples)
+    assert [float(r[0]) for r in rows] == pytest.approx([s.t for s in samples])
+    # a z-up sensor lying level is rolled 180° relative to FRD
+    assert abs(float(rows[-1][5])) == pytest.approx(180.0, abs=0.5)
+    assert all(abs(np.linalg.norm([float(v) for v in r[1:5]]) - 1) < 1e-6 for r in rows)
+
+
+def test_csv_with_gps_velocity_columns_and_gains(tmp_path):
+    samples, _ = spinning(euler_to_quat(0.0, 0.0, 0.0), [0.0, 0.0, 0.0], rate=50, duration=2)
+    gps = [("", "", "")] * 50 + [(1.0, 0.0, 0.0)] * 50
+    write_csv(tmp_path / "in.csv", samples, gps)
+    rc = estimate(tmp_path / "in.csv", "-e", "dcm", "--preset", "seed000", "--gain", "kp_rp=1.5",
+                  "--gain", "declination=0.1", "-o", tmp_path / "out.csv")
+    assert rc == 0
+    _, rows = read_out(tmp_path / "out.csv")
+    assert len(rows) == 100 and float(rows[-1][7]) == pytest.approx(math.degrees(0.1), abs=0.5)
+
+
+def test_tlog_input(tmp_path):
+    assert estimate(LOGS / "arducopter-sitl-hop.tlog", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
+    header, rows = read_out(tmp_path / "out.csv")
+    assert header == HEADER and len(rows) == 2197  # RAW_IMU messages in the log
+
+
+def test_list(capsys):
+    assert estimate("--list") == 0
+    out = capsys.readouterr().out
+    for text in ("dcm:", "kf:", "ardupilot (default)", "seed000", "seed004", "kp_rp", "default 0.2", "[0, 50]",
+                 "1/s", "roll-pitch proportional gain", "declination"):
+        assert text in out
+
+
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n0.01,0,abc,0,0,0,-9.8,,,\n",
+         "line 3: field 'gy': 'abc' is not a number"),
+        ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,-9.8\n", "line 1: header lacks column(s) mx, my, mz"),
+        ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,nan,,,\n", "line 2: field 'az': 'nan' is not finite"),
+        ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,1,,\n", "line 2: field 'mx'/'my'/'mz'"),
+        ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0\n", "line 2: 3 fields, header has 10"),
+        ("", "line 1: empty file"),
+    ],
+)
+def test_bad_csv_is_a_clear_error(tmp_path, capsys, content, expected):
+    (tmp_path / "bad.csv").write_text(content)
+    assert estimate(tmp_path / "bad.csv", "-e", "dcm", "-o", tmp_path / "out.csv") == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "bad.csv") in err and expected in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["missing.csv", "-e", "dcm", "-o", "OUT"], "missing.csv: no such file"),
+        (["IN", "-e", "nope", "-o", "OUT"], "unknown estimator 'nope'"),
+        (["IN", "-e", "dcm", "-p", "nope", "-o", "OUT"], "unknown preset 'nope'"),
+        (["IN", "-e", "dcm", "-g", "kp_rp=99", "-o", "OUT"], "gain kp_rp: 99 1/s is outside [0, 50]"),
+        (["IN", "-e", "dcm", "-g", "kp_rp", "-o", "OUT"], "expected NAME=VALUE"),
+        (["IN", "-e", "dcm", "-o", "OUT", "-g", "bogus=1"], "unknown gain 'bogus'"),
+        (["IN.txt", "-e", "dcm", "-o", "OUT"], "unknown input format '.txt'"),
+        (["IN", "-o", "OUT"], "--estimator is required"),
+    ],
+)
+def test_bad_arguments_exit_2(tmp_path, capsys, argv, expected):
+    (tmp_path / "IN").write_text("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n")
+    (tmp_path / "IN.txt").write_text("x")
+    argv = [str(tmp_path / a) if a in ("IN", "IN.txt", "OUT") else a for a in argv]
+    assert estimate(*argv) == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_not_a_tlog_is_a_clear_error(tmp_path):
+    bad = tmp_path / "junk.tlog"
+    bad.write_bytes(bytes(range(256)) * 10)
+    proc = subprocess.run([sys.executable, "-m", "gcs.estimators.offline", str(bad), "-e", "dcm", "-o",
+                           str(tmp_path / "o.csv")], capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    assert proc.returncode == 2
+    assert f"{bad}: offset 0: no IMU message" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_dcm_runs_five_minutes_at_285_hz_in_seconds(tmp_path):
+    samples, _ = spinning(euler_to_quat(0.1, 0.2, 0.3), [0.1, -0.2, 0.3], rate=285.714, duration=300)
+    write_csv(tmp_path / "in.csv", samples)
+    start = time.perf_counter()
+    assert estimate(tmp_path / "in.csv", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
+    elapsed = time.perf_counter() - start
+    assert elapsed < 15.0, f"{len(samples)} samples took {elapsed:.1f} s"
+
+
+def test_through_the_gcs_command(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "gcs", "estimate", str(LOGS / "arducopter-sitl-hop.tlog"),
+                           "--estimator", "kf", "--out", str(tmp_path / "o.csv")],
+                          capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    assert proc.returncode == 0, proc.stderr
+    assert read_out(tmp_path / "o.csv")[0] == HEADER
