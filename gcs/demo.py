@@ -46,32 +46,33 @@ async def _demo(args: argparse.Namespace) -> None:
           flush=True)
     await station.start()
     sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
-    latest: dict[str, object] = {}
-    sub = station.bus.subscribe("demo-printer", types=["ATTITUDE", "SIMSTATE"], maxlen=100)
     loop = asyncio.get_running_loop()
     stop_at = loop.time() + args.duration if args.duration > 0 else math.inf
     try:
         while loop.time() < stop_at:
             await asyncio.sleep(1.0)
-            for item in sub.drain():
-                latest[item.type] = item.msg
-            print(_status_line(station, latest), flush=True)
+            print(_status_line(station), flush=True)
     finally:
         sim_task.cancel()
         await station.stop()
         await asyncio.gather(sim_task, return_exceptions=True)
 
 
-def _status_line(station, latest: dict) -> str:
-    link = station.link
-    rates = link.stats.rates()
-    parts = [f"link {link.state}"]
-    parts.append(" ".join(f"{name} {rates.get(name, 0):.0f}Hz" for name in ("RAW_IMU", "HIGHRES_IMU", "ATTITUDE", "GPS_RAW_INT")
-                          if rates.get(name)))
-    for source, key in (("onboard", "ATTITUDE"), ("truth", "SIMSTATE")):
-        msg = latest.get(key)
-        if msg is not None:
-            parts.append(f"{source} r/p/y {math.degrees(msg.roll):6.1f} {math.degrees(msg.pitch):6.1f} "
-                         f"{math.degrees(msg.yaw):6.1f}")
+def _status_line(station) -> str:
+    """Link state and rates, then each source's roll/pitch/yaw, and each estimator's RMS
+    error against the truth (or the onboard attitude when there is no truth)."""
+    rates = station.link.stats.rates()
+    parts = [f"link {station.link.state}",
+             " ".join(f"{name} {rates[name]:.0f}Hz" for name in ("RAW_IMU", "HIGHRES_IMU", "ATTITUDE", "GPS_RAW_INT")
+                      if rates.get(name))]
+    summary = station.estimation.pipeline.summary()
+    for source, p in summary["latest"].items():
+        text = f"{source} {p['roll_deg']:6.1f} {p['pitch_deg']:6.1f} {p['yaw_deg']:6.1f}"
+        comparison = summary["estimators"].get(source, {}).get("comparison", {}).get("references", {})
+        for reference in ("truth", "onboard"):
+            if reference in comparison:
+                rms = comparison[reference]["window"]["rms"]
+                text += f" (rms vs {reference} {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f})"
+                break
+        parts.append(text)
     return " | ".join(p for p in parts if p)
-

@@ -7,6 +7,7 @@ function below, named after the source unit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -304,3 +305,66 @@ def attitude_from_message(msg, t: float) -> AttitudeSample | None:
     if source is None:
         return None
     return AttitudeSample(t, float(msg.roll), float(msg.pitch), float(msg.yaw), source)
+
+
+# --- one vehicle's message stream → samples ------------------------------------------------------
+
+#: IMU message types in order of preference: RAW_IMU (ArduPilot's first IMU) and HIGHRES_IMU
+#: (PX4) are primary; SCALED_IMU* are used only when no primary one arrives.
+IMU_TYPES = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+_PRIMARY_IMU = frozenset(IMU_TYPES[:2])
+#: Seconds of vehicle time a secondary IMU type must stream alone before it is chosen.
+SECONDARY_IMU_WAIT = 2.0
+#: A GPS time further than this from the vehicle clock is not boot time (UNIX/GPS epoch).
+GPS_CLOCK_TOLERANCE = 5.0
+
+
+class MessageSampler:
+    """One vehicle's MAVLink messages, in arrival order → samples on its clock.
+
+    The one place where a live stream and a replayed .tlog become `ImuSample`, `GpsSample` and
+    reference `AttitudeSample`s, so live and offline numbers are computed from identical input.
+    The vehicle is `system` (None: the first that sends IMU data); the IMU stream is
+    `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
+    streamed alone for SECONDARY_IMU_WAIT s). GPS_RAW_INT time_usec is used when it is boot
+    time; otherwise (UNIX time on ArduPilot) the fix gets the vehicle time at its arrival.
+    """
+
+    def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
+        self.imu_type = imu_type
+        self.system = system
+        self.clock = VehicleClock()
+        self._secondary_since: dict[str, float] = {}
+
+    def feed(self, msg) -> "ImuSample | GpsSample | AttitudeSample | None":
+        kind = msg.get_type()
+        if kind == "BAD_DATA" or kind.startswith("UNKNOWN"):
+            return None
+        system = msg.get_srcSystem()
+        if self.system is None:
+            if kind not in IMU_TYPES:
+                return None
+            self.system = system
+        if system != self.system:
+            return None
+        now = self.clock.observe(msg)
+        if now is None:
+            return None
+        if kind in IMU_TYPES:
+            return sample_from_message(msg) if self._is_imu_stream(kind, now) else None
+        if kind == "GPS_RAW_INT":
+            gps = gps_from_gps_raw_int(msg)
+            if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:
+                gps = dataclasses.replace(gps, t=now)
+            return gps
+        return attitude_from_message(msg, now)
+
+    def _is_imu_stream(self, kind: str, now: float) -> bool:
+        if self.imu_type is None:
+            if kind in _PRIMARY_IMU:
+                self.imu_type = kind
+            else:
+                since = self._secondary_since.setdefault(kind, now)
+                if now - since >= SECONDARY_IMU_WAIT:
+                    self.imu_type = kind
+        return kind == self.imu_type

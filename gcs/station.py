@@ -8,6 +8,7 @@ import asyncio
 from dataclasses import dataclass, field
 
 from gcs.bus import MessageBus
+from gcs.estimators.pipeline import LiveEstimation
 from gcs.link.connection import Link
 from gcs.link.forward import Output
 from gcs.vehicle.state import VehicleState
@@ -23,6 +24,7 @@ class StationConfig:
     heartbeat_timeout: float = 3.0
     plan: StreamPlan = field(default_factory=StreamPlan)
     request_streams: bool = True
+    estimate: bool = True
 
 
 class GroundStation:
@@ -37,6 +39,7 @@ class GroundStation:
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.add_reboot_listener(self.streams.request_again)
         self.outputs = [Output(address, self.link) for address in config.outputs]
+        self.estimation = LiveEstimation(self.link) if config.estimate else None
         self._tasks: list[asyncio.Task] = []
 
     async def start(self) -> None:
@@ -44,6 +47,8 @@ class GroundStation:
         parts = [self.link.run(), self.vehicle.run(), *(o.run() for o in self.outputs)]
         if self.config.request_streams:
             parts.append(self.streams.run())
+        if self.estimation is not None:
+            parts.append(self.estimation.run())
         self._tasks = [asyncio.create_task(p) for p in parts]
 
     async def stop(self) -> None:
@@ -62,4 +67,5 @@ class GroundStation:
             "vehicle": self.vehicle.as_dict(),
             "streams": self.streams.report(),
             "outputs": [o.status() for o in self.outputs],
+            "estimation": self.estimation.pipeline.summary() if self.estimation else None,
         }

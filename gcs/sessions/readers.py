@@ -14,31 +14,18 @@ is emitted on the rows where the velocity changes (a velocity held between fixes
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 import os
 from collections.abc import Iterator
 
 import numpy as np
 
-from gcs.sensors import (
-    AttitudeSample,
-    GpsSample,
-    ImuSample,
-    VehicleClock,
-    attitude_from_message,
-    sample_from_message,
-)
+from gcs.sensors import IMU_TYPES, AttitudeSample, GpsSample, ImuSample, MessageSampler
 
 Sample = ImuSample | GpsSample | AttitudeSample
 
 CSV_COLUMNS = ("t", "gx", "gy", "gz", "ax", "ay", "az", "mx", "my", "mz")
 CSV_GPS_COLUMNS = ("vn", "ve", "vd")
-
-#: IMU message types in order of preference for a .tlog.
-TLOG_IMU_TYPES = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
-#: A GPS time further than this from the vehicle clock is not boot time (UNIX/GPS epoch).
-GPS_CLOCK_TOLERANCE = 5.0
 
 
 class InputError(ValueError):
@@ -111,52 +98,31 @@ def _tlog_imu_type(path: str) -> tuple[str, int]:
     conn = _connect(path)
     seen: dict[str, int] = {}
     while True:
-        msg = conn.recv_match(type=list(TLOG_IMU_TYPES))
+        msg = conn.recv_match(type=list(IMU_TYPES))
         if msg is None:
             break
         seen.setdefault(msg.get_type(), msg.get_srcSystem())
         if "RAW_IMU" in seen:
             break
     conn.close()
-    for kind in TLOG_IMU_TYPES:
+    for kind in IMU_TYPES:
         if kind in seen:
             return kind, seen[kind]
-    raise InputError(f"{path}: offset 0: no IMU message ({', '.join(TLOG_IMU_TYPES)}) found; is this a .tlog?")
+    raise InputError(f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES)}) found; is this a .tlog?")
 
 
 def read_tlog(path: str) -> Iterator[Sample]:
-    """Samples of one vehicle from a MAVLink telemetry log, in arrival order.
-
-    IMU from RAW_IMU, or the first IMU type present; GPS from GPS_RAW_INT (its time_usec is used
-    when it is boot time, else the vehicle clock at arrival); references from ATTITUDE, AHRS2 and
-    SIMSTATE, timed by `VehicleClock`.
-    """
+    """Samples of one vehicle from a MAVLink telemetry log, in arrival order, made by the same
+    `MessageSampler` as the live pipeline: IMU from RAW_IMU (or the first IMU type present),
+    GPS from GPS_RAW_INT, references from ATTITUDE, AHRS2 and SIMSTATE."""
     imu_type, system = _tlog_imu_type(path)
+    sampler = MessageSampler(imu_type, system)
     conn = _connect(path)
-    clock = VehicleClock()
-    wanted = (imu_type, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTATE")
     try:
-        while True:
-            msg = conn.recv_match()
-            if msg is None:
-                return
-            if msg.get_srcSystem() != system or msg.get_type() == "BAD_DATA":
-                continue
-            now = clock.observe(msg)
-            kind = msg.get_type()
-            if kind not in wanted or now is None:
-                continue
-            if kind == imu_type:
-                yield sample_from_message(msg)
-            elif kind == "GPS_RAW_INT":
-                gps = sample_from_message(msg)
-                if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:
-                    gps = dataclasses.replace(gps, t=now)
-                yield gps
-            else:
-                ref = attitude_from_message(msg, now)
-                if ref is not None:
-                    yield ref
+        while (msg := conn.recv_match()) is not None:
+            sample = sampler.feed(msg)
+            if sample is not None:
+                yield sample
     finally:
         conn.close()
 

@@ -1,0 +1,45 @@
+"""The `gcs` command as a user runs it: help, and `gcs status --json` against a simulator
+running as a separate process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from gcs.cli import SUBCOMMANDS
+
+GCS = [sys.executable, "-m", "gcs"]
+
+
+def test_help_lists_every_subcommand_and_each_has_help():
+    out = subprocess.run(GCS + ["--help"], capture_output=True, text=True, check=True).stdout
+    for name in SUBCOMMANDS:
+        assert name in out
+        sub = subprocess.run(GCS + [name, "--help"], capture_output=True, text=True)
+        assert sub.returncode == 0 and "usage:" in sub.stdout
+
+
+def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port):
+    sim = subprocess.Popen(GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{udp_port}"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        done = subprocess.run(GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8",
+                                     "--json"], capture_output=True, text=True, timeout=60)
+    finally:
+        sim.terminate()
+        sim.wait(10)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["vehicle"]["autopilot"] == "ArduPilot"
+    assert report["vehicle"]["mavlink_version"] == 1
+    assert report["streams"]["method"] == "REQUEST_DATA_STREAM"
+    raw = report["streams"]["messages"]["RAW_IMU"]
+    assert raw["requested_hz"] == 50.0
+    assert 45.0 <= raw["achieved_hz"] <= 55.0
+    assert report["link"]["stats"]["crc_errors"] == 0
+
+
+def test_status_rejects_a_bad_connection_string():
+    done = subprocess.run(GCS + ["status", "--connect", "bogus:1:2"], capture_output=True, text=True)
+    assert done.returncode == 2 and "unknown scheme" in done.stderr
