@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from gcs.bus import MessageBus
 from gcs.estimators.pipeline import LiveEstimation
+from gcs.events import EventLog
 from gcs.link.connection import Link
 from gcs.link.forward import Output
 from gcs.vehicle.state import VehicleState
@@ -31,6 +32,7 @@ class GroundStation:
     def __init__(self, config: StationConfig, bus: MessageBus | None = None) -> None:
         self.config = config
         self.bus = bus or MessageBus()
+        self.events = EventLog()
         self.link = Link(
             config.connect, bus=self.bus, baud=config.baud, speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
@@ -40,6 +42,7 @@ class GroundStation:
         self.vehicle.add_reboot_listener(self.streams.request_again)
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link) if config.estimate else None
+        self.link.add_state_listener(lambda old, new: self.events.record("link", "link", old=old, new=new))
         self._tasks: list[asyncio.Task] = []
 
     async def start(self) -> None:
