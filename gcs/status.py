@@ -24,9 +24,15 @@ def add_link_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def station_config(args: argparse.Namespace):
+    """The StationConfig the link options ask for; AddressError/ValueError for bad options."""
+    from gcs.link.address import parse_address
     from gcs.station import StationConfig
     from gcs.vehicle.streams import StreamPlan
 
+    for address in (args.connect, *args.out):
+        parse_address(address)
+    if args.baud != "auto" and not args.baud.isdigit():
+        raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
     return StationConfig(
         connect=args.connect, baud=baud, speed=args.speed, outputs=args.out,

@@ -42,4 +42,4 @@ def test_mavsdk_reads_attitude_through_forward_output(udp_port):
     sent = {(round(math.degrees(m.msg.roll), 3), round(math.degrees(m.msg.pitch), 3)) for m in onboard}
     matched = sum((round(r, 3), round(p, 3)) in sent for r, p, _ in seen)
     assert matched >= 45, f"only {matched} of 50 MAVSDK attitudes match packets the vehicle sent"
-    assert any(abs(r) > 1.0 for r, _, _ in seen) or any(abs(p) > 1.0 for _, p, _ in seen)
+    assert len(set(seen)) > 10  # a live, changing attitude, not one repeated value
