@@ -110,3 +110,16 @@ def test_pty_closed_and_recreated_at_same_path_is_reopened(tmp_path):
     link = asyncio.run(scenario())
     closed = [e for e in link.events if e.kind == "transport" and e.detail.startswith("closed")]
     assert closed, "the vanished port was never seen closing"
+
+
+def test_baud_auto_detects_a_rate_that_yields_mavlink(tmp_path):
+    path = tmp_path / "ttyUSB-sim"
+
+    async def scenario():
+        async with running_sim(f"pty:{path}", profile="apm25"), running_station(str(path), baud="auto") as station:
+            assert await station.link.wait_connected(15)
+            return station.link
+
+    link = asyncio.run(scenario())
+    assert link.baud == 57600  # the first rate tried; a pty carries any rate
+    assert any(e.kind == "baud" and "detected 57600" in e.detail for e in link.events)
