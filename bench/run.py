@@ -9,6 +9,10 @@ import sys
 
 BENCHMARKS = {
     "link": "bench.link_throughput",
+    "broad": "bench.broad",
+    "replay": "bench.replay",
+    "ws_latency": "bench.ws_latency",
+    "soak": "bench.soak",
 }
 
 

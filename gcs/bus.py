@@ -73,10 +73,19 @@ class Subscription:
         self.delivered += 1
         self._ready.set()
 
-    async def get(self) -> Message:
-        while not self.queue:
-            self._ready.clear()
-            await self._ready.wait()
+    async def get(self, timeout: float | None = None) -> Message | None:
+        """The oldest queued message, waiting for one; None if `timeout` s pass first.
+
+        Uses `asyncio.timeout`, not `wait_for`: on Python 3.11 `wait_for` can swallow a
+        cancellation that arrives as the message does, and a stopping station would hang.
+        """
+        try:
+            async with asyncio.timeout(timeout):
+                while not self.queue:
+                    self._ready.clear()
+                    await self._ready.wait()
+        except TimeoutError:
+            return None
         return self.queue.popleft()
 
     def drain(self) -> list[Message]:

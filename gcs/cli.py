@@ -15,6 +15,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "status": ("gcs.status", "connect to a vehicle and print link health, rates requested vs achieved"),
     "sim": ("gcs.sim.command", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
     "estimate": ("gcs.estimators.offline", "run an attitude estimator over a log or CSV and write its output CSV"),
+    "serve": ("gcs.server.command", "connect to a vehicle and serve the browser dashboard (plots, 3-D view, gain sliders)"),
+    "sessions": ("gcs.sessions.listing", "list recorded sessions with start, duration, size and vehicle"),
+    "replay": ("gcs.sessions.replay", "replay a session, .tlog, .bin or .ulg through the estimators (play at any speed)"),
+    "export": ("gcs.sessions.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
+    "report": ("gcs.sessions.report", "write a self-contained HTML flight-test report of a session or log"),
+    "params": ("gcs.vehicle.param_command", "read, write (verified), save, load and diff the vehicle's parameters"),
 }
 
 

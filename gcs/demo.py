@@ -19,6 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", action="append", default=[], metavar="URL",
                         help="also forward the vehicle to this address (e.g. udpout:127.0.0.1:14550 for QGC)")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until Ctrl-C)")
+    from gcs.server.command import add_server_arguments
+
+    add_server_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,8 +47,13 @@ async def _demo(args: argparse.Namespace) -> None:
     sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
     print(f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
           flush=True)
+    from gcs.server.command import dashboard
+
+    server = dashboard(station, args)
     await station.start()
     sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
+    await server.start()
+    print(f"gcs demo: dashboard at {server.url}  (3-D view on port {server.viser_port})", flush=True)
     loop = asyncio.get_running_loop()
     stop_at = loop.time() + args.duration if args.duration > 0 else math.inf
     try:
@@ -54,6 +62,7 @@ async def _demo(args: argparse.Namespace) -> None:
             print(_status_line(station), flush=True)
     finally:
         sim_task.cancel()
+        await server.stop()
         await station.stop()
         await asyncio.gather(sim_task, return_exceptions=True)
 

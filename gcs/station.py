@@ -12,6 +12,8 @@ from gcs.estimators.pipeline import LiveEstimation
 from gcs.events import EventLog
 from gcs.link.connection import Link
 from gcs.link.forward import Output
+from gcs.sessions.recorder import SessionRecorder
+from gcs.vehicle.params import ParamClient
 from gcs.vehicle.state import VehicleState
 from gcs.vehicle.streams import StreamPlan, StreamRequester
 
@@ -26,6 +28,7 @@ class StationConfig:
     plan: StreamPlan = field(default_factory=StreamPlan)
     request_streams: bool = True
     estimate: bool = True
+    record_dir: str | None = None  # where sessions are recorded; None: no recording
 
 
 class GroundStation:
@@ -40,18 +43,25 @@ class GroundStation:
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.add_reboot_listener(self.streams.request_again)
+        self.params = ParamClient(self.link, self.vehicle, self.events)
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link) if config.estimate else None
         self.link.add_state_listener(lambda old, new: self.events.record("link", "link", old=old, new=new))
+        replaying = self.link.address.kind == "tlog"  # a replayed log is not a new session
+        self.recorder = SessionRecorder(self, config.record_dir) if config.record_dir and not replaying else None
         self._tasks: list[asyncio.Task] = []
 
     async def start(self) -> None:
-        """Start every part as a task of the running loop."""
-        parts = [self.link.run(), self.vehicle.run(), *(o.run() for o in self.outputs)]
+        """Start every part as a task of the running loop (the recorder first, so it has the first byte)."""
+        if self.recorder is not None:
+            self.recorder.start()
+        parts = [self.link.run(), self.vehicle.run(), self.params.run(), *(o.run() for o in self.outputs)]
         if self.config.request_streams:
             parts.append(self.streams.run())
         if self.estimation is not None:
             parts.append(self.estimation.run())
+        if self.recorder is not None:
+            parts.append(self.recorder.run())
         self._tasks = [asyncio.create_task(p) for p in parts]
 
     async def stop(self) -> None:
@@ -59,6 +69,8 @@ class GroundStation:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks = []
+        if self.recorder is not None:
+            self.recorder.close()
 
     async def link_finished(self) -> None:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
@@ -71,4 +83,5 @@ class GroundStation:
             "streams": self.streams.report(),
             "outputs": [o.status() for o in self.outputs],
             "estimation": self.estimation.pipeline.summary() if self.estimation else None,
+            "recording": self.recorder.status() if self.recorder else {"state": "off"},
         }

@@ -21,6 +21,9 @@ def add_link_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--imu-rate", type=float, default=50.0, help="raw IMU rate to request, Hz (default 50)")
     parser.add_argument("--attitude-rate", type=float, default=50.0, help="ATTITUDE rate to request, Hz (default 50)")
     parser.add_argument("--gps-rate", type=float, default=5.0, help="GPS rate to request, Hz (default 5)")
+    parser.add_argument("--record-dir", default="sessions", metavar="DIR",
+                        help="record every session to a folder under DIR (default ./sessions)")
+    parser.add_argument("--no-record", action="store_true", help="do not record this session")
 
 
 def station_config(args: argparse.Namespace):
@@ -38,6 +41,7 @@ def station_config(args: argparse.Namespace):
         connect=args.connect, baud=baud, speed=args.speed, outputs=args.out,
         heartbeat_timeout=args.heartbeat_timeout,
         plan=StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate),
+        record_dir=None if args.no_record else args.record_dir,
     )
 
 
@@ -70,7 +74,7 @@ async def _collect(config, duration: float) -> dict:
     station = GroundStation(config)
     await station.start()
     try:
-        await asyncio.wait_for(asyncio.shield(asyncio.sleep(duration)), duration + 1)
+        await asyncio.sleep(duration)
     finally:
         report = station.status()
         await station.stop()
@@ -95,6 +99,8 @@ def format_report(report: dict) -> str:
     others = {k: v for k, v in stats["rates_hz"].items() if k not in streams["messages"]}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
+    recording = report.get("recording") or {}
+    lines.append(f"recording  {recording.get('state', 'off')}  {recording.get('folder') or ''}  {recording.get('error') or ''}")
     lines.append("events")
     lines += [f"  {e['kind']}: {e['detail']}" for e in link["events"]]
     return "\n".join(lines)

@@ -24,7 +24,7 @@ def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port
     sim = subprocess.Popen(GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{udp_port}"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        done = subprocess.run(GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8",
+        done = subprocess.run(GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8", "--no-record",
                                      "--json"], capture_output=True, text=True, timeout=60)
     finally:
         sim.terminate()

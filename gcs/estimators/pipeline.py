@@ -63,8 +63,10 @@ class EstimationPipeline:
             self._maybe_declination(msg)
             return []
         sample = self.sampler.feed(msg)
-        if sample is None:
-            return []
+        return [] if sample is None else self.feed_sample(sample)
+
+    def feed_sample(self, sample: ImuSample | GpsSample | AttitudeSample) -> list[AttitudePoint]:
+        """Fuse one sample from any source (a log reader's stream: DataFlash, ULog, CSV)."""
         if isinstance(sample, ImuSample):
             return self._imu(sample)
         if isinstance(sample, GpsSample):

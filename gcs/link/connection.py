@@ -144,9 +144,10 @@ class Link:
 
     async def wait_connected(self, timeout: float | None = None) -> bool:
         try:
-            await asyncio.wait_for(self._connected.wait(), timeout)
+            async with asyncio.timeout(timeout):
+                await self._connected.wait()
             return True
-        except asyncio.TimeoutError:
+        except TimeoutError:
             return False
 
     @property

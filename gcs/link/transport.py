@@ -28,6 +28,9 @@ DataCallback = Callable[[bytes], None]
 
 #: Bytes a TCP peer may leave unread before further writes to it are dropped.
 TCP_WRITE_LIMIT = 1 << 20
+#: UDP receive buffer asked of the kernel: at 400 Hz of telemetry the default ~208 KB fills in
+#: a fraction of a second if the event loop is starved (a busy laptop), and packets are lost.
+UDP_RECEIVE_BUFFER = 4 << 20
 
 
 class Transport(ABC):
@@ -102,6 +105,8 @@ class UdpTransport(Transport):
             family = socket.AF_INET6 if ":" in self.address.host else socket.AF_INET
             kwargs = {"family": family}
         self._transport, _ = await loop.create_datagram_endpoint(lambda: _DatagramProtocol(self), **kwargs)
+        sock = self._transport.get_extra_info("socket")
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER)  # capped by rmem_max
 
     @property
     def local_port(self) -> int:

@@ -1,2 +1,3 @@
-"""Sessions: recordings and the readers that turn logs (.tlog, .csv; later .bin, .ulg) into the
-same sample stream the live link produces."""
+"""Sessions: recording every flight to disk (recorder), and reading any log (.tlog, .bin, .ulg,
+.csv, or a recorded session) back into the same sample stream the live link produces, for
+replay, what-if, export and reports."""

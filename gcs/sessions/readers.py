@@ -127,7 +127,19 @@ def read_tlog(path: str) -> Iterator[Sample]:
         conn.close()
 
 
-READERS = {".csv": read_csv, ".tlog": read_tlog}
+def _dataflash(path: str):
+    from gcs.sessions.dataflash import DataflashLog
+
+    return DataflashLog(path)
+
+
+def _ulog(path: str):
+    from gcs.sessions.ulog import UlogFile
+
+    return UlogFile(path)
+
+
+READERS = {".csv": read_csv, ".tlog": read_tlog, ".bin": _dataflash, ".ulg": _ulog}
 
 
 def read_samples(path: str) -> Iterator[Sample]:

@@ -114,11 +114,7 @@ class StreamRequester:
         for item in acks.drain():
             if item.type == "HEARTBEAT" and item.sysid == self.link.target_system:
                 return _family(item.msg.autopilot)
-        while time.monotonic() < deadline:
-            try:
-                item = await asyncio.wait_for(acks.get(), deadline - time.monotonic())
-            except asyncio.TimeoutError:
-                break
+        while (item := await acks.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
             if item.type == "HEARTBEAT" and item.sysid == self.link.target_system:
                 return _family(item.msg.autopilot)
         return None
@@ -134,11 +130,7 @@ class StreamRequester:
             self.requests_sent += 1
             self._last_request[name] = time.monotonic()
             deadline = time.monotonic() + self.ack_timeout
-            while (left := deadline - time.monotonic()) > 0:
-                try:
-                    item = await asyncio.wait_for(acks.get(), left)
-                except asyncio.TimeoutError:
-                    break
+            while (item := await acks.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
                 if item.type == "COMMAND_ACK" and item.msg.command == command:
                     result = enum_result(item.msg.result)
                     self.acks[name] = result
@@ -164,9 +156,10 @@ class StreamRequester:
         """Every `check_interval`, re-request messages far below their rate, rate-limited."""
         while True:
             try:
-                await asyncio.wait_for(self._wake.wait(), self.check_interval)
+                async with asyncio.timeout(self.check_interval):
+                    await self._wake.wait()
                 return
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
             if self.link.state != LinkState.CONNECTED:
                 continue

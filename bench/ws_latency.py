@@ -1,0 +1,80 @@
+"""Latency from a packet's arrival at the link (Message.host_time) to its sample reaching a
+WebSocket client, p50/p95/p99, with ATTITUDE and raw IMU at 200 Hz from the simulator, for 1
+and 20 clients (in a separate process).
+
+Baseline `Mission Planner 5 Hz push`: Mission Planner's web/WebSocket server pushes its state
+every 200 ms, so a sample waits up to 200 ms (100 ms on average) before it even leaves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+
+import numpy as np
+
+from gcs.server.runtime import DashboardServer
+from gcs.sim import SimVehicle
+from gcs.station import GroundStation, StationConfig
+from gcs.vehicle.streams import StreamPlan
+
+MISSION_PLANNER_PERIOD_MS = 200.0
+
+
+def free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def measure(clients: int, seconds: float) -> dict:
+    port = free_udp_port()
+    station = GroundStation(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200)))
+    server = DashboardServer(station, port=0, viser=False)
+    sim = SimVehicle(profile="pixhawk", script="quad")
+    await station.start()
+    sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
+    await server.start()
+    arrivals: dict[float, float] = {}
+    try:
+        while station.link.stats.rates().get("ATTITUDE", 0) < 150:  # streams at 200 Hz
+            await asyncio.sleep(0.2)
+        sub = station.bus.subscribe("bench-arrival", types=["ATTITUDE"], maxlen=100_000)
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{server.port}/ws/live", str(clients),
+            str(seconds), stdout=asyncio.subprocess.PIPE)
+        reader = asyncio.create_task(proc.communicate())
+        while not reader.done():
+            for m in sub.drain():
+                arrivals[round(m.vehicle_time, 3)] = m.host_time
+            await asyncio.sleep(0.05)
+        received = json.loads(reader.result()[0])
+        sub.close()
+        rate = station.link.stats.rates().get("ATTITUDE", 0.0)
+    finally:
+        await server.stop()
+        sim_task.cancel()
+        await station.stop()
+    latencies = [1000 * (recv - arrivals[round(t, 3)]) for per_client in received for t, recv in per_client
+                 if round(t, 3) in arrivals]
+    p50, p95, p99 = (float(v) for v in np.percentile(latencies, [50, 95, 99]))
+    return {"clients": clients, "attitude_hz": round(rate, 1), "samples": len(latencies),
+            "p50_ms": round(p50, 2), "p95_ms": round(p95, 2), "p99_ms": round(p99, 2), "max_ms": round(max(latencies), 2)}
+
+
+def main(seconds: float = 10.0) -> list[dict]:
+    rows = []
+    for clients in (1, 20):
+        r = asyncio.run(measure(clients, seconds))
+        rows.append({"benchmark": f"ws latency, {clients} client(s), 200 Hz", "baseline": "Mission Planner 5 Hz push",
+                     "baseline_ms": MISSION_PLANNER_PERIOD_MS, **r,
+                     "ratio_p99": round(r["p99_ms"] / MISSION_PLANNER_PERIOD_MS, 3), "unit": "ms"})
+    return rows
+
+
+if __name__ == "__main__":
+    for row in main():
+        print(row)

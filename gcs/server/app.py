@@ -1,0 +1,50 @@
+"""The FastAPI application: REST routers (every module in routers.ROUTERS), the live WebSocket,
+the dashboard page (web/public) and uPlot, served from web/node_modules (installed by .ci/setup
+from the npm registry; nothing is fetched from a CDN, so the page works with no internet)."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from gcs import __version__
+from gcs.events import Event
+from gcs.server.gains import GainControl
+from gcs.server.live import LiveHub
+from gcs.server.routers import ROUTERS
+from gcs.station import GroundStation
+
+WEB_DIR = Path(__file__).resolve().parents[2] / "web"
+UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
+
+
+def create_app(station: GroundStation, hub: LiveHub | None = None, *, token: str | None = None,
+               viser_port: int | None = None) -> FastAPI:
+    """The app for one running station. `token`: required on state-changing requests (None when
+    only this machine can connect). The hub is attached to the station's estimation here."""
+    if not (UPLOT_DIR / "uPlot.iife.min.js").is_file():
+        raise FileNotFoundError(f"uPlot missing in {UPLOT_DIR}: run `npm ci` in {WEB_DIR} (bash .ci/setup does)")
+    hub = hub or LiveHub()
+    app = FastAPI(title="gcs", version=__version__,
+                  description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.")
+    app.state.station = station
+    app.state.hub = hub
+    app.state.gains = GainControl(station)
+    app.state.token = token
+    app.state.viser_port = viser_port
+    station.estimation.add_listener(hub.on_points)
+    station.events.add_listener(lambda event: forward_gain_event(hub, event))
+    for module in ROUTERS:
+        app.include_router(importlib.import_module(module).router)
+    app.mount("/vendor/uplot", StaticFiles(directory=UPLOT_DIR), name="uplot")
+    app.mount("/", StaticFiles(directory=WEB_DIR / "public", html=True), name="page")
+    return app
+
+
+def forward_gain_event(hub: LiveHub, event: Event) -> None:
+    """Every page learns of a gain change, whichever UI made it."""
+    if event.kind == "gain":
+        hub.broadcast({"type": "gain", **event.as_dict()})

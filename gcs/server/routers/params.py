@@ -1,0 +1,103 @@
+"""Vehicle parameters and remote gain tuning over REST.
+
+GET  /api/params            the table as known now and the download progress
+POST /api/params/download   start a full download (token)
+GET  /api/tuning            the tuning profile: limits, current and pre-flight value of each gain
+PUT  /api/tuning/{name}     write one gain, checked against the profile and verified (token)
+POST /api/tuning/revert     put back every pre-flight value, verified (token)
+
+The tuning session (pre-flight snapshot, profile detected from the table) is opened by the
+first tuning request and kept on app.state for the life of the server, so the snapshot always
+predates every write made through the panel.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, Depends, HTTPException, Request, status
+from pydantic import BaseModel
+
+from gcs.server.deps import client_name, get_station, require_token
+from gcs.station import GroundStation
+from gcs.vehicle.params import ParamError, ParamMismatch, ParamTimeout, UnknownParam
+from gcs.vehicle.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, open_session
+
+router = APIRouter(tags=["params"])
+
+
+class TunedValue(BaseModel):
+    value: float
+
+
+def http_error(exc: Exception) -> HTTPException:
+    """The status that tells a client what to do about each failure."""
+    code = (status.HTTP_429_TOO_MANY_REQUESTS if isinstance(exc, RateLimited)
+            else status.HTTP_422_UNPROCESSABLE_CONTENT if isinstance(exc, TuningRefused)
+            else status.HTTP_409_CONFLICT if isinstance(exc, ParamMismatch)
+            else status.HTTP_504_GATEWAY_TIMEOUT if isinstance(exc, ParamTimeout)
+            else status.HTTP_404_NOT_FOUND if isinstance(exc, (UnknownParam, ProfileError))
+            else status.HTTP_422_UNPROCESSABLE_CONTENT)
+    return HTTPException(code, detail=str(exc))
+
+
+async def tuning_session(request: Request, station: GroundStation = Depends(get_station)) -> TuningSession:
+    state = request.app.state
+    if getattr(state, "tuning_lock", None) is None:
+        state.tuning_lock = asyncio.Lock()
+    async with state.tuning_lock:
+        if getattr(state, "tuning", None) is None:
+            try:
+                state.tuning = await open_session(station.params)
+            except (ParamError, ProfileError) as exc:
+                raise http_error(exc) from None
+    return state.tuning
+
+
+@router.get("/api/params")
+async def get_params(station: GroundStation = Depends(get_station)) -> dict:
+    params = station.params
+    return {"progress": params.progress(), "complete": params.complete, "bytewise": params.bytewise,
+            "params": [p.as_dict() for p in sorted(params.table.values(), key=lambda p: p.name)]}
+
+
+@router.post("/api/params/download", status_code=status.HTTP_202_ACCEPTED, dependencies=[Depends(require_token)])
+async def start_download(request: Request, station: GroundStation = Depends(get_station)) -> dict:
+    task = getattr(request.app.state, "param_download", None)
+    running = task is not None and not task.done()
+    if not running:
+        task = asyncio.get_running_loop().create_task(station.params.download())
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())  # the error stays in progress()
+        request.app.state.param_download = task
+    return {"download": "already running" if running else "started", "progress": station.params.progress()}
+
+
+@router.get("/api/tuning")
+async def get_tuning(session: TuningSession = Depends(tuning_session)) -> dict:
+    return session.as_dict()
+
+
+@router.put("/api/tuning/{name}", dependencies=[Depends(require_token)],
+            responses={404: {"description": "unknown parameter"},
+                       409: {"description": "the vehicle stored another value"},
+                       422: {"description": "refused: not in the profile, out of bounds or too large a step"},
+                       429: {"description": "too soon after the previous write"},
+                       504: {"description": "the vehicle did not answer"}})
+async def put_tuned(name: str, body: TunedValue, request: Request,
+                    session: TuningSession = Depends(tuning_session)) -> dict:
+    old = session.params.table[name].value if name in session.params.table else None
+    try:
+        stored = await session.set(name, body.value, client_name(request))
+    except ParamError as exc:
+        raise http_error(exc) from None
+    return {"name": name, "old": old, "new": stored.value, "verified": True,
+            "preflight": session.preflight.get(name)}
+
+
+@router.post("/api/tuning/revert", dependencies=[Depends(require_token)])
+async def revert(request: Request, session: TuningSession = Depends(tuning_session)) -> dict:
+    try:
+        restored = await session.revert(client_name(request))
+    except ParamError as exc:
+        raise http_error(exc) from None
+    return {"restored": [p.as_dict() for p in restored], "params": session.rows()}

@@ -1,0 +1,68 @@
+"""Live data for the page: WS /ws/live pushes every attitude sample of every source as it
+arrives (frames of ≤ 10 ms, see gcs.server.live), and GET /api/history fills a new page's window
+from the live store at once.
+
+Messages on /ws/live, JSON text:
+* `{"type":"hello","client":ID,"history_s":S}` once;
+* `{"type":"points","seq":N,"server_time":T,"points":{SOURCE:[[t...],[roll...],[pitch...],[yaw...]]}}`
+  (vehicle seconds; degrees);
+* `{"type":"batch","frames":[...]}`: several frames at once, when this client fell behind;
+* `{"type":"gain",...}`: a gain changed (the event log record);
+* `{"type":"client",...}`: this client's counters (sent, dropped), about once a second.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
+from fastapi.responses import Response
+
+from gcs.server.deps import get_hub
+from gcs.server.live import ClientFeed, LiveHub
+from gcs.server.models import History
+
+router = APIRouter(tags=["live"])
+
+#: Seconds between a client's own counter messages.
+CLIENT_STATS_PERIOD = 1.0
+
+
+@router.get("/api/history", response_model=History)
+def get_history(seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
+                hub: LiveHub = Depends(get_hub)) -> Response:
+    # Encoded here, not validated by pydantic: a 10-minute window is a million numbers.
+    body = json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
+    return Response(body, media_type="application/json")
+
+
+@router.websocket("/ws/live")
+async def live(ws: WebSocket, hub: LiveHub = Depends(get_hub)) -> None:
+    await ws.accept()
+    feed = hub.connect(f"{ws.client.host}:{ws.client.port}" if ws.client else "?")
+    sender = asyncio.create_task(send_feed(ws, feed))
+    try:
+        await ws.send_text(json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
+        while True:  # the page sends nothing we need; reading notices the disconnect
+            await ws.receive_text()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        hub.disconnect(feed)
+        sender.cancel()
+        await asyncio.gather(sender, return_exceptions=True)
+
+
+async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
+    """Send this client's queue as fast as it reads; its counters about once a second."""
+    last_stats = time.monotonic()
+    while True:
+        text, points = await feed.next_message()
+        await ws.send_text(text)
+        feed.sent(points)
+        now = time.monotonic()
+        if now - last_stats >= CLIENT_STATS_PERIOD:
+            last_stats = now
+            await ws.send_text(json.dumps({"type": "client", **feed.as_dict()}))

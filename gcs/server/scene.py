@@ -1,0 +1,154 @@
+"""The viser side of the dashboard: the 3-D pose view and the gain panel.
+
+**Display frame.** Our attitudes rotate body FRD into earth NED. viser (three.js) draws z up, so
+both frames are turned 180° about their x axis: earth NED → NWU (x north, y west, z up) and body
+FRD → FLU (x forward, y left, z up). For a quaternion that conjugation is (w, x, y, z) →
+(w, x, −y, −z) (`display_wxyz`); viser frames take wxyz. Looking at the scene from above, north
+is +x (red axis of the ground frame), and a nose-up pitch raises the nose.
+
+The scene: a ground grid with a NWU frame, the vehicle at the onboard attitude (solid, with body
+axes), and one translucent ghost per estimator (its own colour, body axes) overlaid at the same
+origin, so any disagreement shows as a visible split. `PoseView.update` runs ~30 Hz on the
+server's event loop (viser handles are thread-safe).
+
+The panel has one slider per declared gain (log10 scale for wide ranges, see gcs.server.gains),
+a reset button per estimator, and follows gain events so changes made on the page show here.
+viser callbacks run on viser's threads: they hop to the event loop with call_soon_threadsafe.
+viser has no authentication, so when the server needs a token the panel is read-only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from typing import Callable
+
+import numpy as np
+import viser
+
+from gcs.estimators.pipeline import AttitudePoint
+from gcs.events import Event
+from gcs.rotation import euler_to_quat
+from gcs.server.gains import GainControl, slider_spec
+
+#: Ghost colours per estimator (falls back to grey); the page uses the same ones.
+COLORS = {"onboard": (30, 30, 30), "dcm": (214, 39, 40), "kf": (31, 119, 180), "ekf": (44, 160, 44),
+          "truth": (148, 103, 189), "ahrs2": (255, 127, 14)}
+GHOST_OPACITY = 0.35
+
+
+def display_wxyz(q) -> tuple[float, float, float, float]:
+    """Body FRD→NED quaternion (w, x, y, z) as the FLU→NWU rotation viser draws."""
+    return float(q[0]), float(q[1]), -float(q[2]), -float(q[3])
+
+
+def add_ground(server: viser.ViserServer) -> None:
+    server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, position=(0.0, 0.0, -0.6))
+    server.scene.add_frame("/ground/nwu", axes_length=0.4, axes_radius=0.01)
+    server.scene.add_label("/ground/north", "N", position=(2.1, 0.0, 0.0))
+    server.initial_camera.position = (-2.2, -2.2, 1.4)
+    server.initial_camera.look_at = (0.0, 0.0, 0.0)
+
+
+def add_vehicle(server: viser.ViserServer, name: str, color: tuple[int, int, int], opacity: float | None,
+                axes_length: float) -> viser.FrameHandle:
+    """A quadcopter-like body under a frame /name: fuselage, two arms, a nose marker, body axes."""
+    frame = server.scene.add_frame(f"/{name}", axes_length=axes_length, axes_radius=0.012)
+    server.scene.add_box(f"/{name}/fuselage", color=color, dimensions=(0.7, 0.16, 0.08), opacity=opacity)
+    for k, angle in enumerate((math.pi / 4, -math.pi / 4)):
+        server.scene.add_box(f"/{name}/arm{k}", color=color, dimensions=(0.9, 0.04, 0.03), opacity=opacity,
+                             wxyz=(math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)))
+    server.scene.add_icosphere(f"/{name}/nose", radius=0.06, color=(250, 200, 0), opacity=opacity,
+                               position=(0.38, 0.0, 0.0))
+    return frame
+
+
+class PoseView:
+    """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output."""
+
+    def __init__(self, server: viser.ViserServer, estimators: list[str]) -> None:
+        add_ground(server)
+        self.onboard = add_vehicle(server, "onboard", COLORS["onboard"], None, axes_length=0.5)
+        self.ghosts = {name: add_vehicle(server, f"ghost_{name}", COLORS.get(name, (128, 128, 128)), GHOST_OPACITY,
+                                         axes_length=0.35)
+                       for name in estimators}
+
+    def update(self, latest: dict[str, AttitudePoint], quaternions: dict[str, np.ndarray]) -> None:
+        onboard = latest.get("onboard")
+        if onboard is not None:
+            self.onboard.wxyz = display_wxyz(euler_to_quat(onboard.roll, onboard.pitch, onboard.yaw))
+        for name, ghost in self.ghosts.items():
+            if name in latest:
+                ghost.wxyz = display_wxyz(quaternions[name])
+
+
+class GainPanel:
+    """viser sliders for every declared gain, driving GainControl on the event loop."""
+
+    def __init__(self, server: viser.ViserServer, gains: GainControl, loop: asyncio.AbstractEventLoop,
+                 editable: bool) -> None:
+        self.gains = gains
+        self.loop = loop
+        self.sliders: dict[tuple[str, str], tuple[viser.GuiInputHandle, str]] = {}
+        self._reflecting = False
+        with server.gui.add_folder("Estimator gains"):
+            if not editable:
+                server.gui.add_markdown("Read-only here: this server needs a token, change gains on the page.")
+            for name, est in gains.pipeline.estimators.items():
+                with server.gui.add_folder(name, expand_by_default=False):
+                    for gain in est.gains.declarations.values():
+                        self._add_slider(server, name, gain, est, editable)
+                    reset = server.gui.add_button(f"reset {name} to {est.DEFAULT_PRESET}", disabled=not editable)
+                    reset.on_click(self._on_reset(name))
+
+    def _add_slider(self, server, estimator: str, gain, est, editable: bool) -> None:
+        spec = slider_spec(gain, est.gains.presets)
+        label = f"{gain.name} (log₁₀ {gain.unit})" if spec.scale == "log" else f"{gain.name} ({gain.unit})" if gain.unit else gain.name
+        slider = server.gui.add_slider(label, min=spec.lo, max=spec.hi, step=spec.step,
+                                       initial_value=self._position(spec.scale, spec.lo, spec.hi, est.gains[gain.name]),
+                                       hint=f"{gain.meaning} [{gain.min:g} … {gain.max:g} {gain.unit}]",
+                                       disabled=not editable)
+        self.sliders[(estimator, gain.name)] = (slider, spec.scale)
+        slider.on_update(self._on_slider(estimator, gain.name, slider, spec.scale))
+
+    @staticmethod
+    def _position(scale: str, lo: float, hi: float, value: float) -> float:
+        if scale == "log":
+            return min(hi, max(lo, math.log10(value))) if value > 0 else lo
+        return value
+
+    def _on_slider(self, estimator: str, gain: str, slider, scale: str) -> Callable:
+        def changed(_event) -> None:
+            if self._reflecting:
+                return
+            value = 10 ** slider.value if scale == "log" else slider.value
+            self.loop.call_soon_threadsafe(self._apply, estimator, gain, value)
+        return changed
+
+    def _apply(self, estimator: str, gain: str, value: float) -> None:
+        """Apply a slider position (clamped: 10**log10(max) may round past max), unless it only
+        echoes the current value."""
+        gains = self.gains.estimator(estimator).gains
+        declared = gains.declarations[gain]
+        value = min(declared.max, max(declared.min, value))
+        if not math.isclose(gains[gain], value, rel_tol=1e-9, abs_tol=1e-15):
+            self.gains.set(estimator, gain, value, "viser")
+
+    def _on_reset(self, estimator: str) -> Callable:
+        def clicked(_event) -> None:
+            self.loop.call_soon_threadsafe(self.gains.reset, estimator, None, "viser")
+        return clicked
+
+    def reflect(self, event: Event) -> None:
+        """Move a slider to a gain value changed elsewhere (event-log listener, event loop)."""
+        if event.kind != "gain":
+            return
+        entry = self.sliders.get((event.data["estimator"], event.data["gain"]))
+        if entry is None:
+            return
+        slider, scale = entry
+        self._reflecting = True
+        try:
+            slider.value = self._position(scale, slider.min, slider.max, event.data["new"])
+        finally:
+            self._reflecting = False

@@ -1,0 +1,130 @@
+"""The session's columnar tables: estimator outputs (`attitude`) and comparison snapshots
+(`comparison`).
+
+While recording, each table is an Arrow IPC *stream*: a schema, then self-delimiting record
+batches appended every flush, so a file cut by a crash or a full disk is readable up to its last
+complete batch. At close (or recovery) it is converted to Parquet, which is what tools read.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from gcs.sessions import layout
+
+ATTITUDE_SCHEMA = pa.schema([
+    ("wall_time", pa.float64()),  # host UNIX time the point was produced, s
+    ("t", pa.float64()),  # vehicle time, s since boot
+    ("source", pa.string()),  # "onboard", "ahrs2", "truth" or an estimator name
+    ("roll", pa.float64()),  # rad, Z-Y-X
+    ("pitch", pa.float64()),
+    ("yaw", pa.float64()),
+])
+
+#: One row per estimator per reference per snapshot: session RMS / max |error| in degrees.
+COMPARISON_SCHEMA = pa.schema([
+    ("wall_time", pa.float64()),
+    ("estimator", pa.string()),
+    ("reference", pa.string()),
+    ("n", pa.int64()),
+    ("rms_roll", pa.float64()), ("rms_pitch", pa.float64()), ("rms_yaw", pa.float64()),
+    ("max_roll", pa.float64()), ("max_pitch", pa.float64()), ("max_yaw", pa.float64()),
+    ("lag_s", pa.float64()),
+    ("imu_rate_hz", pa.float64()),
+])
+
+SCHEMAS = {"attitude": ATTITUDE_SCHEMA, "comparison": COMPARISON_SCHEMA}
+
+
+def attitude_rows(points, wall_time: float) -> list[tuple]:
+    """AttitudePoints (gcs.estimators.pipeline) → attitude table rows."""
+    return [(wall_time, p.t, p.source, p.roll, p.pitch, p.yaw) for p in points]
+
+
+def comparison_rows(summary: dict, wall_time: float) -> list[tuple]:
+    """EstimationPipeline.summary() → comparison table rows (session statistics)."""
+    rows = []
+    for name, est in summary["estimators"].items():
+        comp = est["comparison"]
+        lag = comp.get("lag")
+        for ref, stats in comp["references"].items():
+            s = stats["session"]
+            rows.append((wall_time, name, ref, s["n"], *s["rms"], *s["max"],
+                         math.nan if lag is None else lag, comp["imu_rate"]))
+    return rows
+
+
+class StreamEncoder:
+    """Encodes rows of one table as Arrow IPC stream bytes; `encode(rows)` returns the bytes to
+    append to the file (the schema header comes with the first call)."""
+
+    def __init__(self, schema: pa.Schema) -> None:
+        self.schema = schema
+        self._sink = io.BytesIO()
+        self._writer = pa.ipc.new_stream(self._sink, schema)
+
+    def encode(self, rows: list[tuple]) -> bytes:
+        if rows:
+            columns = list(zip(*rows))
+            batch = pa.record_batch([pa.array(c, type=f.type) for c, f in zip(columns, self.schema)],
+                                    schema=self.schema)
+            self._writer.write_batch(batch)
+        data = self._sink.getvalue()
+        self._sink.seek(0)
+        self._sink.truncate()
+        return data
+
+
+def read_stream(path: Path, schema: pa.Schema) -> tuple[pa.Table, int | None]:
+    """Every complete batch of an Arrow IPC stream file, and the byte offset where an incomplete
+    or damaged tail starts (None when the file is whole)."""
+    data = path.read_bytes() if path.exists() else b""
+    batches: list[pa.RecordBatch] = []
+    if not data:
+        return schema.empty_table(), None
+    buf = pa.BufferReader(data)
+    try:
+        reader = pa.ipc.open_stream(buf)
+    except pa.ArrowInvalid:
+        return schema.empty_table(), 0
+    damage = None
+    while True:
+        good = buf.tell()
+        try:
+            batches.append(reader.read_next_batch())
+        except StopIteration:
+            break
+        except (pa.ArrowInvalid, OSError):
+            damage = good
+            break
+    if damage is None and buf.tell() < len(data):
+        damage = buf.tell()
+    return pa.Table.from_batches(batches, schema=schema), damage
+
+
+def finish_table(folder: Path, table: str) -> dict:
+    """Convert table's Arrow stream to Parquet and remove the stream; returns what happened
+    (rows, and the damage offset if the stream's tail was cut)."""
+    stream = layout.stream_path(folder, table)
+    if not stream.exists():
+        return {"rows": 0, "converted": False}
+    data, damage = read_stream(stream, SCHEMAS[table])
+    pq.write_table(data, layout.parquet_path(folder, table))
+    stream.unlink()
+    report = {"rows": data.num_rows, "converted": True}
+    if damage is not None:
+        report["damaged_at"] = damage
+    return report
+
+
+def read_table(folder: Path, table: str) -> pa.Table:
+    """A session's table, from Parquet if the session is closed, else from the live stream."""
+    parquet = layout.parquet_path(folder, table)
+    if parquet.exists():
+        return pq.read_table(parquet)
+    return read_stream(layout.stream_path(folder, table), SCHEMAS[table])[0]

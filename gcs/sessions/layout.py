@@ -1,0 +1,113 @@
+"""Where a recorded session lives on disk and what its files are called.
+
+A session is one folder `YYYY-MM-DD_HH-MM-SS_<vehicle>/` under the recording root. While it is
+being recorded the estimator outputs are Arrow IPC streams (readable up to the last complete
+batch after a crash); closing or recovering the session converts them to Parquet. `meta.json`
+without an `end` marks a session still open, or left open by a crash.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+TLOG = "telemetry.tlog"
+EVENTS = "events.jsonl"
+META = "meta.json"
+LOCK = ".recording.lock"
+#: table name → columns are defined in gcs.sessions.columnar
+TABLES = ("attitude", "comparison")
+STREAM_SUFFIX = ".arrows"
+PARQUET_SUFFIX = ".parquet"
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def folder_name(start_wall: float, vehicle: str) -> str:
+    """`YYYY-MM-DD_HH-MM-SS_<vehicle>` in local time, as people read dates at the field."""
+    stamp = time.strftime("%Y-%m-%d_%H-%M-%S", time.localtime(start_wall))
+    return f"{stamp}_{safe_label(vehicle)}"
+
+
+def safe_label(text: str) -> str:
+    """A folder-name-safe version of a vehicle label."""
+    return _UNSAFE.sub("-", text).strip("-").lower() or "vehicle"
+
+
+def unique_folder(root: Path, name: str) -> Path:
+    """root/name, or root/name-2, -3 ... when a session already has that name (never overwrite)."""
+    candidate, n = root / name, 2
+    while candidate.exists():
+        candidate, n = root / f"{name}-{n}", n + 1
+    return candidate
+
+
+def stream_path(folder: Path, table: str) -> Path:
+    return folder / f"{table}{STREAM_SUFFIX}"
+
+
+def parquet_path(folder: Path, table: str) -> Path:
+    return folder / f"{table}{PARQUET_SUFFIX}"
+
+
+def is_session(path: Path) -> bool:
+    return path.is_dir() and (path / META).is_file()
+
+
+def read_meta(folder: Path) -> dict:
+    """meta.json of a session; an unreadable one is reported as such, not raised."""
+    try:
+        return json.loads((folder / META).read_text())
+    except (OSError, ValueError) as exc:
+        return {"error": f"{folder / META}: unreadable meta.json ({exc})"}
+
+
+def write_meta(folder: Path, meta: dict) -> None:
+    """Replace meta.json atomically (write a temporary file, then rename), so a crash or a full
+    disk leaves the previous complete version in place."""
+    tmp = folder / (META + ".tmp")
+    with open(tmp, "w") as fh:
+        json.dump(meta, fh, indent=2, default=str)
+    os.replace(tmp, folder / META)
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """One session as `gcs sessions` and the dashboard list it."""
+
+    name: str
+    path: str
+    start: float | None
+    end: float | None
+    duration_s: float | None
+    size_bytes: int
+    vehicle: str | None
+    open: bool
+    recovered: bool
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def session_info(folder: Path) -> SessionInfo:
+    meta = read_meta(folder)
+    start, end = meta.get("start"), meta.get("end")
+    size = sum(f.stat().st_size for f in folder.iterdir() if f.is_file())
+    return SessionInfo(
+        name=folder.name, path=str(folder), start=start, end=end,
+        duration_s=round(end - start, 3) if start is not None and end is not None else None,
+        size_bytes=size, vehicle=meta.get("vehicle", {}).get("label") if isinstance(meta.get("vehicle"), dict) else None,
+        open=end is None, recovered=bool(meta.get("recovered")),
+    )
+
+
+def list_sessions(root: str | Path) -> list[SessionInfo]:
+    """Every session under root, oldest first (folder names sort by start time)."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return [session_info(p) for p in sorted(root.iterdir()) if is_session(p)]

@@ -1,0 +1,94 @@
+"""The parameter and tuning REST endpoints, on the real app, against the simulator over UDP:
+the token is required for every change when the server is reachable from other machines."""
+
+from __future__ import annotations
+
+import asyncio
+
+import httpx
+
+from live import wait_for
+from test_params_protocol import station_and_sim
+from gcs.server.app import create_app
+from gcs.server.deps import TOKEN_HEADER
+
+TOKEN = "s3cret-token"
+
+
+async def _client(station, token):
+    app = create_app(station, token=token)
+    return app, httpx.AsyncClient(transport=httpx.ASGITransport(app=app, client=("10.0.0.7", 5000)),
+                                  base_url="http://gcs")
+
+
+def test_tuning_over_rest_needs_the_token_when_not_local():
+    async def scenario():
+        async with station_and_sim("apm25", estimate=True, param_clamp={"STB_RLL_P": 4.6}) as (station, sim):
+            app, client = await _client(station, TOKEN)
+            before = sim.params.as_dict()
+            async with client:
+                # Refused before anything else happens: no session, no download, no write.
+                for request in (client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}),
+                                client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16},
+                                           headers={TOKEN_HEADER: "wrong"}),
+                                client.post("/api/tuning/revert"), client.post("/api/params/download")):
+                    response = await request
+                    assert response.status_code == 401, response.text
+                    assert "token" in response.json()["detail"]
+                assert getattr(app.state, "tuning", None) is None
+                assert "PARAM_SET" not in sim.received and "PARAM_REQUEST_LIST" not in sim.received
+                assert sim.params.as_dict() == before
+
+                auth = {TOKEN_HEADER: TOKEN}
+                started = await client.post("/api/params/download", headers=auth)
+                assert started.status_code == 202 and started.json()["download"] == "started"
+                await wait_for(lambda: station.params.complete, 20, "the download")
+                table = (await client.get("/api/params")).json()
+                assert table["progress"]["state"] == "complete" and len(table["params"]) == len(before)
+
+                tuning = (await client.get("/api/tuning")).json()
+                assert tuning["profile"] == "arducopter-3.2"
+                assert tuning["limits"] == {"per_param_interval_s": 0.2, "max_writes_per_s": 5}
+                row = next(r for r in tuning["params"] if r["name"] == "RATE_RLL_P")
+                assert row["min"] == 0.08 and row["max"] == 0.3 and row["preflight"] == row["current"]
+
+                ok = await client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}, headers=auth)
+                assert ok.status_code == 200, ok.text
+                assert ok.json()["verified"] is True and abs(ok.json()["new"] - 0.16) < 1e-6
+                assert abs(sim.params["RATE_RLL_P"] - 0.16) < 1e-6
+                too_soon = await client.put("/api/tuning/RATE_RLL_P", json={"value": 0.17}, headers=auth)
+                assert too_soon.status_code == 429 and "wait" in too_soon.json()["detail"]
+                refused = await client.put("/api/tuning/RATE_RLL_P", json={"value": 0.5}, headers=auth)
+                assert refused.status_code == 422
+                assert "outside the allowed range [0.08, 0.3]" in refused.json()["detail"]
+                other = await client.put("/api/tuning/FRAME", json={"value": 0}, headers=auth)
+                assert other.status_code == 422 and "not in the tuning profile" in other.json()["detail"]
+                bad = await client.put("/api/tuning/RATE_PIT_P", json={"value": "fast"}, headers=auth)
+                assert bad.status_code == 422
+                clamped = await client.put("/api/tuning/STB_RLL_P", json={"value": 5.0}, headers=auth)
+                assert clamped.status_code == 409
+                assert clamped.json()["detail"] == "STB_RLL_P: vehicle stored 4.6, asked 5"
+
+                reverted = await client.post("/api/tuning/revert", headers=auth)
+                assert reverted.status_code == 200, reverted.text
+                assert {p["name"] for p in reverted.json()["restored"]} == {"RATE_RLL_P", "STB_RLL_P"}
+                assert sim.params.as_dict() == before
+
+            writes = [e.data | {"client": e.client} for e in station.events.recent if e.kind == "param"]
+            assert [(w["name"], w["verified"], w["client"]) for w in writes] == [
+                ("RATE_RLL_P", True, "api:10.0.0.7"), ("STB_RLL_P", False, "api:10.0.0.7"),
+                ("RATE_RLL_P", True, "api:10.0.0.7"), ("STB_RLL_P", True, "api:10.0.0.7")]
+
+    asyncio.run(asyncio.wait_for(scenario(), 90))
+
+
+def test_local_server_needs_no_token():
+    async def scenario():
+        async with station_and_sim("px4", estimate=True) as (station, sim):
+            _, client = await _client(station, None)
+            async with client:
+                ok = await client.put("/api/tuning/MC_ROLL_P", json={"value": 6.0})
+                assert ok.status_code == 200, ok.text
+            assert sim.params["MC_ROLL_P"] == 6.0
+
+    asyncio.run(asyncio.wait_for(scenario(), 60))

@@ -1,0 +1,50 @@
+"""`gcs report` writes one self-contained HTML page; `gcs export` writes what it says."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pyarrow.csv as pcsv
+import pyarrow.parquet as pq
+
+from gcs.cli import main
+
+
+def test_report_of_dataflash_log(logs_dir, tmp_path, capsys):
+    out = tmp_path / "hop.html"
+    assert main(["report", str(logs_dir / "arducopter-sitl-hop.BIN"), "--out", str(out)]) == 0
+    page = out.read_text()
+    images = re.findall(r"<img src='data:image/png;base64,([A-Za-z0-9+/=]+)'>", page)
+    assert len(images) == 2 and all(len(i) > 10_000 for i in images)  # attitude and errors vs truth
+    assert "Errors against truth" in page
+    for estimator in ("dcm", "kf", "ekf"):
+        assert re.search(rf"<td>{estimator}</td><td>truth</td><td>980</td>", page)
+    assert "<td>IMU</td><td>2450</td><td>25.0</td>" in page  # rates table
+    assert "src='http" not in page and "<script" not in page  # self-contained
+    assert "100.0 %" in capsys.readouterr().err  # progress bar
+
+
+def test_report_of_tlog_shows_packet_loss(logs_dir, tmp_path):
+    out = tmp_path / "vtol.html"
+    assert main(["report", str(logs_dir / "arduplane-sitl-vtol.tlog"), "--out", str(out)]) == 0
+    page = out.read_text()
+    assert "lost (by sequence number)" in page and "cannot follow" in page  # 4 Hz IMU: flagged
+
+
+def test_export_csv_and_parquet(logs_dir, tmp_path):
+    csv_out, parquet_out = tmp_path / "a.csv", tmp_path / "a.parquet"
+    log = str(logs_dir / "ardupilot-fragment.bin")
+    assert main(["export", log, "--format", "csv", "--out", str(csv_out)]) == 0
+    assert main(["export", log, "--format", "parquet", "--out", str(parquet_out)]) == 0
+    table = pcsv.read_csv(csv_out)
+    assert table.column_names == ["wall_time", "t", "source", "roll_deg", "pitch_deg", "yaw_deg"]
+    parquet = pq.read_table(parquet_out)
+    assert parquet.column_names == table.column_names and parquet.num_rows == table.num_rows > 100
+    assert np.allclose(parquet.column("roll_deg").to_numpy(), table.column("roll_deg").to_numpy())
+    assert set(table.column("source").to_pylist()) >= {"onboard", "ahrs2", "dcm"}
+
+
+def test_export_of_missing_session_is_a_clear_error(tmp_path, capsys):
+    assert main(["export", str(tmp_path / "nope"), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "nope: no such file or session folder" in capsys.readouterr().err

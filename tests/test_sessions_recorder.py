@@ -1,0 +1,165 @@
+"""Recording: a session survives kill -9 and is recovered on the next start; a full disk stops
+the recording with a clear error while the live view keeps running and the files stay valid."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from conftest import ROOT, free_port
+from gcs.link.tlog import read_tlog_records
+from gcs.sessions import columnar, layout
+from live import running_sim, running_station, wait_for
+
+PY = sys.executable
+#: Wall seconds recorded before the kill; the simulator runs 2.5x, so this is 30 s of flight.
+RECORD_WALL_S = 12.0
+SIM_SPEED = 2.5
+
+
+def _spawn(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([PY, "-m", "gcs", *args], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _one_session(root: Path) -> Path:
+    sessions = [p for p in root.iterdir() if layout.is_session(p)]
+    assert len(sessions) == 1, sessions
+    return sessions[0]
+
+
+def _pymavlink_count(path: Path) -> int:
+    conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
+    n = 0
+    while conn.recv_msg() is not None:
+        n += 1
+    return n
+
+
+def test_kill9_loses_under_a_second_and_session_is_recovered(tmp_path):
+    port = free_port()
+    root = tmp_path / "sessions"
+    sim = _spawn("sim", "--link", f"udpout:127.0.0.1:{port}", "--script", "quad", "--speed", str(SIM_SPEED))
+    gcs = _spawn("status", "--connect", f"udpin:127.0.0.1:{port}", "--duration", "60", "--record-dir", str(root))
+    try:
+        deadline = time.monotonic() + 20
+        while not (root.is_dir() and any((p / layout.TLOG).exists() for p in root.iterdir())):
+            assert time.monotonic() < deadline, "no session folder appeared"
+            assert gcs.poll() is None, gcs.stderr.read().decode()
+            time.sleep(0.1)
+        time.sleep(RECORD_WALL_S)
+        killed_at = time.time()
+        gcs.send_signal(signal.SIGKILL)
+        gcs.wait(5)
+    finally:
+        for proc in (gcs, sim):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
+
+    folder = _one_session(root)
+    assert layout.read_meta(folder)["end"] is None  # left open by the crash
+    tlog = folder / layout.TLOG
+    records = read_tlog_records(tlog)
+    stamps = [usec for usec, _ in records]
+    assert records.skipped == 0 and records.truncated_at is None, (records.skipped, records.truncated_at)
+    assert _pymavlink_count(tlog) == len(stamps)
+    last = max(u & ~3 for u in stamps) / 1e6
+    lost = killed_at - last
+    print(f"\nkill -9 after {RECORD_WALL_S} s: {len(stamps)} records, last record {lost:.3f} s before the kill")
+    assert lost < 1.0
+    assert sum(1 for u in stamps if u & 3 == 3) >= RECORD_WALL_S / 2  # our heartbeats, marked as sent
+    assert columnar.read_stream(layout.stream_path(folder, "attitude"), columnar.ATTITUDE_SCHEMA)[0].num_rows > 0
+
+    async def restart() -> dict:
+        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(root)) as station:
+            return station.status()["recording"]
+
+    status = asyncio.run(restart())
+    assert [r["session"] for r in status["recovered"]] == [folder.name]
+    meta = layout.read_meta(folder)
+    assert meta["recovered"] is True
+    assert meta["end"] == pytest.approx(last, abs=1e-6)
+    assert columnar.read_table(folder, "attitude").num_rows > 0
+    assert not layout.stream_path(folder, "attitude").exists()
+    events = [json.loads(line) for line in (folder / layout.EVENTS).read_text().splitlines()]
+    assert events[-1]["event"] == "recovered"
+    assert len(layout.list_sessions(root)) == 2  # the old one kept, the new one closed normally
+
+
+@contextlib.contextmanager
+def _small_disk(path: Path, size: str = "64k"):
+    """A 64 KiB tmpfs at path; without permission to mount, RLIMIT_FSIZE gives the same EFBIG-style
+    write error for files over the limit."""
+    path.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                             capture_output=True).returncode == 0
+    if mounted:
+        try:
+            yield "tmpfs"
+        finally:
+            subprocess.run(["umount", "-l", str(path)], check=False)
+        return
+    old_limit = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, old_limit[1]))
+    try:
+        yield "rlimit"
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, old_limit)
+        signal.signal(signal.SIGXFSZ, old_handler)
+
+
+def test_full_disk_gives_clear_error_and_keeps_valid_files(tmp_path):
+    disk = tmp_path / "disk"
+    port = free_port()
+
+    async def record() -> tuple[dict, int, int, list]:
+        async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0):
+            async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(disk)) as station:
+                await wait_for(lambda: station.recorder.state == "failed", 30, "the disk to fill")
+                imu_at_failure = station.estimation.pipeline.imu_samples
+                await asyncio.sleep(1.0)
+                events = [e.as_dict() for e in station.events.recent if e.kind == "recording"]
+                return station.status()["recording"], imu_at_failure, station.estimation.pipeline.imu_samples, events
+
+    with _small_disk(disk) as how:
+        status, imu_at_failure, imu_later, events = asyncio.run(record())
+        print(f"\nfull disk via {how}: {status['error']}")
+        assert status["state"] == "failed"
+        assert "cannot write" in status["error"] and ("No space left" in status["error"] or "too large" in status["error"])
+        assert any(e.get("event") == "error" for e in events)
+        assert imu_later > imu_at_failure  # the live estimation kept running
+        folder = _one_session(disk)
+        tlog = folder / layout.TLOG
+        records = read_tlog_records(tlog)
+        n = sum(1 for _ in records)
+        assert n > 0 and records.skipped == 0 and records.truncated_at is None
+        assert _pymavlink_count(tlog) == n
+        for line in (folder / layout.EVENTS).read_text().splitlines():
+            json.loads(line)
+        assert "error" in layout.read_meta(folder) or layout.read_meta(folder)["end"] is None
+
+
+def test_unwritable_folder_is_reported_not_raised(tmp_path):
+    blocked = tmp_path / "file-not-dir"
+    blocked.write_text("")
+
+    async def run() -> dict:
+        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(blocked / "sessions")) as st:
+            await asyncio.sleep(0.2)
+            return st.status()["recording"]
+
+    status = asyncio.run(run())
+    assert status["state"] == "failed"
+    assert str(blocked) in status["error"]

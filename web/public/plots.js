@@ -1,0 +1,221 @@
+// Live attitude plots: every received sample is kept (last 10 minutes per source); each frame
+// draws the visible window reduced to min and max per pixel column, so a one-sample spike is
+// never hidden, at any window length. Columns sit on an absolute time grid, so a live view only
+// bins the samples that arrived since the previous frame.
+"use strict";
+
+const KEEP_S = 620;           // seconds of samples kept per source (10 min window + margin)
+const AXES = ["roll", "pitch", "yaw"];
+const REFERENCES = ["onboard", "ahrs2", "truth"];
+const ERROR_REFERENCES = ["onboard", "truth"];
+const COLORS = { onboard: "#1e1e1e", ahrs2: "#ff7f0e", truth: "#9467bd", dcm: "#d62728", kf: "#1f77b4", ekf: "#2ca02c" };
+const DASH = { onboard: [], truth: [6, 3] };
+
+// A time series: t and [roll, pitch, yaw] arrays; `base` counts samples trimmed from the front,
+// so absolute index i lives at i - base.
+class Series {
+  constructor() { this.t = []; this.v = [[], [], []]; this.base = 0; }
+  get end() { return this.base + this.t.length; }
+  last() { return this.t.length ? this.t[this.t.length - 1] : -Infinity; }
+  push(t, r, p, y) { this.t.push(t); this.v[0].push(r); this.v[1].push(p); this.v[2].push(y); }
+  trim(t0) {
+    let n = 0; while (n < this.t.length && this.t[n] < t0) n++;
+    if (n > 1000 || (n && n === this.t.length)) {
+      this.t.splice(0, n); for (const a of this.v) a.splice(0, n); this.base += n;
+    }
+  }
+  firstAtOrAfter(t) {  // absolute index of the first sample with time >= t
+    let lo = 0, hi = this.t.length;
+    while (lo < hi) { const m = (lo + hi) >> 1; if (this.t[m] < t) lo = m + 1; else hi = m; }
+    return lo + this.base;
+  }
+  count(t0, t1) { return this.firstAtOrAfter(t1 + 1e-9) - this.firstAtOrAfter(t0); }
+}
+
+const wrap180 = (d) => ((d + 540) % 360) - 180;
+
+// Errors estimator − reference at each reference time, the estimator interpolated there (the
+// same scoring as gcs.estimators.compare), computed as soon as the estimator has passed it.
+class ErrorSeries extends Series {
+  constructor(est, ref) { super(); this.est = est; this.ref = ref; this.next = 0; }
+  update() {
+    const est = this.est, ref = this.ref;
+    if (!est.t.length) return;
+    this.next = Math.max(this.next, ref.base, est.t.length ? ref.firstAtOrAfter(est.t[0]) : 0);
+    const tEst = est.last();
+    while (this.next < ref.end) {
+      const i = this.next - ref.base, t = ref.t[i];
+      if (t > tEst) break;
+      const k = est.firstAtOrAfter(t) - est.base;
+      const e = [0, 0, 0];
+      for (let a = 0; a < 3; a++) {
+        let v = est.v[a][k];
+        if (est.t[k] > t && k > 0) {
+          const u = (t - est.t[k - 1]) / (est.t[k] - est.t[k - 1]);
+          v = est.v[a][k - 1] + u * wrap180(est.v[a][k] - est.v[a][k - 1]);
+        }
+        e[a] = wrap180(v - ref.v[a][i]);
+      }
+      this.push(t, e[0], e[1], e[2]);
+      this.next++;
+    }
+  }
+}
+
+// Min and max of one series axis per column of width dt on an absolute grid (column c covers
+// [c*dt, (c+1)*dt)), in a ring of `size` columns; fed incrementally.
+class Binner {
+  constructor(series, axis, size) {
+    this.series = series; this.axis = axis; this.size = size;
+    this.col = new Float64Array(size).fill(NaN); this.mn = new Float64Array(size); this.mx = new Float64Array(size);
+    this.minFirst = new Uint8Array(size); this.dt = 0; this.done = 0;
+  }
+  reset(dt, t0) {
+    this.dt = dt; this.col.fill(NaN); this.done = this.series.firstAtOrAfter(t0 - dt);
+  }
+  update(t1) {
+    const s = this.series, vals = s.v[this.axis];
+    this.done = Math.max(this.done, s.base);
+    while (this.done < s.end) {
+      const i = this.done - s.base, t = s.t[i];
+      if (t > t1) break;
+      const c = Math.floor(t / this.dt), j = ((c % this.size) + this.size) % this.size, v = vals[i];
+      if (this.col[j] !== c) { this.col[j] = c; this.mn[j] = v; this.mx[j] = v; this.minFirst[j] = 1; }
+      else if (v < this.mn[j]) { this.mn[j] = v; this.minFirst[j] = 0; }
+      else if (v > this.mx[j]) { this.mx[j] = v; this.minFirst[j] = 1; }
+      this.done++;
+    }
+  }
+  fill(c0, ncols, out) {  // two values per column, min and max in the order they happened
+    for (let k = 0; k < ncols; k++) {
+      const c = c0 + k, j = ((c % this.size) + this.size) % this.size;
+      if (this.col[j] === c) {
+        out[2 * k] = this.minFirst[j] ? this.mn[j] : this.mx[j];
+        out[2 * k + 1] = this.minFirst[j] ? this.mx[j] : this.mn[j];
+      } else { out[2 * k] = null; out[2 * k + 1] = null; }
+    }
+  }
+}
+
+// One uPlot chart of one axis for a list of series.
+class Chart {
+  constructor(parent, title, lines, axis, hooks) {
+    this.lines = lines; this.axis = axis; this.key = "";
+    const box = document.createElement("div"); box.className = "chart";
+    box.innerHTML = `<h3>${title}</h3>`; parent.appendChild(box);
+    const opts = {
+      width: Math.max(300, parent.clientWidth - 4), height: 150,
+      scales: { x: { time: false } },
+      cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
+      legend: { live: true },
+      series: [{ label: "vehicle t (s)", value: (u, v) => v == null ? "–" : v.toFixed(3) },
+        ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: true,
+                               points: { show: false }, value: (u, v) => v == null ? "–" : v.toFixed(2) + "°" }))],
+      axes: [{}, { size: 50, values: (u, ticks) => ticks.map((t) => t + "°") }],
+      hooks: { setSelect: [(u) => hooks.select(u)] },
+    };
+    this.u = new uPlot(opts, [[], ...lines.map(() => [])], box);
+    this.u.over.addEventListener("dblclick", hooks.live);
+    this.binners = lines.map((l) => new Binner(l.series, axis, 8192));
+  }
+  draw(t0, t1, live) {
+    const ncols = Math.max(50, Math.round(this.u.bbox.width / devicePixelRatio)), dt = (t1 - t0) / ncols;
+    const key = `${dt}|${live ? "" : t0}`;
+    if (key !== this.key) { this.key = key; for (const b of this.binners) b.reset(dt, t0); }
+    const c0 = Math.floor(t0 / dt), n = Math.floor(t1 / dt) - c0 + 1;
+    const xs = new Float64Array(2 * n);
+    for (let k = 0; k < n; k++) { xs[2 * k] = (c0 + k + 0.25) * dt; xs[2 * k + 1] = (c0 + k + 0.75) * dt; }
+    const data = [xs];
+    for (const b of this.binners) { b.update(t1); const ys = new Array(2 * n); b.fill(c0, n, ys); data.push(ys); }
+    this.u.batch(() => { this.u.setData(data); this.u.setScale("x", { min: t0, max: t1 }); });
+  }
+  resize(width) { this.u.setSize({ width: Math.max(300, width - 4), height: 150 }); }
+}
+
+// Everything the page plots: the sources, the error series, six charts and the draw loop.
+class Plots {
+  constructor(parent, estimators) {
+    this.parent = parent; this.estimators = estimators;
+    this.sources = {}; this.errors = [];
+    for (const s of [...REFERENCES, ...estimators]) this.sources[s] = new Series();
+    for (const e of estimators) for (const r of ERROR_REFERENCES)
+      this.errors.push({ name: `${e} − ${r}`, e, r, series: new ErrorSeries(this.sources[e], this.sources[r]) });
+    this.window = 30; this.paused = false; this.view = null;  // view: {t0, t1} when zoomed or paused
+    this.dirty = true; this.frames = 0; this.fps = 0;
+    this.build();
+    addEventListener("resize", () => { for (const c of this.charts) c.resize(this.parent.clientWidth); this.dirty = true; });
+    requestAnimationFrame((ts) => this.frame(ts));
+    setInterval(() => { this.fps = this.frames; this.frames = 0; this.trim(); }, 1000);
+  }
+  build() {
+    this.parent.innerHTML = "";
+    const hooks = { select: (u) => this.zoom(u), live: () => this.goLive() };
+    const srcLines = Object.keys(this.sources).map((s) => ({ label: s, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
+    const errLines = this.errors.map((x) => ({ label: x.name, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
+    this.charts = [
+      ...AXES.map((a, i) => new Chart(this.parent, a, srcLines, i, hooks)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} error (estimator − reference; dashed: − truth)`, errLines, i, hooks)),
+    ];
+  }
+  newest() { let t = -Infinity; for (const s of Object.values(this.sources)) t = Math.max(t, s.last()); return t; }
+  // Append samples [[t...],[r...],[p...],[y...]] of a source; returns how many were new.
+  add(source, cols) {
+    let s = this.sources[source];
+    if (!s) return 0;
+    const [ts, r, p, y] = cols;
+    let n = 0;
+    for (let i = 0; i < ts.length; i++) {
+      if (ts[i] <= s.last()) {
+        if (ts[i] < s.last() - 5) { this.restart(); s = this.sources[source]; } else continue;  // vehicle clock went back: reboot
+      }
+      s.push(ts[i], r[i], p[i], y[i]); n++;
+    }
+    if (n) this.dirty = true;
+    return n;
+  }
+  // Merge history (same columns as add) into the series, older samples included; the error
+  // series and the charts are then rebuilt over the merged data.
+  load(points) {
+    for (const [source, cols] of Object.entries(points)) {
+      const old = this.sources[source];
+      if (!old) continue;
+      const first = old.t.length ? old.t[0] : Infinity, merged = new Series();
+      for (let i = 0; i < cols[0].length && cols[0][i] < first; i++) merged.push(cols[0][i], cols[1][i], cols[2][i], cols[3][i]);
+      for (let i = 0; i < old.t.length; i++) merged.push(old.t[i], old.v[0][i], old.v[1][i], old.v[2][i]);
+      this.sources[source] = merged;
+      this.add(source, cols);
+    }
+    this.rebuild();
+  }
+  restart() {  // a new vehicle session: start every series afresh
+    for (const k of Object.keys(this.sources)) this.sources[k] = new Series();
+    this.rebuild();
+  }
+  rebuild() {
+    this.errors = this.errors.map((x) => ({ ...x, series: new ErrorSeries(this.sources[x.e], this.sources[x.r]) }));
+    this.build(); this.dirty = true;
+  }
+  trim() { const t0 = this.newest() - KEEP_S; for (const s of [...Object.values(this.sources), ...this.errors.map((x) => x.series)]) s.trim(t0); }
+  zoom(u) {
+    if (u.select.width < 3) return;
+    const t0 = u.posToVal(u.select.left, "x"), t1 = u.posToVal(u.select.left + u.select.width, "x");
+    u.setSelect({ left: 0, width: 0, top: 0, height: 0 }, false);
+    this.view = { t0, t1 }; this.dirty = true;
+  }
+  goLive() { this.view = null; this.paused = false; this.dirty = true; document.getElementById("pause").textContent = "pause"; }
+  togglePause() {
+    if (this.paused || this.view) { this.goLive(); return; }
+    const t1 = this.newest(); this.view = { t0: t1 - this.window, t1 }; this.paused = true;
+    document.getElementById("pause").textContent = "live";
+  }
+  setWindow(seconds) { this.window = seconds; if (this.view && this.paused) this.view.t0 = this.view.t1 - seconds; this.dirty = true; }
+  frame() {
+    if (this.dirty) {
+      this.dirty = false;
+      for (const x of this.errors) x.series.update();
+      const live = !this.view, t1 = live ? this.newest() : this.view.t1, t0 = live ? t1 - this.window : this.view.t0;
+      if (Number.isFinite(t1)) { for (const c of this.charts) c.draw(t0, t1, live); this.frames++; }
+    }
+    requestAnimationFrame((ts) => this.frame(ts));
+  }
+}
