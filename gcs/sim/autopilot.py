@@ -100,10 +100,11 @@ class Autopilot:
             dcm.kp = value
         elif name == "AHRS_YAW_P":
             dcm.kp_yaw = value
-        elif name == "COMPASS_DEC":
+        elif name in ("COMPASS_DEC", "EKF2_MAG_DECL"):
+            declination = value if name == "COMPASS_DEC" else math.radians(value)
             for f in (self.primary, self.secondary):
                 if f is not None:
-                    f.declination = value
+                    f.declination = declination
 
     # --- internal clock ----------------------------------------------------------------------------
 

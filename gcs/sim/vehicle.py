@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import heapq
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -60,8 +61,10 @@ class SimVehicle:
         self.seed, self.speed, self.sysid, self.compid = seed, speed, sysid, compid
         self.home = home or Home()
         self.params = ParamTable(self.profile.param_rows(), bytewise=self.profile.param_bytewise)
-        if "COMPASS_DEC" in self.params:
+        if "COMPASS_DEC" in self.params:  # ArduPilot: radians
             self.params["COMPASS_DEC"] = self.faults.declination
+        if "EKF2_MAG_DECL" in self.params:  # PX4: degrees
+            self.params["EKF2_MAG_DECL"] = math.degrees(self.faults.declination)
         param_seed, autopilot_seed = np.random.SeedSequence(seed).spawn(2)
         self.autopilot = Autopilot(self.profile, self.script, self.faults, self.params, autopilot_seed, self.home)
         self.param_server = ParamServer(self.params, np.random.default_rng(param_seed), drop=param_drop,
