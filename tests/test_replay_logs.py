@@ -101,3 +101,17 @@ def test_estimate_accepts_bin_and_ulg(logs_dir, tmp_path):
         out = tmp_path / f"{name}.csv"
         assert main(["estimate", str(logs_dir / name), "-e", "dcm", "--out", str(out)]) == 0
         assert len(out.read_text().splitlines()) > 2000
+
+
+def test_px4_flight_estimators_follow_onboard_ekf2_roll_and_pitch(logs_dir):
+    """A real PX4 flight (sensor_combined at 248 Hz) against the onboard EKF2 vehicle_attitude.
+    The log has no magnetometer or GPS topics, so yaw has no common reference: only roll and
+    pitch are compared."""
+    session = ReplaySession(open_source(logs_dir / "px4-flight-sample.ulg"), speed=0)
+    session.run_to_end()
+    limits = {"ekf": 0.5, "dcm": 1.0, "kf": 1.0}  # RMS degrees
+    for name, limit in limits.items():
+        onboard = session.pipeline.summary()["estimators"][name]["comparison"]["references"]["onboard"]["session"]
+        roll, pitch, _ = onboard["rms"]
+        assert onboard["n"] > 6000
+        assert roll < limit and pitch < limit, f"{name}: roll/pitch RMS {roll:.2f}/{pitch:.2f} deg vs EKF2"
