@@ -19,8 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", action="append", default=[], metavar="URL",
                         help="also forward the vehicle to this address (e.g. udpout:127.0.0.1:14550 for QGC)")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until Ctrl-C)")
+    from gcs.options import add_record_arguments
     from gcs.server.command import add_server_arguments
 
+    add_record_arguments(parser)
     add_server_arguments(parser)
 
 
@@ -39,11 +41,13 @@ def _free_udp_port() -> int:
 
 
 async def _demo(args: argparse.Namespace) -> None:
+    from gcs.options import record_dir
     from gcs.sim import SimVehicle
     from gcs.station import GroundStation, StationConfig
 
     port = _free_udp_port()
-    station = GroundStation(StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out))
+    station = GroundStation(StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out,
+                                          record_dir=record_dir(args)))
     sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
     print(f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
           flush=True)

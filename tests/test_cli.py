@@ -4,6 +4,7 @@ running as a separate process."""
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 
@@ -43,3 +44,18 @@ def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port
 def test_status_rejects_a_bad_connection_string():
     done = subprocess.run(GCS + ["status", "--connect", "bogus:1:2"], capture_output=True, text=True)
     assert done.returncode == 2 and "unknown scheme" in done.stderr
+
+
+def test_demo_shows_live_data_within_10_s(tmp_path):
+    """The first command a user runs: the dashboard URL, then live link and estimator lines."""
+    from conftest import free_port
+
+    port = free_port(socket.SOCK_STREAM)
+    proc = subprocess.Popen(GCS + ["demo", "--no-record", "--port", str(port), "--duration", "10"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert f"dashboard at http://127.0.0.1:{port}" in out
+    live = [line for line in out.splitlines() if line.startswith("link connected") and "ekf" in line]
+    assert live, f"no live estimator line in 10 s:\n{out}"
+    assert "ATTITUDE" in live[-1] and "truth" in live[-1]

@@ -21,20 +21,17 @@ def add_server_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from gcs.status import add_link_arguments
+    from gcs.options import add_link_arguments
 
     add_link_arguments(parser)
     add_server_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcs.link.address import AddressError
-    from gcs.status import station_config
+    from gcs.options import station_config_or_report
 
-    try:
-        config = station_config(args)
-    except (AddressError, ValueError) as exc:
-        print(f"gcs serve: {exc}", file=sys.stderr)
+    config = station_config_or_report(args, "serve")
+    if config is None:
         return 2
     try:
         asyncio.run(_serve(config, args))

@@ -12,7 +12,7 @@ import argparse
 import asyncio
 import sys
 
-from gcs.status import add_link_arguments, station_config
+from gcs.options import add_link_arguments, station_config
 from gcs.vehicle import param_files
 from gcs.vehicle.params import ParamError, format_value, type_name
 from gcs.vehicle.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
@@ -39,11 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--profile", metavar="NAME|FILE",
                        help=f"refuse values outside this tuning profile's limits ({', '.join(available_profiles())})")
     for p in (get, set_, save, load, diff):
-        add_link_arguments(p)
+        add_link_arguments(p, connect_required=p is not diff)  # two files need no vehicle
         p.add_argument("--timeout", type=float, default=120.0, help="seconds allowed for a full download")
-    for action in diff._actions:
-        if action.dest == "connect":
-            action.required = False  # two files need no vehicle
 
 
 def run(args: argparse.Namespace) -> int:
