@@ -54,11 +54,13 @@ class EstimationPipeline:
         self.comparisons = {name: Comparison(window=window) for name in self.estimators}
         self.latest: dict[str, AttitudePoint] = {}
         self.imu_samples = 0
+        self.messages_fed = 0  # the input position: where a recorded gain change is re-applied on replay
         self.declination: float | None = None
 
     def feed(self, msg) -> list[AttitudePoint]:
         """Fuse one message; returns the attitudes it produced (none, one reference, or one per
         valid estimator after an IMU sample)."""
+        self.messages_fed += 1
         if msg.get_type() == "PARAM_VALUE":
             self._maybe_declination(msg)
             return []

@@ -38,8 +38,6 @@ FLUSH_INTERVAL = 0.25
 SNAPSHOT_INTERVAL = 1.0
 #: Link bits of a tlog timestamp (MAVProxy convention): 0 received, 3 sent by the ground station.
 RECEIVED, SENT = 0, 3
-#: Name of LiveEstimation's bus subscription, whose consumption is the pipeline's input position.
-ESTIMATION_SUBSCRIPTION = "estimation"
 #: VehicleState fields kept in meta.json (the ones that describe the vehicle, not its moment).
 VEHICLE_FIELDS = ("sysid", "compid", "autopilot", "vehicle_type", "mavlink_version", "firmware")
 
@@ -47,15 +45,6 @@ VEHICLE_FIELDS = ("sysid", "compid", "autopilot", "vehicle_type", "mavlink_versi
 def tlog_usec(wall_time: float, link_bits: int) -> int:
     """µs UNIX timestamp with the low 2 bits replaced by the link bits."""
     return (int(wall_time * 1e6) & ~3) | link_bits
-
-
-def estimation_position(bus) -> int:
-    """How many input messages the live estimation pipeline has fed so far: its subscription
-    pops a batch and feeds all of it without yielding, so between two loop steps consumed == fed."""
-    for sub in bus.subscriptions():
-        if sub.name == ESTIMATION_SUBSCRIPTION:
-            return sub.delivered - sub.dropped - len(sub.queue)
-    return 0
 
 
 class Session:
@@ -251,8 +240,8 @@ class SessionRecorder:
         if self.session is None:
             return
         line = event.as_dict()
-        if event.kind == "gain":
-            line["input_index"] = estimation_position(self.station.bus)
+        if event.kind == "gain" and self.station.estimation is not None:
+            line["input_index"] = self.station.estimation.pipeline.messages_fed
         self.session.writer.append(layout.EVENTS, (json.dumps(line, default=str) + "\n").encode())
 
     def _on_param(self, msg) -> None:
