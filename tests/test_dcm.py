@@ -14,6 +14,7 @@ from gcs.sensors import GpsSample
 from gcs.sessions.readers import read_samples
 
 HOP = str(Path(__file__).resolve().parents[2] / "shared/data/logs/arducopter-sitl-hop.tlog")
+BROAD = Path(__file__).resolve().parents[2] / "shared/data/broad"
 D = math.radians
 #: Canberra (the SITL home) magnetic declination: SIMSTATE yaw is true north.
 HOP_DECLINATION = D(12.5)
@@ -90,7 +91,10 @@ def test_gps_acceleration_is_removed_from_the_specific_force():
         return abs(math.degrees(quat_to_euler(est.quaternion)[1]))
 
     assert run(0.0) > 5.0
-    assert run(1.0) < 0.5
+    # The start-up tilt is the accelerating sample's 11.5°, corrected at kp_rp 0.2; the first GPS
+    # dv/dt arrives after 0.2 s and enters the 1 s reference average gradually (0.28° with
+    # accel_tau = 0, 0.57° with the default 1 s).
+    assert run(1.0) < 1.0
 
 
 def test_presets():
@@ -117,3 +121,66 @@ def test_sitl_hop_accuracy_vs_simstate():
     assert without_gps[0] > 1.5 * roll and without_gps[1] > 1.5 * pitch
     seed = hop_rms(**DcmEstimator.PRESETS["seed000"])["truth"]["session"]["rms"]
     assert seed[0] > roll and seed[1] > pitch
+
+
+def test_magnetic_disturbance_is_rejected_then_relearned():
+    """Level and still, then the field grows 40% and turns 30° (a magnet nearby): the heading must
+    not follow it; once the disturbed field has been steady for mag_relearn s of turning it becomes
+    the reference and the yaw correction is used again."""
+    from gcs.rotation import quat_from_rotvec, quat_to_matrix
+
+    def run(**kw):
+        est = DcmEstimator(mag_relearn=5.0, **kw)
+        for s in static(0.0, 0.0, 0.0, rate=100, duration=2):
+            est.update_imu(s)
+        c, sn = math.cos(D(30)), math.sin(D(30))
+        bad = 1.4 * np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array([0.25, 0.0, 0.433])
+        for s in static(0.0, 0.0, 0.0, rate=100, duration=10, t0=2.0):
+            est.update_imu(type(s)(s.t, s.gyro, s.accel, bad, s.source))
+        return est, abs(math.degrees(quat_to_euler(est.quaternion)[2]))
+
+    est, yaw = run()
+    assert yaw < 0.1 and est.health()["mag_disturbed"] and est.health()["yaw_source"] == "mag_rejected"
+    assert run(mag_norm_tol=10.0, mag_dip_tol=math.pi)[1] > 10.0  # without rejection it follows the magnet
+    # turning at 30 deg/s about down in the disturbed (but earth-fixed) field: relearned after 5 s
+    c, sn = math.cos(D(30)), math.sin(D(30))
+    bad = 1.4 * np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array([0.25, 0.0, 0.433])
+    for k in range(800):
+        att = quat_from_rotvec(np.array([0.0, 0.0, D(30) * k / 100]))
+        R = quat_to_matrix(att)
+        s = imu(12.0 + k / 100, att, gyro=(0.0, 0.0, D(30)))
+        est.update_imu(type(s)(s.t, s.gyro, s.accel, R.T @ bad, s.source))
+    assert not est.health()["mag_disturbed"] and est.health()["yaw_source"] == "mag"
+
+
+def broad_rmse(name: str, every: int) -> float:
+    """Total RMS error (deg, BROAD's metric over `movement` samples) of the default DCM on one
+    BROAD trial, keeping every `every`-th sample; sensor → ENU = q(NED → ENU) ⊗ q_est."""
+    h5py = pytest.importorskip("h5py")
+    from gcs.rotation import quat_conjugate, quat_multiply
+    from gcs.sensors import ImuSample
+
+    path = next(BROAD.glob(f"{name}*.hdf5"), None)
+    if path is None:
+        pytest.skip(f"BROAD trial {name} not in {BROAD}")
+    with h5py.File(path, "r") as f:
+        rate = float(f.attrs["sampling_rate"]) / every
+        gyr, acc, mag = (np.asarray(f[k][::every], dtype=float) for k in ("imu_gyr", "imu_acc", "imu_mag"))
+        opt, moving = np.asarray(f["opt_quat"][::every], dtype=float), np.asarray(f["movement"][::every], bool)
+    est, q = DcmEstimator(), np.empty((len(gyr), 4))
+    for k in range(len(gyr)):
+        est.update_imu(ImuSample(k / rate, gyr[k], acc[k], mag[k]))
+        q[k] = est.quaternion
+    q_enu = quat_multiply(np.array([0.0, math.sqrt(0.5), math.sqrt(0.5), 0.0]), q.T)
+    w = quat_multiply(q_enu, quat_conjugate((opt / np.linalg.norm(opt, axis=1, keepdims=True)).T))[0]
+    err = 2 * np.arccos(np.clip(np.abs(w), 0.0, 1.0))
+    err = err[moving & np.isfinite(err)]
+    return float(np.degrees(np.sqrt(np.mean(err * err))))
+
+
+@pytest.mark.parametrize("trial", ["15_undisturbed_fast_translation", "30_disturbed_stationary_magnet"])
+def test_broad_robustness_regression(trial):
+    """Fast translation (linear acceleration, no GPS) and fast rotation near a magnet, at 47.6 Hz:
+    before the earth-frame accel average, accel weight, roll-pitch-only spin gain and magnetic
+    disturbance rejection these scored 22.9° and 21.0° total RMSE; now about 4.5° and 3.6°."""
+    assert broad_rmse(trial, 6) < 7.0
