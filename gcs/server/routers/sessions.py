@@ -1,5 +1,5 @@
 """Sessions over REST: list recorded sessions, download an export, start/stop the recording,
-add a note, drive a replay (play, pause, seek, speed) and ask what-if questions.
+add a note, list log files beside the sessions, drive a replay (play, pause, seek, speed) and ask what-if questions.
 
 Sources are named, never given as paths: a session folder name or a log file name inside the
 recording folder, so a remote page cannot read arbitrary files. State-changing requests need the
@@ -24,7 +24,7 @@ from gcs.sessions import layout
 from gcs.sessions.export import FORMATS, attitude_table, write_table
 from gcs.sessions.readers import InputError
 from gcs.sessions.replay import ReplaySession
-from gcs.sessions.sources import cached_source
+from gcs.sessions.sources import KINDS, cached_source
 from gcs.sessions.whatif import what_if
 from gcs.station import GroundStation
 
@@ -85,6 +85,17 @@ def replay_of(request: Request) -> ReplaySession:
 @router.get("/sessions")
 def list_recorded(station: GroundStation = Depends(get_station)) -> list[dict]:
     return [s.as_dict() for s in layout.list_sessions(recording_root(station))]
+
+
+@router.get("/logs")
+def list_logs(station: GroundStation = Depends(get_station)) -> list[dict]:
+    """Log files from other tools (.tlog, .bin, .ulg) in the recording folder: replay and what-if
+    sources, by name, beside the recorded sessions."""
+    root = recording_root(station)
+    if not root.is_dir():
+        return []
+    return [{"name": p.name, "kind": KINDS[p.suffix.lower()], "size_bytes": p.stat().st_size}
+            for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in KINDS]
 
 
 @router.get("/sessions/{name}/export", response_class=FileResponse)
@@ -156,6 +167,14 @@ async def load_replay(body: ReplayRequest, request: Request, station: GroundStat
 @router.get("/replay")
 def replay_status(request: Request) -> dict:
     return replay_of(request).status()
+
+
+@router.get("/replay/current")
+def current_replay(request: Request) -> dict:
+    """The loaded replay's status with loaded=true, or {"loaded": false}: what the page polls
+    (no 404 every second while nothing is replayed)."""
+    replay = getattr(request.app.state, "replay", None)
+    return {"loaded": False} if replay is None else {"loaded": True, **replay.status()}
 
 
 @router.post("/replay/play", dependencies=[Depends(require_token)])
