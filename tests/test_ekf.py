@@ -15,8 +15,16 @@ from synthetic import MAG_NED, Z_UP, angle_between, imu, spinning, static
 
 from gcs.estimators.compare import compare_stream
 from gcs.estimators.ekf import EkfEstimator
-from gcs.rotation import euler_to_quat, matrix_to_quat, quat_to_euler, quat_to_matrix
-from gcs.sensors import GpsSample
+from gcs.rotation import (
+    euler_to_quat,
+    matrix_to_quat,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_to_euler,
+    quat_to_matrix,
+    wrap_pi,
+)
+from gcs.sensors import G0, GpsSample
 from gcs.sessions.readers import read_samples
 
 D = math.radians
@@ -163,6 +171,110 @@ def test_short_gap_is_bridged_long_gap_reinitialises():
     assert "gap of" in h["last_reinit"] and h["reinit_count"] == 2
     assert h["gps_aided"] == 0
     assert tilt_error(est.quaternion, euler_to_quat(D(-15), D(5), 0.0)) < 0.01
+
+
+def skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class ReferenceStep:
+    """The module docstring's equations transcribed plainly (full matrices, np.linalg.inv, textbook
+    forms), applied to a copy of an estimator's state: what the optimised code must reproduce."""
+
+    def __init__(self, est):
+        self.g = dict(est.gains.values)
+        self.q, self.v, self.b, self.P = np.array(est.q), np.array(est.v), np.array(est.b), est.P.copy()
+
+    def predict(self, gyro, accel, dt):
+        self.q = quat_multiply(self.q, quat_from_rotvec((gyro - self.b) * dt))
+        self.q /= np.linalg.norm(self.q)
+        R = quat_to_matrix(self.q)
+        self.v = self.v + (R @ accel + G_NED) * dt
+        F = np.eye(9)
+        F[0:3, 6:9] = -R * dt
+        F[3:6, 0:3] = -skew(R @ accel) * dt
+        sa = self.g["acc_noise"] * (1.0 + ((np.linalg.norm(accel) - G0) / self.g["acc_gate"]) ** 2)
+        Q = np.diag(np.repeat([self.g["gyro_noise"] ** 2, sa**2, self.g["bias_walk"] ** 2], 3) * dt)
+        self.P = F @ self.P @ F.T + Q
+
+    def update(self, H, r, y):
+        """Optimal gain: K = P Hᵀ (H P Hᵀ + r I)⁻¹, P ← (I − K H) P symmetrised, x ← x + K y."""
+        K = self.P @ H.T @ np.linalg.inv(H @ self.P @ H.T + r * np.eye(len(H)))
+        P = (np.eye(9) - K @ H) @ self.P
+        self.P = 0.5 * (P + P.T)
+        self.inject(K @ y)
+
+    def heading(self, mag, dt, ref_norm, ref_dip):
+        """Gain on δθ_D only, Joseph form (I − K H) P (I − K H)ᵀ + K r Kᵀ, H = e_3ᵀ."""
+        m_n = quat_to_matrix(self.q) @ mag
+        m_h, m_norm = np.hypot(m_n[0], m_n[1]), np.linalg.norm(mag)
+        dip = np.arctan2(m_n[2], m_h)
+        inflation = 1.0 + ((m_norm / ref_norm - 1.0) / self.g["mag_norm_gate"]) ** 2
+        inflation += ((dip - ref_dip) / self.g["mag_dip_gate"]) ** 2
+        r = (self.g["mag_noise"] * inflation * m_norm / m_h) ** 2 / dt
+        y = wrap_pi(self.g["declination"] - np.arctan2(m_n[1], m_n[0]))
+        H = np.eye(9)[2:3]
+        K = np.zeros((9, 1))
+        K[2, 0] = self.P[2, 2] / (self.P[2, 2] + r)
+        I_KH = np.eye(9) - K @ H
+        self.P = I_KH @ self.P @ I_KH.T + r * K @ K.T
+        self.inject(K[:, 0] * y)
+
+    def inject(self, dx):
+        self.q = quat_multiply(quat_from_rotvec(dx[0:3]), self.q)
+        self.q /= np.linalg.norm(self.q)
+        self.v, self.b = self.v + dx[3:6], self.b + dx[6:9]
+
+    def assert_matches(self, est):
+        for ours, ref in ((est.q, self.q), (est.v, self.v), (est.b, self.b), (est.P, self.P)):
+            assert np.allclose(ours, ref, rtol=0.0, atol=1e-12), (ours, ref)
+
+
+G_NED = np.array([0.0, 0.0, G0])
+V_SEL = np.eye(9)[3:6]  # H of a velocity measurement
+
+
+def test_every_step_matches_a_plain_transcription_of_the_equations():
+    """Still (zero-rate and gravity updates), then turning and accelerating, with GPS from 8 s
+    (aided: down-velocity prior only, GPS updates) and still again with GPS (zero-rate only).
+    Each IMU and GPS step, from the estimator's own state, equals ReferenceStep to 1e-12."""
+    q0 = euler_to_quat(D(20), D(-10), D(30))
+    turning, truth = spinning(q0, [0.3, -0.2, 0.5], rate=50, duration=8, a_ned=(0.5, -0.3, 0.2))
+    samples = static(D(20), D(-10), D(30), rate=50, duration=4, gyro=BIAS)
+    samples += [replace(s, t=s.t + 4.0, gyro=s.gyro + BIAS) for s in turning]
+    samples += static(*quat_to_euler(truth[-1]), rate=50, duration=4, t0=12.0, gyro=BIAS)
+    est = EkfEstimator()
+    est.update_imu(samples[0])
+    paths = {"rest, unaided": 0, "rest, aided": 0, "moving, unaided": 0, "moving, aided": 0, "gps": 0, "heading": 0}
+    for k, sample in enumerate(samples[1:], 1):
+        ref = ReferenceStep(est)
+        rejected, ref_norm, ref_dip = est.stats["mag_rejected"], est.mag_ref_norm, est.mag_ref_dip
+        est.update_imu(sample)
+        gyro, accel, dt = sample.gyro, sample.accel, sample.t - samples[k - 1].t
+        ref.predict(gyro, accel, dt)
+        aided, at_rest = est.stats["gps_aided"], est.stats["at_rest"]
+        if at_rest:
+            ref.update(np.eye(9)[6:9], est.gains["rest_noise"] ** 2 / dt, gyro - ref.b)
+            if not aided:
+                H = np.hstack([skew(-G_NED), np.zeros((3, 6))])
+                ref.update(H, est.gains["rest_acc_noise"] ** 2 / dt, quat_to_matrix(ref.q) @ accel + G_NED)
+        rows = [2] if aided else [0, 1, 2]
+        ref.update(V_SEL[rows], est.gains["vel_noise"] ** 2 / dt, -ref.v[rows])
+        if est.stats["mag_rejected"] == rejected:
+            ref.heading(sample.mag, dt, ref_norm, ref_dip)
+            paths["heading"] += 1
+        ref.assert_matches(est)
+        paths[f"{'rest' if at_rest else 'moving'}, {'aided' if aided else 'unaided'}"] += 1
+        if sample.t >= 8.0 and k % 10 == 0:  # 5 Hz GPS: the first fix only starts the velocity
+            vel = np.array([est.v[0] + 0.3, est.v[1] - 0.2, 0.0])
+            ref = ReferenceStep(est)
+            est.update_gps(GpsSample(sample.t, 0, 0, 0, 0.0, 0.0, vel, 3, "test"))
+            if aided:
+                ref.update(V_SEL[:2], est.gains["gps_noise"] ** 2, vel[:2] - ref.v[:2])
+                ref.assert_matches(est)
+                paths["gps"] += 1
+    assert min(paths.values()) > 20, paths
+    assert paths["heading"] > 0.9 * len(samples), paths
 
 
 @pytest.mark.slow

@@ -50,6 +50,16 @@ seconds becomes the new reference (the vehicle moved, or started beside a magnet
 
 Units: gyro rad/s, accel m/s², magnetometer any consistent unit (only its direction and ratios to
 the reference are used). Any right-handed sensor frame: at rest the specific force points up.
+
+Implementation (what-if re-runs this over 30,000-sample sessions, so the cost per sample matters;
+numpy's per-call overhead dominates 3- and 9-element arithmetic). q, v, b are tuples of plain
+floats and the kinematics are written out. P stays a 9×9 array: F is a preallocated identity whose
+two off-diagonal blocks are overwritten each step, and F P Fᵀ is two 9×9 products (fewer numpy
+calls than the block products), with Q added to the diagonal only. Each optimal-gain update has
+1 to 3 rows and S = H P Hᵀ + r I, inverted in closed form; the gravity update drops the zero third
+row of [−g]× (its residual component has no gain). The heading gain is non-zero only on δθ_D, so
+its Joseph update P − K pᵀ − p Kᵀ + s K Kᵀ (p = P e_3) touches row and column 3 only. Every step
+equals a plain transcription of these equations to rounding (tests/test_ekf.py checks 1e-12).
 """
 
 from __future__ import annotations
@@ -62,16 +72,78 @@ import numpy as np
 
 from gcs.estimators.base import COMMON_GAINS, AttitudeEstimator, initial_attitude
 from gcs.estimators.gains import Gain
-from gcs.rotation import matrix_to_quat, quat_from_rotvec, quat_multiply, quat_to_matrix, wrap_pi
+from gcs.rotation import matrix_to_quat, wrap_pi
 from gcs.sensors import G0, GpsSample, ImuSample
 
-_G_NED = np.array([0.0, 0.0, G0])
 _TH, _V, _B = slice(0, 3), slice(3, 6), slice(6, 9)  # error-state blocks
+_U = np.array([[0.0, G0, 0.0], [-G0, 0.0, 0.0]])  # the non-zero rows of [−g]×, g = (0, 0, G0)
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]×, so that _skew(a) @ b == a × b."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+# Tuple versions of gcs.rotation's quat_multiply, quat_from_rotvec and quat_to_matrix (same formulas).
+def _quat_mul(p: Quat, q: Quat) -> Quat:
+    """Hamilton product p ⊗ q."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
+
+
+def _quat_exp(x: float, y: float, z: float) -> Quat:
+    """Exp of the rotation vector (x, y, z): exact, also for tiny angles."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
+    s = math.sin(0.5 * angle) / angle
+    return math.cos(0.5 * angle), x * s, y * s, z * s
+
+
+def _normalised(q: Quat) -> Quat:
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n
+
+
+def _matrix(q: Quat) -> tuple[Vec3, Vec3, Vec3]:
+    """R(q), as rows."""
+    w, x, y, z = q
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
+
+
+def _times(R: tuple[Vec3, Vec3, Vec3], a: Vec3) -> Vec3:
+    """R a."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    ax, ay, az = a
+    return r00 * ax + r01 * ay + r02 * az, r10 * ax + r11 * ay + r12 * az, r20 * ax + r21 * ay + r22 * az
+
+
+def _inv_sym(S: list[list[float]]) -> list[list[float]]:
+    """Inverse of a symmetric 1×1, 2×2 or 3×3 matrix (adjugate / determinant)."""
+    if len(S) == 1:
+        return [[1.0 / S[0][0]]]
+    if len(S) == 2:
+        (a, b), (_, d) = S
+        det = a * d - b * b
+        return [[d / det, -b / det], [-b / det, a / det]]
+    (a, b, c), (_, d, e), (_, _, f) = S
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    return [[A / det, B / det, C / det], [B / det, D / det, E / det], [C / det, E / det, F / det]]
+
+
+def _plus_r(block: np.ndarray, r: float) -> list[list[float]]:
+    """block + r I, as lists (S = H P Hᵀ + r I for the closed-form inverse)."""
+    S = block.tolist()
+    for i, row in enumerate(S):
+        row[i] += r
+    return S
 
 
 class EkfEstimator(AttitudeEstimator):
@@ -112,17 +184,19 @@ class EkfEstimator(AttitudeEstimator):
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         super().__init__(preset, **gains)
-        self.q = np.array([1.0, 0.0, 0.0, 0.0])
-        self.v = np.zeros(3)
-        self.b = np.zeros(3)
+        self.q: Quat = (1.0, 0.0, 0.0, 0.0)
+        self.v: Vec3 = (0.0, 0.0, 0.0)
+        self.b: Vec3 = (0.0, 0.0, 0.0)
         self.P = np.zeros((9, 9))
+        self._F = np.eye(9)  # only F[_TH, _B] and F[_V, _TH] change (see _predict)
+        self._FP = np.empty((9, 9))
         self.initialised = False
         # velocity history for delayed GPS: (t, v − corrections so far); see _velocity_at
-        self._v_hist: deque[tuple[float, np.ndarray]] = deque()
-        self._v_offset = np.zeros(3)
+        self._v_hist: deque[tuple[float, Vec3]] = deque()
+        self._v_offset: Vec3 = (0.0, 0.0, 0.0)
         self._gps_t = -math.inf
         self._rest_since = -math.inf
-        self._rest_acc: np.ndarray | None = None
+        self._rest_acc: list[float] | None = None
         self.mag_ref_norm = 0.0
         self.mag_ref_dip = 0.0
         self._mag_rejected_since: float | None = None
@@ -135,22 +209,22 @@ class EkfEstimator(AttitudeEstimator):
     # -- public API ---------------------------------------------------------------------------
     @property
     def quaternion(self) -> np.ndarray:
-        return self.q.copy()
+        return np.array(self.q)
 
     def health(self) -> dict[str, float | str]:
         h: dict[str, float | str] = {**self._common_health(), **self.stats}
-        h.update(bias_x=float(self.b[0]), bias_y=float(self.b[1]), bias_z=float(self.b[2]))
+        h.update(bias_x=self.b[0], bias_y=self.b[1], bias_z=self.b[2])
         h["tilt_sigma_deg"] = math.degrees(math.sqrt(max(self.P[0, 0] + self.P[1, 1], 0.0)))
         h["heading_sigma_deg"] = math.degrees(math.sqrt(max(self.P[2, 2], 0.0)))
         return h
 
     def update_imu(self, sample: ImuSample) -> bool:
-        gyro = np.asarray(sample.gyro, float)
-        accel = np.asarray(sample.accel, float)
-        mag = None if sample.mag is None else np.asarray(sample.mag, float)
-        if mag is not None and not (np.all(np.isfinite(mag)) and np.any(mag)):
+        gyro = np.asarray(sample.gyro, float).tolist()
+        accel = np.asarray(sample.accel, float).tolist()
+        mag = None if sample.mag is None else np.asarray(sample.mag, float).tolist()
+        if mag is not None and not (all(map(math.isfinite, mag)) and any(mag)):
             mag = None
-        if not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
+        if not all(map(math.isfinite, gyro + accel)):
             self.stats["dropped"] += 1
             return self.initialised
         dt = self._check_time(sample.t)
@@ -159,13 +233,13 @@ class EkfEstimator(AttitudeEstimator):
         if dt == 0.0:
             return True
         self._predict(gyro, accel, dt, sample.t)
-        aided = sample.t - self._gps_t <= self.gains["gps_timeout"]
+        aided = sample.t - self._gps_t <= self.gains.values["gps_timeout"]
         self.stats["gps_aided"] = int(aided)
         if self._at_rest(sample.t, gyro, accel):
             self._update_zero_rate(gyro, dt)
             if not aided:  # with GPS, a steady acceleration is not taken for rest
                 self._update_gravity(accel, dt)
-        self._update_velocity_prior(dt, (2,) if aided else (0, 1, 2))
+        self._update_velocity_prior(dt, 1 if aided else 3)
         if mag is not None:
             self._update_heading(mag, dt)
         return True
@@ -174,33 +248,32 @@ class EkfEstimator(AttitudeEstimator):
         """Fuse the horizontal GPS velocity at its own time (GPS_RAW_INT has no vertical speed)."""
         if sample.fix_type < 3 or sample.vel_ned is None or not self.initialised or sample.t <= self._gps_t:
             return
-        vel = np.asarray(sample.vel_ned, float)
+        vel = np.asarray(sample.vel_ned, float).tolist()
         if self.t is None or self.t - self._gps_t > self.gains["gps_timeout"]:
             # (re)acquired: the velocity state was only a bounded prior; start it from the fix
-            self._shift_velocity(np.array([vel[0] - self.v[0], vel[1] - self.v[1], 0.0]))
+            self._shift_velocity((vel[0] - self.v[0], vel[1] - self.v[1], 0.0))
             self.P[3:5, :] = 0.0
             self.P[:, 3:5] = 0.0
             self.P[3, 3] = self.P[4, 4] = self.gains["gps_noise"] ** 2
         else:
-            y = vel[:2] - self._velocity_at(sample.t - self.gains["gps_delay"])[:2]
+            v_then = self._velocity_at(sample.t - self.gains["gps_delay"])
+            y = [vel[0] - v_then[0], vel[1] - v_then[1]]
             r = self.gains["gps_noise"] ** 2
-            PHt = self.P[:, 3:5]
-            S_inv = np.linalg.inv(PHt[3:5] + r * np.eye(2))
-            self._apply(PHt @ S_inv, PHt, y)
-            self.stats["gps_nis"] = float(y @ S_inv @ y)
+            (a, b), (_, d) = self._update(self.P[:, 3:5], _plus_r(self.P[3:5, 3:5], r), y)
+            self.stats["gps_nis"] = a * y[0] * y[0] + 2.0 * b * y[0] * y[1] + d * y[1] * y[1]
             self.stats["vel_innov"] = math.hypot(y[0], y[1])
         self._gps_t = sample.t
 
     # -- filter steps -------------------------------------------------------------------------
-    def _initialise(self, t: float, accel: np.ndarray, mag: np.ndarray | None) -> bool:
+    def _initialise(self, t: float, accel: list[float], mag: list[float] | None) -> bool:
         """Attitude from this sample (base policy); velocity zero; the bias estimate is kept."""
-        if accel @ accel < 1e-6:
+        if accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2] < 1e-6:
             return False
-        R = initial_attitude(accel, mag, self.gains["declination"])
-        self.q = matrix_to_quat(R)
-        self.v = np.zeros(3)
+        R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), self.gains["declination"])
+        self.q = tuple(matrix_to_quat(R).tolist())
+        self.v = (0.0, 0.0, 0.0)
         self._v_hist.clear()
-        self._v_offset = np.zeros(3)
+        self._v_offset = (0.0, 0.0, 0.0)
         self._gps_t = -math.inf
         self.stats["gps_aided"] = 0
         tilt_var = math.radians(5.0) ** 2
@@ -210,135 +283,154 @@ class EkfEstimator(AttitudeEstimator):
         self.P = np.diag([tilt_var, tilt_var, heading_var] + [vel_var] * 3 + [bias_var] * 3)
         self.mag_ref_norm = 0.0
         if mag is not None:
-            self._learn_mag_reference(R @ mag)
+            self._learn_mag_reference(_times(_matrix(self.q), mag))
         self.initialised = True
         return True
 
-    def _predict(self, gyro: np.ndarray, accel: np.ndarray, dt: float, t: float) -> None:
+    def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float) -> None:
         """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P."""
-        self.q = quat_multiply(self.q, quat_from_rotvec((gyro - self.b) * dt))
-        self.q /= math.sqrt(self.q @ self.q)
-        R = quat_to_matrix(self.q)
-        f_n = R @ accel
-        self.v = self.v + (f_n + _G_NED) * dt
-        self._v_hist.append((t, self.v - self._v_offset))
-        while self._v_hist and self._v_hist[0][0] < t - 2.0 * self.gains["gps_timeout"]:
+        g = self.gains.values
+        bx, by, bz = self.b
+        self.q = q = _normalised(_quat_mul(self.q, _quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt,
+                                                              (gyro[2] - bz) * dt)))
+        R = _matrix(q)
+        fx, fy, fz = _times(R, accel)
+        vx, vy, vz = self.v
+        self.v = v = (vx + fx * dt, vy + fy * dt, vz + (fz + G0) * dt)
+        ox, oy, oz = self._v_offset
+        self._v_hist.append((t, (v[0] - ox, v[1] - oy, v[2] - oz)))
+        while self._v_hist and self._v_hist[0][0] < t - 2.0 * g["gps_timeout"]:
             self._v_hist.popleft()
 
-        a_norm = math.sqrt(accel @ accel)
-        inflation = 1.0 + ((a_norm - G0) / self.gains["acc_gate"]) ** 2
+        a_norm = math.sqrt(accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2])
+        inflation = 1.0 + ((a_norm - G0) / g["acc_gate"]) ** 2
         self.stats["accel_norm"] = a_norm
         self.stats["acc_inflation"] = inflation
-        F = np.eye(9)
-        F[_TH, _B] = -R * dt
-        F[_V, _TH] = -_skew(f_n) * dt
-        sa = self.gains["acc_noise"] * inflation
-        q_diag = np.repeat([self.gains["gyro_noise"] ** 2, sa * sa, self.gains["bias_walk"] ** 2], 3) * dt
-        self.P = F @ self.P @ F.T + np.diag(q_diag)
+        F = self._F
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+        F[_TH, _B] = ((-r00 * dt, -r01 * dt, -r02 * dt), (-r10 * dt, -r11 * dt, -r12 * dt),
+                      (-r20 * dt, -r21 * dt, -r22 * dt))  # −R dt
+        F[_V, _TH] = ((0.0, fz * dt, -fy * dt), (-fz * dt, 0.0, fx * dt), (fy * dt, -fx * dt, 0.0))  # −[R a]× dt
+        np.matmul(F, self.P, out=self._FP)
+        self.P = self._FP @ F.T
+        sa = g["acc_noise"] * inflation
+        qg, qa, qb = g["gyro_noise"] ** 2 * dt, sa * sa * dt, g["bias_walk"] ** 2 * dt
+        self.P.reshape(-1)[::10] += (qg, qg, qg, qa, qa, qa, qb, qb, qb)  # the diagonal of P
 
-    def _apply(self, K: np.ndarray, PHt: np.ndarray, y: np.ndarray) -> None:
-        """Optimal-gain covariance update P − K (P Hᵀ)ᵀ and injection of K y into the nominal state."""
+    def _update(self, PHt: np.ndarray, S: list[list[float]], y: list[float]) -> list[list[float]]:
+        """Optimal gain K = P Hᵀ S⁻¹, P ← P − K (P Hᵀ)ᵀ (symmetrised), and injection of K y into
+        the nominal state. Returns S⁻¹."""
+        S_inv = _inv_sym(S)
+        K = PHt @ np.array(S_inv)
         P = self.P - K @ PHt.T
         self.P = 0.5 * (P + P.T)
-        self._inject(K @ y)
+        self._inject(np.dot(K, y).tolist())
+        return S_inv
 
-    def _inject(self, dx: np.ndarray) -> None:
+    def _inject(self, dx: list[float]) -> None:
         """Move the error estimate into the nominal state (the error resets to zero)."""
-        self.q = quat_multiply(quat_from_rotvec(dx[_TH]), self.q)
-        self.q /= math.sqrt(self.q @ self.q)
-        self._shift_velocity(dx[_V])
-        self.b = self.b + dx[_B]
+        self.q = _normalised(_quat_mul(_quat_exp(dx[0], dx[1], dx[2]), self.q))
+        self._shift_velocity((dx[3], dx[4], dx[5]))
+        bx, by, bz = self.b
+        self.b = (bx + dx[6], by + dx[7], bz + dx[8])
 
-    def _shift_velocity(self, dv: np.ndarray) -> None:
-        self.v = self.v + dv
-        self._v_offset = self._v_offset + dv
+    def _shift_velocity(self, dv: Vec3) -> None:
+        vx, vy, vz = self.v
+        ox, oy, oz = self._v_offset
+        self.v = (vx + dv[0], vy + dv[1], vz + dv[2])
+        self._v_offset = (ox + dv[0], oy + dv[1], oz + dv[2])
 
-    def _velocity_at(self, t: float) -> np.ndarray:
+    def _velocity_at(self, t: float) -> Vec3:
         """Velocity at an earlier time t, with every correction made since applied to it too."""
-        v_then = self.v - self._v_offset
+        ox, oy, oz = self._v_offset
+        v_then = (self.v[0] - ox, self.v[1] - oy, self.v[2] - oz)
         for t_i, v_i in reversed(self._v_hist):
             v_then = v_i
             if t_i <= t:
                 break
-        return v_then + self._v_offset
+        return v_then[0] + ox, v_then[1] + oy, v_then[2] + oz
 
-    def _update_velocity_prior(self, dt: float, axes: tuple[int, ...]) -> None:
-        """Pseudo-measurement v = 0 on the given NED axes: motion without GPS is bounded."""
-        idx = [3 + i for i in axes]
-        r = self.gains["vel_noise"] ** 2 / dt
-        PHt = self.P[:, idx]
-        S_inv = np.linalg.inv(PHt[idx] + r * np.eye(len(idx)))
-        y = -self.v[list(axes)]
-        if len(axes) == 3:
-            self.stats["vel_innov"] = math.sqrt(y @ y)
-        self._apply(PHt @ S_inv, PHt, y)
+    def _update_velocity_prior(self, dt: float, axes: int) -> None:
+        """Pseudo-measurement v = 0 on the last `axes` NED axes (3: all, 1: down only): motion
+        without GPS is bounded."""
+        idx = slice(6 - axes, 6)
+        r = self.gains.values["vel_noise"] ** 2 / dt
+        y = [-v for v in self.v[3 - axes:]]
+        if axes == 3:
+            self.stats["vel_innov"] = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+        self._update(self.P[:, idx], _plus_r(self.P[idx, idx], r), y)
 
-    def _at_rest(self, t: float, gyro: np.ndarray, accel: np.ndarray) -> bool:
+    def _at_rest(self, t: float, gyro: list[float], accel: list[float]) -> bool:
         """Still for rest_time: small bias-corrected rate and an accel vector that has not moved."""
-        w = gyro - self.b
-        still = w @ w < self.gains["rest_gyro"] ** 2
+        g = self.gains.values
+        wx, wy, wz = gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]
+        still = wx * wx + wy * wy + wz * wz < g["rest_gyro"] ** 2
         if still and self._rest_acc is not None:
-            da = accel - self._rest_acc
-            still = da @ da < self.gains["rest_acc"] ** 2
+            dx, dy, dz = accel[0] - self._rest_acc[0], accel[1] - self._rest_acc[1], accel[2] - self._rest_acc[2]
+            still = dx * dx + dy * dy + dz * dz < g["rest_acc"] ** 2
         if not still or self._rest_acc is None:
             self._rest_since, self._rest_acc = t, accel
             self.stats["at_rest"] = 0
             return False
-        self.stats["at_rest"] = int(t - self._rest_since >= self.gains["rest_time"])
+        self.stats["at_rest"] = int(t - self._rest_since >= g["rest_time"])
         return bool(self.stats["at_rest"])
 
-    def _update_gravity(self, accel: np.ndarray, dt: float) -> None:
-        """At rest the specific force is gravity alone: y = R a + g, H = [[−g]×, 0, 0]."""
+    def _update_gravity(self, accel: list[float], dt: float) -> None:
+        """At rest the specific force is gravity alone: y = R a + g, H = [[−g]×, 0, 0] (its third
+        row is zero: y_D has no gain and is left out)."""
         r = self.gains["rest_acc_noise"] ** 2 / dt
-        U = _skew(-_G_NED)
-        PHt = self.P[:, _TH] @ U.T
-        S_inv = np.linalg.inv(U @ PHt[_TH] + r * np.eye(3))
-        self._apply(PHt @ S_inv, PHt, quat_to_matrix(self.q) @ accel + _G_NED)
+        PHt = self.P[:, _TH] @ _U.T
+        fx, fy, _ = _times(_matrix(self.q), accel)
+        self._update(PHt, _plus_r(_U @ PHt[_TH], r), [fx, fy])
 
-    def _update_zero_rate(self, gyro: np.ndarray, dt: float) -> None:
+    def _update_zero_rate(self, gyro: list[float], dt: float) -> None:
         """At rest the true rate is zero, so the gyro reads its bias: y = gyro − b, H = [0, 0, I]."""
         r = self.gains["rest_noise"] ** 2 / dt
-        PHt = self.P[:, _B]
-        S_inv = np.linalg.inv(PHt[_B] + r * np.eye(3))
-        self._apply(PHt @ S_inv, PHt, gyro - self.b)
+        y = [gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]]
+        self._update(self.P[:, _B], _plus_r(self.P[_B, _B], r), y)
 
-    def _learn_mag_reference(self, m_n: np.ndarray) -> None:
+    def _learn_mag_reference(self, m_n: Vec3) -> None:
         """|m| and dip angle of the undisturbed field, from a field vector in NED."""
-        self.mag_ref_norm = math.sqrt(m_n @ m_n)
+        self.mag_ref_norm = math.sqrt(m_n[0] * m_n[0] + m_n[1] * m_n[1] + m_n[2] * m_n[2])
         self.mag_ref_dip = math.atan2(m_n[2], math.hypot(m_n[0], m_n[1]))
         self._mag_rejected_since = None
 
-    def _update_heading(self, mag: np.ndarray, dt: float) -> None:
-        m_n = quat_to_matrix(self.q) @ mag
+    def _update_heading(self, mag: list[float], dt: float) -> None:
+        g = self.gains.values
+        m_n = _times(_matrix(self.q), mag)
         m_h = math.hypot(m_n[0], m_n[1])
-        m_norm = math.sqrt(mag @ mag)
+        m_norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         if m_h < 1e-3 * m_norm:
             self.stats["mag_rejected"] += 1
             return
         dip = math.atan2(m_n[2], m_h)
         if self.mag_ref_norm == 0.0:  # no field at initialisation
             self._learn_mag_reference(m_n)
-        norm_dev = (m_norm / self.mag_ref_norm - 1.0) / self.gains["mag_norm_gate"]
-        dip_dev = (dip - self.mag_ref_dip) / self.gains["mag_dip_gate"]
+        norm_dev = (m_norm / self.mag_ref_norm - 1.0) / g["mag_norm_gate"]
+        dip_dev = (dip - self.mag_ref_dip) / g["mag_dip_gate"]
         inflation = 1.0 + norm_dev * norm_dev + dip_dev * dip_dev
         self.stats["mag_disturbance"] = inflation - 1.0
-        if inflation > self.gains["mag_reject"]:
+        if inflation > g["mag_reject"]:
             self.stats["mag_rejected"] += 1
             if self._mag_rejected_since is None:
                 self._mag_rejected_since = self.t
-            elif self.t - self._mag_rejected_since >= self.gains["mag_relearn"]:
+            elif self.t - self._mag_rejected_since >= g["mag_relearn"]:
                 self._learn_mag_reference(m_n)
                 self.stats["mag_relearned"] += 1
             return
         self._mag_rejected_since = None
-        sigma = self.gains["mag_noise"] * inflation * m_norm / m_h
+        sigma = g["mag_noise"] * inflation * m_norm / m_h
         r = sigma * sigma / dt
-        y = wrap_pi(self.gains["declination"] - math.atan2(m_n[1], m_n[0]))
-        p = self.P[:, 2].copy()
-        s = p[2] + r
-        K = np.zeros(9)  # heading only (see the module docstring)
-        K[2] = p[2] / s
-        self.P = self.P - np.outer(K, p) - np.outer(p, K) + s * np.outer(K, K)
+        y = wrap_pi(g["declination"] - math.atan2(m_n[1], m_n[0]))
+        # K = k e_3 (heading only, see the module docstring); Joseph form P − K pᵀ − p Kᵀ + s K Kᵀ
+        P = self.P
+        p = P[:, 2].copy()
+        s = float(p[2]) + r
+        k = float(p[2]) / s
+        kp = k * p
+        P[2] -= kp
+        P[:, 2] -= kp
+        P[2, 2] += s * (k * k)
         self.stats["mag_nis"] = y * y / s
         self.stats["mag_innov_deg"] = math.degrees(y)
-        self._inject(K * y)
+        self.q = _normalised(_quat_mul(_quat_exp(0.0, 0.0, k * y), self.q))

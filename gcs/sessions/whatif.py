@@ -43,7 +43,7 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
         if isinstance(item, ImuSample):
             if estimator.update_imu(item):
                 t.append(item.t)
-                euler.append(quat_to_euler(estimator.quaternion))
+                euler.append(quat_to_euler(estimator.quaternion.tolist()))  # floats: same angles, faster
         elif isinstance(item, GpsSample):
             estimator.update_gps(item)
         elif isinstance(item, GainChange) and item.estimator in (None, name) and item.name not in pinned:
