@@ -9,6 +9,7 @@ import numpy as np
 
 from gcs.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration, initial_attitude
 from gcs.estimators.gains import Gain
+from gcs.estimators.magnetic import MagDisturbance
 from gcs.rotation import matrix_to_quat
 from gcs.sensors import G0, GpsSample, ImuSample
 
@@ -16,13 +17,6 @@ from gcs.sensors import G0, GpsSample, ImuSample
 SPIN_RATE_LIMIT = math.radians(20.0)
 #: Largest gyro bias the integrator may learn, per axis (rad/s); keeps a bad reference from winding it up.
 OMEGA_I_MAX = 0.1
-#: Magnetic disturbance rejection constants, VQF's defaults (Laidig & Seel 2023, `VQFParams`):
-#: low-pass of the current field magnitude and dip (magCurrentTau), slow follow of the reference
-#: while undisturbed (magRefTau), and the turn rate needed to count time towards a new reference
-#: (magNewMinGyr).
-MAG_CURRENT_TAU = 0.05
-MAG_REF_TAU = 20.0
-MAG_NEW_MIN_GYR = math.radians(20.0)
 
 
 def renormalize(X, Y):
@@ -83,7 +77,7 @@ class DcmEstimator(AttitudeEstimator):
        (yaw) part dropped, so only the yaw reference steers heading; w is the accel weight.
     4. Yaw error (eqs. 18-20): with a magnetometer, tilt-compensated: m_e = R·m, b = its
        horizontal unit vector, e_z = b × (cos δ, sin δ) for declination δ, unless the field is
-       disturbed (`_mag_usable`), then 0; without one, GPS course c when ground speed ≥
+       disturbed (`gcs.estimators.magnetic.MagDisturbance`), then 0; without one, GPS course c when ground speed ≥
        gps_speed_min: e_z = R11·sin c − R21·cos c (eq. 19).
     5. PI (eqs. 23-26): ω_P = kp_rp·s·Rᵀe_rp, ω_Y = kp_yaw·e_z·R[2] (eq. 20), with s the
        ArduPilot spin-rate schedule clip(|ω|/50°/s, 1, 10) when spin_gain = 1 (on ω_Y too
@@ -190,11 +184,7 @@ class DcmEstimator(AttitudeEstimator):
         self.f_avg: tuple[float, float, float] | None = None  # earth-frame specific force, averaged
         self.r_avg = (0.0, 0.0, -G0)  # its reference (gravity + GPS acceleration), averaged alike
         self.accel_w = 1.0
-        self.mag_now: tuple[float, float] | None = None  # (|m|, dip), low-passed over MAG_CURRENT_TAU
-        self.mag_ref: tuple[float, float] | None = None  # the undisturbed (|m|, dip)
-        self.mag_cand: tuple[float, float] | None = None  # a steady disturbed field being timed
-        self.mag_cand_time = 0.0
-        self.mag_disturbed = False
+        self.mag = MagDisturbance()
 
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
@@ -280,41 +270,6 @@ class DcmEstimator(AttitudeEstimator):
                 self.omega_I[i] = min(max(self.omega_I[i] + ki * b + kiy * z, -OMEGA_I_MAX), OMEGA_I_MAX)
         return True
 
-    def _mag_usable(self, norm: float, dip: float, dt: float, spin: float) -> bool:
-        """Magnetic disturbance test (VQF's, Laidig & Seel 2023): the field's magnitude and dip, low-passed
-        over MAG_CURRENT_TAU, must stay within mag_norm_tol / mag_dip_tol of the reference learned at
-        initialisation, which then follows them slowly (MAG_REF_TAU). A disturbed field that stays
-        steady for mag_relearn seconds while the sensor turns faster than MAG_NEW_MIN_GYR becomes
-        the new reference (turning proves it is fixed in the earth frame, not to the sensor)."""
-        g = self.gains
-        if self.mag_now is None or dt <= 0.0:
-            self.mag_now = (norm, dip)
-        else:
-            a = dt / (MAG_CURRENT_TAU + dt)
-            n, d = self.mag_now
-            self.mag_now = (n + a * (norm - n), d + a * (dip - d))
-        norm, dip = self.mag_now
-        if self.mag_ref is None:
-            self.mag_ref = (norm, dip)
-        n0, d0 = self.mag_ref
-        ntol, dtol = g["mag_norm_tol"], g["mag_dip_tol"]
-        if abs(norm - n0) <= ntol * n0 and abs(dip - d0) <= dtol:
-            a = dt / (MAG_REF_TAU + dt)
-            self.mag_ref = (n0 + a * (norm - n0), d0 + a * (dip - d0))
-            self.mag_disturbed, self.mag_cand, self.mag_cand_time = False, None, 0.0
-            return True
-        self.mag_disturbed = True
-        c = self.mag_cand
-        if c is None or abs(norm - c[0]) > ntol * c[0] or abs(dip - c[1]) > dtol:
-            self.mag_cand, self.mag_cand_time = (norm, dip), 0.0
-        elif spin >= MAG_NEW_MIN_GYR:
-            self.mag_cand_time += dt
-            if self.mag_cand_time >= g["mag_relearn"]:
-                self.mag_ref = (norm, dip)
-                self.mag_disturbed, self.mag_cand, self.mag_cand_time = False, None, 0.0
-                return True
-        return False
-
     def _yaw_error(self, sample: ImuSample, X, Y, Z, dt: float = 0.0, spin: float = 0.0) -> float:
         """Heading error about earth down (rad, small-angle sine), or 0 without a usable reference."""
         mag = sample.mag
@@ -325,7 +280,9 @@ class DcmEstimator(AttitudeEstimator):
             hd = Z[0] * mx + Z[1] * my + Z[2] * mz
             h = math.hypot(hn, he)
             if h > 1e-9:
-                if not self._mag_usable(math.sqrt(h * h + hd * hd), math.atan2(hd, h), dt, spin):
+                g = self.gains
+                if not self.mag.usable(math.sqrt(h * h + hd * hd), math.atan2(hd, h), dt, spin,
+                                       g["mag_norm_tol"], g["mag_dip_tol"], g["mag_relearn"]):
                     self.yaw_source = "mag_rejected"
                     self.mag_rejected += 1
                     return 0.0
@@ -360,6 +317,6 @@ class DcmEstimator(AttitudeEstimator):
             "yaw_source": self.yaw_source,
             "omega_I": tuple(self.omega_I),
             "accel_weight": self.accel_w,
-            "mag_disturbed": self.mag_disturbed,
+            "mag_disturbed": self.mag.disturbed,
             "mag_rejected": self.mag_rejected,
         }

@@ -10,6 +10,7 @@ from filterpy.kalman import KalmanFilter
 
 from gcs.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration
 from gcs.estimators.gains import Gain
+from gcs.estimators.magnetic import MagDisturbance
 from gcs.rotation import euler_to_quat, quat_to_matrix, wrap_pi
 from gcs.sensors import G0, GpsSample, ImuSample
 
@@ -99,63 +100,6 @@ def _euler(q) -> tuple[float, float, float]:
             math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
-#: Magnetic disturbance test constants, VQF's defaults (Laidig & Seel 2023, `VQFParams`), as the
-#: DCM uses them: low-pass of the current field norm and dip (magCurrentTau), slow follow of the
-#: reference while undisturbed (magRefTau), turn rate needed to time a new reference (magNewMinGyr).
-MAG_CURRENT_TAU = 0.05
-MAG_REF_TAU = 20.0
-MAG_NEW_MIN_GYR = math.radians(20.0)
-
-
-class MagDisturbance:
-    """Is the magnetometer usable for heading? VQF's test (Laidig & Seel 2023), the same as the
-    DCM's `_mag_usable`, as a self-contained object so both filters could share it (it belongs in
-    base.py; kept here while only kf.py is being changed).
-
-    The field's norm and dip (earth frame), low-passed over MAG_CURRENT_TAU, must stay within
-    norm_tol (relative) and dip_tol (rad) of the reference learned on the first sample; the
-    reference follows them slowly (MAG_REF_TAU) while undisturbed. A disturbed field that stays
-    steady for `relearn` seconds while the sensor turns faster than MAG_NEW_MIN_GYR becomes the new
-    reference (turning proves it is fixed in the earth frame, not to the sensor).
-    """
-
-    def __init__(self) -> None:
-        self.now: tuple[float, float] | None = None
-        self.ref: tuple[float, float] | None = None
-        self.cand: tuple[float, float] | None = None
-        self.cand_time = 0.0
-        self.disturbed = False
-
-    def usable(self, norm: float, dip: float, dt: float, spin: float,
-               norm_tol: float, dip_tol: float, relearn: float) -> bool:
-        if self.now is None or dt <= 0.0:
-            self.now = (norm, dip)
-        else:
-            a = dt / (MAG_CURRENT_TAU + dt)
-            n, d = self.now
-            self.now = (n + a * (norm - n), d + a * (dip - d))
-        norm, dip = self.now
-        if self.ref is None:
-            self.ref = (norm, dip)
-        n0, d0 = self.ref
-        if abs(norm - n0) <= norm_tol * n0 and abs(dip - d0) <= dip_tol:
-            a = dt / (MAG_REF_TAU + dt)
-            self.ref = (n0 + a * (norm - n0), d0 + a * (dip - d0))
-            self.disturbed, self.cand, self.cand_time = False, None, 0.0
-            return True
-        self.disturbed = True
-        c = self.cand
-        if c is None or abs(norm - c[0]) > norm_tol * c[0] or abs(dip - c[1]) > dip_tol:
-            self.cand, self.cand_time = (norm, dip), 0.0
-        elif spin >= MAG_NEW_MIN_GYR:
-            self.cand_time += dt
-            if self.cand_time >= relearn:
-                self.ref = (norm, dip)
-                self.disturbed, self.cand, self.cand_time = False, None, 0.0
-                return True
-        return False
-
-
 class KalmanAttitudeFilter(AttitudeEstimator):
     """KF-A: linear Kalman filter on Euler angles and their rates (seed 004, §5.2.2).
 
@@ -211,7 +155,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
     * mag_norm_tol = 0.1, mag_dip_tol = 10°, mag_relearn = 20 s [10, π: off]: the heading row is
       dropped while the field's norm or dip (earth frame, at the predicted attitude) departs from
       the reference learned on the first sample — VQF's test (magNormTh, magDipTh, magNewTime),
-      the same as the DCM's (`MagDisturbance`). Heading then rides on the gyro.
+      the same as the DCM's (`gcs.estimators.magnetic.MagDisturbance`). Heading then rides on the gyro.
     * mag_time_sigma = 0.05 s [0]: yaw R + (|ω|·σ_t)². The field sample is rarely simultaneous
       with the gyro's (BROAD's lags it ~14 ms, found by shifting it against the optical truth;
       RAW_IMU carries whatever compass reading was latest), so the heading is trusted less while

@@ -8,11 +8,11 @@ It goes to two places, both O(1) per point and never awaiting anyone:
   page opened now fills its window at once (`GET /api/history`) and memory never grows;
 * the **pending frame**: flushed at most every `frame_interval` (10 ms: batching adds under 10 ms
   of latency; 5 ms halves that but doubles the sends, and with 20 viewers on 2 loaded cores the
-  link then lost UDP packets), encoded to JSON ONCE and
-  offered to every client's own bounded queue (`ClientFeed`).
+  link then lost UDP packets), encoded to JSON ONCE and offered to every client's own bounded
+  queue (`ClientFeed`).
 
-A client's queue holds `client_max_frames` frames (10 s). Each WebSocket has its own sender task that sends whatever its queue holds, several frames joined
-into one message when it fell behind. A client that stops reading fills its queue; the oldest
+A client's queue holds `client_max_frames` frames (10 s). Each WebSocket has its own sender task
+that sends whatever its queue holds, several frames joined into one message when it fell behind. A client that stops reading fills its queue; the oldest
 frames are then dropped and counted for that client alone, so the others and the link never wait.
 Nothing is ever decimated for a client that keeps up.
 """
