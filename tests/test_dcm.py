@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from broad import broad_rmse
 from synthetic import imu, spinning, static
 
 from gcs.estimators.dcm import DcmEstimator, renormalize, rotate_rows
@@ -14,7 +15,6 @@ from gcs.sensors import GpsSample
 from gcs.sessions.readers import read_samples
 
 HOP = str(Path(__file__).resolve().parents[2] / "shared/data/logs/arducopter-sitl-hop.tlog")
-BROAD = Path(__file__).resolve().parents[2] / "shared/data/broad"
 D = math.radians
 #: Canberra (the SITL home) magnetic declination: SIMSTATE yaw is true north.
 HOP_DECLINATION = D(12.5)
@@ -153,34 +153,9 @@ def test_magnetic_disturbance_is_rejected_then_relearned():
     assert not est.health()["mag_disturbed"] and est.health()["yaw_source"] == "mag"
 
 
-def broad_rmse(name: str, every: int) -> float:
-    """Total RMS error (deg, BROAD's metric over `movement` samples) of the default DCM on one
-    BROAD trial, keeping every `every`-th sample; sensor → ENU = q(NED → ENU) ⊗ q_est."""
-    h5py = pytest.importorskip("h5py")
-    from gcs.rotation import quat_conjugate, quat_multiply
-    from gcs.sensors import ImuSample
-
-    path = next(BROAD.glob(f"{name}*.hdf5"), None)
-    if path is None:
-        pytest.skip(f"BROAD trial {name} not in {BROAD}")
-    with h5py.File(path, "r") as f:
-        rate = float(f.attrs["sampling_rate"]) / every
-        gyr, acc, mag = (np.asarray(f[k][::every], dtype=float) for k in ("imu_gyr", "imu_acc", "imu_mag"))
-        opt, moving = np.asarray(f["opt_quat"][::every], dtype=float), np.asarray(f["movement"][::every], bool)
-    est, q = DcmEstimator(), np.empty((len(gyr), 4))
-    for k in range(len(gyr)):
-        est.update_imu(ImuSample(k / rate, gyr[k], acc[k], mag[k]))
-        q[k] = est.quaternion
-    q_enu = quat_multiply(np.array([0.0, math.sqrt(0.5), math.sqrt(0.5), 0.0]), q.T)
-    w = quat_multiply(q_enu, quat_conjugate((opt / np.linalg.norm(opt, axis=1, keepdims=True)).T))[0]
-    err = 2 * np.arccos(np.clip(np.abs(w), 0.0, 1.0))
-    err = err[moving & np.isfinite(err)]
-    return float(np.degrees(np.sqrt(np.mean(err * err))))
-
-
 @pytest.mark.parametrize("trial", ["15_undisturbed_fast_translation", "30_disturbed_stationary_magnet"])
 def test_broad_robustness_regression(trial):
     """Fast translation (linear acceleration, no GPS) and fast rotation near a magnet, at 47.6 Hz:
     before the earth-frame accel average, accel weight, roll-pitch-only spin gain and magnetic
     disturbance rejection these scored 22.9° and 21.0° total RMSE; now about 4.5° and 3.6°."""
-    assert broad_rmse(trial, 6) < 7.0
+    assert broad_rmse(DcmEstimator(), trial, 6) < 7.0
