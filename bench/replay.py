@@ -75,7 +75,7 @@ def main() -> list[dict]:
         simulated_session(tlog)
         full, imu, _ = replay(tlog, None)
         source = open_source(tlog)
-        for estimator, gains in (("dcm", {"kp_rp": 0.4}), ("ekf", {"gyro_noise": 0.02})):
+        for estimator, gains in (("dcm", {"kp_rp": 0.4}), ("kf", {"r_roll": 0.04}), ("ekf", {"gyro_noise": 0.02})):
             what_if(source, estimator, {})  # the original run, cached as the dashboard's first view does
             result = what_if(source, estimator, gains)
             rows.append({"benchmark": f"what-if {estimator} 10 min @ {RATE_HZ} Hz",
