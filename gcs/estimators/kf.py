@@ -19,6 +19,11 @@ _RATES = ("p", "q", "r")
 #: Seed 004 Q (5.35; "reference" diagonal, per thesis step) and R (5.37), in state order.
 SEED004_Q = (0.0259, 0.0257, 0.4051, 0.4047, 0.1952, 0.1940)
 SEED004_R = (0.0202, 0.0842, 0.0066, 0.0006, 0.0025, 0.0034)
+_Q_NAMES = tuple(f"q_{s}" for s in _ANGLES + _RATES)
+_R_NAMES = tuple(f"r_{s}" for s in _ANGLES + _RATES)
+_DIAG5, _DIAG6 = np.diag_indices(5), np.diag_indices(6)
+#: Measurement rows without a heading: roll, pitch and the three rates.
+_ROWS5 = [0, 1, 3, 4, 5]
 
 
 def accel_tilt(f, a_ned=(0.0, 0.0, 0.0), yaw: float = 0.0, roll: float = 0.0, pitch: float = 0.0):
@@ -215,6 +220,14 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.mag_rejected = 0
         self.innovation = np.zeros(6)
         self.heading_source = "none"
+        # filterpy inputs reused every sample (written in place; filterpy keeps none of them)
+        self._F, self._B, self._Q = np.eye(6), np.zeros((6, 3)), np.zeros((6, 6))
+        self._dt: float | None = None
+        self._q_key: tuple | None = None
+        self._u = np.zeros((3, 1))
+        self._H6, self._H5 = np.eye(6), np.eye(6)[_ROWS5]
+        self._R6, self._R5 = np.zeros((6, 6)), np.zeros((5, 5))
+        self._z6, self._z5 = np.zeros((6, 1)), np.zeros((5, 1))
 
     def _q(self, dt: float) -> np.ndarray:
         g = self.gains
@@ -230,7 +243,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
     def _heading(self, sample: ImuSample, roll: float, pitch: float, Rm, dt: float, spin: float) -> float | None:
         g = self.gains
         if sample.mag is not None:
-            mx, my, mz = (float(v) for v in sample.mag)
+            mx, my, mz = map(float, sample.mag)
             lag = g["mag_delay"]
             if lag > 0.0:  # a field fixed in the earth frame turns as ṁ = −ω × m in the sensor
                 wx, wy, wz = self.gyro_prev
@@ -266,7 +279,9 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.valid = True
 
     def update_imu(self, sample: ImuSample) -> bool:
-        fx, fy, fz = (float(v) for v in sample.accel)
+        # The per-sample path works on plain floats and reuses preallocated filterpy inputs
+        # (F, B, Q, u, z, R, H): it gives the same numbers as building them anew each sample.
+        fx, fy, fz = map(float, sample.accel)
         self.accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
         dt = self._check_time(sample.t)
         if dt is None:
@@ -277,16 +292,26 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             return True
         if dt == 0.0:
             return self.valid
-        g = self.gains
+        g = self.gains.values  # the current dict (apply_preset replaces it): plain lookups
         kf = self.kf
-        kf.F = np.eye(6)
-        kf.F[0, 3] = kf.F[1, 4] = kf.F[2, 5] = dt
-        kf.Q = self._q(dt)
-        kf.B = np.vstack([np.eye(3) * (0.5 * dt * dt), np.eye(3) * dt])
-        gyro = tuple(float(v) for v in sample.gyro)
+        if dt != self._dt:  # Φ and B depend on Δt only; written in place
+            F, B = self._F, self._B
+            F[0, 3] = F[1, 4] = F[2, 5] = dt
+            B[0, 0] = B[1, 1] = B[2, 2] = 0.5 * dt * dt
+            B[3, 0] = B[4, 1] = B[5, 2] = dt
+            self._dt = dt
+        kf.F, kf.B = self._F, self._B
+        q_key = (dt, g["k_q"], g["dt_ref"], *(g[k] for k in _Q_NAMES))
+        if q_key != self._q_key:  # Q(Δt) = k_q·diag(q)·Δt/dt_ref, rebuilt only when an input changes
+            scale = q_key[1] * dt / q_key[2]
+            self._Q[_DIAG6] = [v * scale for v in q_key[3:]]
+            self._q_key = q_key
+        kf.Q = self._Q
+        gyro = tuple(map(float, sample.gyro))
         cmin = g["cos_pitch_min"]
-        x0 = kf.x[:, 0]
-        if g["exact_predict"] >= 0.5:
+        exact = g["exact_predict"] >= 0.5
+        x0 = kf.x[:, 0].tolist()
+        if exact:
             # the mean: the attitude turned by the trapezoid of two gyro samples, exactly
             # with the rate varying linearly between them, plus the second-order coning term
             # (ω₀ × ω₁)·dt²/12 (Bortz), which matters at telemetry rates in fast rotation
@@ -299,14 +324,18 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         else:
             # Euler rates of this gyro sample at the attitude predicted by the current rates
             rates = euler_rates(x0[0] + dt * x0[3], x0[1] + dt * x0[4], gyro, cmin)
-        u = [(r - r0) / dt for r, r0 in zip(rates, self.rates_prev)]
-        kf.predict(u=np.array(u).reshape(3, 1))  # column u: filterpy broadcasts a 1-D one
-        x = kf.x[:, 0]
-        if g["exact_predict"] >= 0.5:  # P as Φ P Φᵀ + Q; the mean from the exact rotation
-            x[0], x[1], x[2], x[3], x[4], x[5] = *ang, *rates
+        r0 = self.rates_prev
+        u = self._u
+        u[0, 0], u[1, 0], u[2, 0] = (rates[0] - r0[0]) / dt, (rates[1] - r0[1]) / dt, (rates[2] - r0[2]) / dt
+        kf.predict(u=u)  # column u: filterpy broadcasts a 1-D one
+        if exact:  # P as Φ P Φᵀ + Q; the mean from the exact rotation
+            x = [*ang, *rates]
+            kf.x[:, 0] = x
             kf.x_prior = kf.x.copy()
         else:
+            x = kf.x[:, 0].tolist()
             x[0], x[2] = wrap_pi(x[0]), wrap_pi(x[2])
+            kf.x[0, 0], kf.x[2, 0] = x[0], x[2]
             q = _quat(x[0], x[1], x[2])
         self.gyro_prev = gyro
         self.rates_prev = rates
@@ -314,8 +343,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         # tilt: gravity-only specific force in the earth frame, averaged, back in the sensor frame
         a = self.gps.at(sample.t)
         k = g["gps_gain"]
-        R = self._r()
-        rows = [0, 1, 3, 4, 5]
+        r = [g[n] for n in _R_NAMES]
         if self.accel_norm > 1e-6:
             fe = tuple(Rm[i][0] * fx + Rm[i][1] * fy + Rm[i][2] * fz - k * a[i] for i in range(3))
             if self.f_avg is not None and g["accel_tau"] > 0.0:
@@ -327,27 +355,33 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             gate = g["accel_gate"]
             dev = abs(math.sqrt(fe[0] * fe[0] + fe[1] * fe[1] + fe[2] * fe[2]) - G0)
             self.accel_scale = 1.0 + (dev / gate) ** 2 if gate > 0.0 else 1.0
-            R[0, 0] *= self.accel_scale
-            R[1, 1] *= self.accel_scale
+            r[0] *= self.accel_scale
+            r[1] *= self.accel_scale
         else:
             roll, pitch = x[0], x[1]
         if g["gimbal_r"] >= 0.5:  # near pitch ±90° roll, yaw and their rates are ill-defined
             s = 1.0 / max(math.cos(x[1]) ** 2, cmin * cmin)
-            for i in (0, 2, 3, 5):
-                R[i, i] *= s
+            r[0] *= s
+            r[2] *= s
+            r[3] *= s
+            r[5] *= s
         spin = math.sqrt(gyro[0] ** 2 + gyro[1] ** 2 + gyro[2] ** 2)
         yaw = self._heading(sample, x[0], x[1], Rm, dt, spin)
+        z0 = x[0] + wrap_pi(roll - x[0])
         if yaw is not None:
-            rows = [0, 1, 2, 3, 4, 5]
-            R[2, 2] += (spin * g["mag_time_sigma"]) ** 2
-        z = [x[0] + wrap_pi(roll - x[0]), pitch, x[2] + wrap_pi((yaw if yaw is not None else x[2]) - x[2]),
-             *rates]
-        H = np.eye(6)[rows]
+            r[2] += (spin * g["mag_time_sigma"]) ** 2
+            H, R, zc = self._H6, self._R6, self._z6
+            zc[:, 0] = (z0, pitch, x[2] + wrap_pi(yaw - x[2]), *rates)
+            R[_DIAG6] = r
+        else:  # no heading row
+            H, R, zc = self._H5, self._R5, self._z5
+            zc[:, 0] = (z0, pitch, *rates)
+            R[_DIAG5] = (r[0], r[1], r[3], r[4], r[5])
         # column vector z: filterpy skips its reshape when H is passed (packages-smoke.md §5)
-        kf.update(np.array(z)[rows].reshape(-1, 1), R=R[np.ix_(rows, rows)], H=H)
-        self.innovation = np.zeros(6)
-        self.innovation[rows] = kf.y[:, 0]
-        x = kf.x[:, 0]
+        kf.update(zc, R=R, H=H)
+        y = kf.y[:, 0].tolist()
+        self.innovation = np.array(y if yaw is not None else (y[0], y[1], 0.0, y[2], y[3], y[4]))
+        x = kf.x[:, 0].tolist()
         if self.f_avg is not None and g["accel_tau"] > 0.0:
             # turn the average with the correction (earth frame, R⁺R⁻ᵀ), so it filters the
             # measurement without delaying the loop (as the DCM and VQF do)
@@ -355,17 +389,17 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             fs = tuple(Rm[0][i] * self.f_avg[0] + Rm[1][i] * self.f_avg[1] + Rm[2][i] * self.f_avg[2]
                        for i in range(3))
             self.f_avg = tuple(Rp[i][0] * fs[0] + Rp[i][1] * fs[1] + Rp[i][2] * fs[2] for i in range(3))
-        x[0], x[2] = wrap_pi(x[0]), wrap_pi(x[2])
+        kf.x[0, 0], kf.x[2, 0] = wrap_pi(x[0]), wrap_pi(x[2])
         return True
 
     @property
     def euler(self) -> tuple[float, float, float]:
-        x = self.kf.x[:, 0]
-        return float(x[0]), float(x[1]), float(x[2])
+        x = self.kf.x[:3, 0].tolist()
+        return x[0], x[1], x[2]
 
     @property
     def quaternion(self) -> np.ndarray:
-        return euler_to_quat(*self.euler)
+        return np.array(_quat(*self.euler))  # `euler_to_quat`, the same formula on floats
 
     def health(self) -> dict[str, float | str]:
         return {
