@@ -7,7 +7,6 @@ import argparse
 import asyncio
 import math
 import socket
-import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

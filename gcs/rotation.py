@@ -11,19 +11,72 @@ import math
 
 import numpy as np
 
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+Rows = tuple[Vec3, Vec3, Vec3]
 
-def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+
+# --- the formulas, on plain floats (tuples in, tuples out) ---------------------------------------
+# Per-sample filter loops call these directly: at 3 and 4 elements numpy's call overhead costs
+# more than the arithmetic. The numpy functions further down wrap the same formulas.
+
+
+def quat_mul(p, q) -> Quat:
     """Hamilton product p ⊗ q (apply q first, then p)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return np.array(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
+    return (pw * qw - px * qx - py * qy - pz * qz,
             pw * qx + px * qw + py * qz - pz * qy,
             pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ]
-    )
+            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
+
+
+def quat_exp(x: float, y: float, z: float) -> Quat:
+    """Quaternion of a rotation by |(x, y, z)| radians about (x, y, z): exact, also for tiny angles."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
+    s = math.sin(0.5 * angle) / angle
+    return math.cos(0.5 * angle), x * s, y * s, z * s
+
+
+def quat_unit(q) -> Quat:
+    """q / |q|."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n
+
+
+def quat_rows(q) -> Rows:
+    """Rows of the rotation matrix R (body→earth) of a unit quaternion."""
+    w, x, y, z = q
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
+
+
+def rows_times(R: Rows, a) -> Vec3:
+    """R a, for R given as rows."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    ax, ay, az = a
+    return r00 * ax + r01 * ay + r02 * az, r10 * ax + r11 * ay + r12 * az, r20 * ax + r21 * ay + r22 * az
+
+
+def euler_quat(roll: float, pitch: float, yaw: float) -> Quat:
+    """Quaternion of Z-Y-X Euler angles in radians."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
+
+
+# --- numpy API ------------------------------------------------------------------------------------
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p ⊗ q (apply q first, then p); also element-wise over (4, N) arrays."""
+    return np.array(quat_mul(p, q))
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
@@ -39,23 +92,12 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
 
 def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
     """Quaternion of a rotation by |v| radians about v (exact, also for tiny angles)."""
-    angle = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
-    if angle < 1e-12:
-        return np.array([1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2]])
-    s = math.sin(0.5 * angle) / angle
-    return np.array([math.cos(0.5 * angle), v[0] * s, v[1] * s, v[2] * s])
+    return np.array(quat_exp(float(v[0]), float(v[1]), float(v[2])))
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrix R (body→earth) of a unit quaternion."""
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return np.array(quat_rows(q))
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
@@ -78,17 +120,7 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
 
 def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """Quaternion of Z-Y-X Euler angles in radians."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return np.array(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
-    )
+    return np.array(euler_quat(roll, pitch, yaw))
 
 
 def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:

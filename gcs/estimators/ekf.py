@@ -72,55 +72,11 @@ import numpy as np
 
 from gcs.estimators.base import COMMON_GAINS, AttitudeEstimator, initial_attitude
 from gcs.estimators.gains import Gain
-from gcs.rotation import matrix_to_quat, wrap_pi
+from gcs.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times, wrap_pi
 from gcs.sensors import G0, GpsSample, ImuSample
 
 _TH, _V, _B = slice(0, 3), slice(3, 6), slice(6, 9)  # error-state blocks
 _U = np.array([[0.0, G0, 0.0], [-G0, 0.0, 0.0]])  # the non-zero rows of [−g]×, g = (0, 0, G0)
-
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
-
-
-# Tuple versions of gcs.rotation's quat_multiply, quat_from_rotvec and quat_to_matrix (same formulas).
-def _quat_mul(p: Quat, q: Quat) -> Quat:
-    """Hamilton product p ⊗ q."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
-
-
-def _quat_exp(x: float, y: float, z: float) -> Quat:
-    """Exp of the rotation vector (x, y, z): exact, also for tiny angles."""
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
-    s = math.sin(0.5 * angle) / angle
-    return math.cos(0.5 * angle), x * s, y * s, z * s
-
-
-def _normalised(q: Quat) -> Quat:
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    return w / n, x / n, y / n, z / n
-
-
-def _matrix(q: Quat) -> tuple[Vec3, Vec3, Vec3]:
-    """R(q), as rows."""
-    w, x, y, z = q
-    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
-
-
-def _times(R: tuple[Vec3, Vec3, Vec3], a: Vec3) -> Vec3:
-    """R a."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
-    ax, ay, az = a
-    return r00 * ax + r01 * ay + r02 * az, r10 * ax + r11 * ay + r12 * az, r20 * ax + r21 * ay + r22 * az
 
 
 def _inv_sym(S: list[list[float]]) -> list[list[float]]:
@@ -283,7 +239,7 @@ class EkfEstimator(AttitudeEstimator):
         self.P = np.diag([tilt_var, tilt_var, heading_var] + [vel_var] * 3 + [bias_var] * 3)
         self.mag_ref_norm = 0.0
         if mag is not None:
-            self._learn_mag_reference(_times(_matrix(self.q), mag))
+            self._learn_mag_reference(rows_times(quat_rows(self.q), mag))
         self.initialised = True
         return True
 
@@ -291,10 +247,10 @@ class EkfEstimator(AttitudeEstimator):
         """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P."""
         g = self.gains.values
         bx, by, bz = self.b
-        self.q = q = _normalised(_quat_mul(self.q, _quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt,
+        self.q = q = quat_unit(quat_mul(self.q, quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt,
                                                               (gyro[2] - bz) * dt)))
-        R = _matrix(q)
-        fx, fy, fz = _times(R, accel)
+        R = quat_rows(q)
+        fx, fy, fz = rows_times(R, accel)
         vx, vy, vz = self.v
         self.v = v = (vx + fx * dt, vy + fy * dt, vz + (fz + G0) * dt)
         ox, oy, oz = self._v_offset
@@ -329,7 +285,7 @@ class EkfEstimator(AttitudeEstimator):
 
     def _inject(self, dx: list[float]) -> None:
         """Move the error estimate into the nominal state (the error resets to zero)."""
-        self.q = _normalised(_quat_mul(_quat_exp(dx[0], dx[1], dx[2]), self.q))
+        self.q = quat_unit(quat_mul(quat_exp(dx[0], dx[1], dx[2]), self.q))
         self._shift_velocity((dx[3], dx[4], dx[5]))
         bx, by, bz = self.b
         self.b = (bx + dx[6], by + dx[7], bz + dx[8])
@@ -380,7 +336,7 @@ class EkfEstimator(AttitudeEstimator):
         row is zero: y_D has no gain and is left out)."""
         r = self.gains["rest_acc_noise"] ** 2 / dt
         PHt = self.P[:, _TH] @ _U.T
-        fx, fy, _ = _times(_matrix(self.q), accel)
+        fx, fy, _ = rows_times(quat_rows(self.q), accel)
         self._update(PHt, _plus_r(_U @ PHt[_TH], r), [fx, fy])
 
     def _update_zero_rate(self, gyro: list[float], dt: float) -> None:
@@ -397,7 +353,7 @@ class EkfEstimator(AttitudeEstimator):
 
     def _update_heading(self, mag: list[float], dt: float) -> None:
         g = self.gains.values
-        m_n = _times(_matrix(self.q), mag)
+        m_n = rows_times(quat_rows(self.q), mag)
         m_h = math.hypot(m_n[0], m_n[1])
         m_norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         if m_h < 1e-3 * m_norm:
@@ -433,4 +389,4 @@ class EkfEstimator(AttitudeEstimator):
         P[2, 2] += s * (k * k)
         self.stats["mag_nis"] = y * y / s
         self.stats["mag_innov_deg"] = math.degrees(y)
-        self.q = _normalised(_quat_mul(_quat_exp(0.0, 0.0, k * y), self.q))
+        self.q = quat_unit(quat_mul(quat_exp(0.0, 0.0, k * y), self.q))

@@ -11,7 +11,8 @@ from filterpy.kalman import KalmanFilter
 from gcs.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration
 from gcs.estimators.gains import Gain
 from gcs.estimators.magnetic import MagDisturbance
-from gcs.rotation import euler_to_quat, quat_to_matrix, wrap_pi
+from gcs.rotation import (euler_quat, euler_to_quat, quat_exp, quat_mul, quat_rows, quat_to_euler,
+                          quat_to_matrix, quat_unit, wrap_pi)
 from gcs.sensors import G0, GpsSample, ImuSample
 
 _ANGLES = ("roll", "pitch", "yaw")
@@ -63,46 +64,6 @@ def euler_rates(roll: float, pitch: float, gyro, cos_min: float = 1e-6) -> tuple
     cp = math.copysign(max(abs(cp), cos_min), cp)
     tp = math.sin(pitch) / cp
     return p + (sr * q + cr * r) * tp, cr * q - sr * r, (sr * q + cr * r) / cp
-
-
-def _quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """`euler_to_quat` on plain floats (the per-sample path avoids numpy's call overhead)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
-
-
-def _rotate(q, wx: float, wy: float, wz: float) -> tuple[float, float, float, float]:
-    """q ⊗ Exp(w): q turned by the body rotation vector w (rad), exactly."""
-    a = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if a < 1e-9:
-        c, s = 1.0, 0.5
-    else:
-        c, s = math.cos(0.5 * a), math.sin(0.5 * a) / a
-    bw, bx, by, bz = c, s * wx, s * wy, s * wz
-    w, x, y, z = q
-    q1 = (w * bw - x * bx - y * by - z * bz, w * bx + x * bw + y * bz - z * by,
-          w * by - x * bz + y * bw + z * bx, w * bz + x * by - y * bx + z * bw)
-    n = math.sqrt(sum(v * v for v in q1))
-    return tuple(v / n for v in q1)
-
-
-def _matrix(q) -> tuple[tuple[float, float, float], ...]:
-    """Rows of the rotation matrix (sensor → NED) of a unit quaternion of plain floats."""
-    w, x, y, z = q
-    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
-
-
-def _euler(q) -> tuple[float, float, float]:
-    """`quat_to_euler` on plain floats: roll, yaw in (−π, π], pitch in [−π/2, π/2]."""
-    w, x, y, z = q
-    return (math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-            math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z)))),
-            math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 class KalmanAttitudeFilter(AttitudeEstimator):
@@ -317,9 +278,11 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             # (ω₀ × ω₁)·dt²/12 (Bortz), which matters at telemetry rates in fast rotation
             (a0, a1, a2), (b0, b1, b2) = self.gyro_prev, gyro
             c = dt * dt / 12.0
-            q = _rotate(_quat(x0[0], x0[1], x0[2]), 0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
-                        0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2), 0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0))
-            ang = _euler(q)
+            turn = quat_exp(0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
+                            0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
+                            0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0))
+            q = quat_unit(quat_mul(euler_quat(x0[0], x0[1], x0[2]), turn))
+            ang = quat_to_euler(q)
             rates = euler_rates(ang[0], ang[1], gyro, cmin)
         else:
             # Euler rates of this gyro sample at the attitude predicted by the current rates
@@ -336,10 +299,10 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             x = kf.x[:, 0].tolist()
             x[0], x[2] = wrap_pi(x[0]), wrap_pi(x[2])
             kf.x[0, 0], kf.x[2, 0] = x[0], x[2]
-            q = _quat(x[0], x[1], x[2])
+            q = euler_quat(x[0], x[1], x[2])
         self.gyro_prev = gyro
         self.rates_prev = rates
-        Rm = _matrix(q)
+        Rm = quat_rows(q)
         # tilt: gravity-only specific force in the earth frame, averaged, back in the sensor frame
         a = self.gps.at(sample.t)
         k = g["gps_gain"]
@@ -385,7 +348,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         if self.f_avg is not None and g["accel_tau"] > 0.0:
             # turn the average with the correction (earth frame, R⁺R⁻ᵀ), so it filters the
             # measurement without delaying the loop (as the DCM and VQF do)
-            Rp = _matrix(_quat(x[0], x[1], x[2]))
+            Rp = quat_rows(euler_quat(x[0], x[1], x[2]))
             fs = tuple(Rm[0][i] * self.f_avg[0] + Rm[1][i] * self.f_avg[1] + Rm[2][i] * self.f_avg[2]
                        for i in range(3))
             self.f_avg = tuple(Rp[i][0] * fs[0] + Rp[i][1] * fs[1] + Rp[i][2] * fs[2] for i in range(3))
@@ -399,7 +362,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
 
     @property
     def quaternion(self) -> np.ndarray:
-        return np.array(_quat(*self.euler))  # `euler_to_quat`, the same formula on floats
+        return np.array(euler_quat(*self.euler))
 
     def health(self) -> dict[str, float | str]:
         return {

@@ -7,7 +7,6 @@ replay of a recording feed it the same messages in the same order and get the sa
 
 from __future__ import annotations
 
-import asyncio
 import math
 from dataclasses import dataclass
 from typing import Callable, Iterable
