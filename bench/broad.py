@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.rotation import quat_conjugate, quat_multiply
+from gcs.core.rotation import quat_conjugate, quat_multiply
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "broad"
@@ -104,15 +104,27 @@ def bench_trial(path: Path, every: int, estimators: tuple[str, ...], tmp: str) -
     n = len(trial["t"])
     base = {"benchmark": "broad", "rate_hz": round(trial["rate"], 1), "trial": path.stem}
     start = time.perf_counter()
-    rows = [{**base, "estimator": "vqf", **broad_errors(run_vqf(trial), trial["opt_quat"], trial["movement"]),
-             "us_per_sample": 1e6 * (time.perf_counter() - start) / n}]
+    rows = [
+        {
+            **base,
+            "estimator": "vqf",
+            **broad_errors(run_vqf(trial), trial["opt_quat"], trial["movement"]),
+            "us_per_sample": 1e6 * (time.perf_counter() - start) / n,
+        }
+    ]
     for name in estimators:
         q_ned, elapsed = run_cli(name, csv_path, os.path.join(tmp, f"{path.stem}_{every}_{name}.out.csv"))
         if len(q_ned) != n:
             raise RuntimeError(f"{name} on {path.stem}: {len(q_ned)} output rows for {n} samples")
         q_enu = quat_multiply(Q_NED_TO_ENU, q_ned.T).T
-        rows.append({**base, "estimator": name, **broad_errors(q_enu, trial["opt_quat"], trial["movement"]),
-                     "us_per_sample": 1e6 * elapsed / n})
+        rows.append(
+            {
+                **base,
+                "estimator": name,
+                **broad_errors(q_enu, trial["opt_quat"], trial["movement"]),
+                "us_per_sample": 1e6 * elapsed / n,
+            }
+        )
     os.remove(csv_path)
     return rows
 

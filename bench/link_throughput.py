@@ -12,8 +12,8 @@ from __future__ import annotations
 import asyncio
 import time
 
-from gcs.link.connection import Link
-from gcs.link.dialect import Encoder, MAVLink, mavlink
+from gcs.mavlink.dialect import Encoder, MAVLink, mavlink
+from gcs.runtime.link import Link
 
 CHUNK = 4096
 
@@ -74,9 +74,15 @@ def main() -> list[dict]:
     ours, n_ours = best_rate(link_and_bus, parts)
     assert n_base == n_ours, (n_base, n_ours)
     return [
-        {"benchmark": "link decode+dispatch", "baseline": "bare pymavlink parse_buffer",
-         "baseline_per_s": round(base), "ours_per_s": round(ours), "ratio": round(ours / base, 3),
-         "unit": "messages/s", "n": n_ours},
+        {
+            "benchmark": "link decode+dispatch",
+            "baseline": "bare pymavlink parse_buffer",
+            "baseline_per_s": round(base),
+            "ours_per_s": round(ours),
+            "ratio": round(ours / base, 3),
+            "unit": "messages/s",
+            "n": n_ours,
+        },
     ]
 
 

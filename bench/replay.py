@@ -18,9 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from gcs.link.dialect import Encoder, mavlink
-from gcs.link.tlog import tlog_record
-from gcs.sessions.replay import ReplaySession
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.mavlink.tlog import tlog_record
+from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
 from gcs.sim import SimVehicle
@@ -53,8 +53,11 @@ def replay(path: Path, estimators: list[str]) -> tuple[float, int, float]:
 def simulated_session(path: Path, seconds: float = SESSION_S) -> None:
     """A tlog of the simulated quad with every stream at RATE_HZ, written as fast as the CPU allows."""
     sim = SimVehicle(profile="pixhawk", script="quad", seed=1)
-    sim.handle_bytes(Encoder(255, 190).encode(
-        mavlink.MAVLink_request_data_stream_message(1, 1, mavlink.MAV_DATA_STREAM_ALL, RATE_HZ, 1)))
+    sim.handle_bytes(
+        Encoder(255, 190).encode(
+            mavlink.MAVLink_request_data_stream_message(1, 1, mavlink.MAV_DATA_STREAM_ALL, RATE_HZ, 1)
+        )
+    )
     base_us = 1_700_000_000_000_000
     with open(path, "wb") as fh:
         for k in range(1, int(seconds * RATE_HZ) + 1):
@@ -66,10 +69,18 @@ def main() -> list[dict]:
     rows = []
     base = min(bare_dfreader(BIN) for _ in range(2))
     ours, samples, duration = min(replay(BIN, ["dcm", "ekf"]) for _ in range(2))
-    rows.append({"benchmark": "replay .BIN decode+dcm+ekf", "baseline": "bare pymavlink DFReader pass",
-                 "baseline_per_s": round(samples / base), "ours_per_s": round(samples / ours),
-                 "ratio": round(base / ours, 2), "unit": "IMU samples/s",
-                 "n": samples, "x_real_time": round(duration / ours, 1)})
+    rows.append(
+        {
+            "benchmark": "replay .BIN decode+dcm+ekf",
+            "baseline": "bare pymavlink DFReader pass",
+            "baseline_per_s": round(samples / base),
+            "ours_per_s": round(samples / ours),
+            "ratio": round(base / ours, 2),
+            "unit": "IMU samples/s",
+            "n": samples,
+            "x_real_time": round(duration / ours, 1),
+        }
+    )
     with tempfile.TemporaryDirectory() as tmp:
         tlog = Path(tmp) / "ten-minutes.tlog"
         simulated_session(tlog)
@@ -78,10 +89,17 @@ def main() -> list[dict]:
         for estimator, gains in (("dcm", {"kp_rp": 0.4}), ("kf", {"r_roll": 0.04}), ("ekf", {"gyro_noise": 0.02})):
             what_if(source, estimator, {})  # the original run, cached as the dashboard's first view does
             result = what_if(source, estimator, gains)
-            rows.append({"benchmark": f"what-if {estimator} 10 min @ {RATE_HZ} Hz",
-                         "baseline": "re-decode + replay all estimators",
-                         "baseline_s": round(full, 2), "ours_s": round(result.elapsed_s, 3),
-                         "ratio": round(full / result.elapsed_s, 1), "unit": "s", "n": imu})
+            rows.append(
+                {
+                    "benchmark": f"what-if {estimator} 10 min @ {RATE_HZ} Hz",
+                    "baseline": "re-decode + replay all estimators",
+                    "baseline_s": round(full, 2),
+                    "ours_s": round(result.elapsed_s, 3),
+                    "ratio": round(full / result.elapsed_s, 1),
+                    "unit": "s",
+                    "n": imu,
+                }
+            )
     return rows
 
 

@@ -21,7 +21,7 @@ async def client(url: str, seconds: float) -> list[tuple[float, float]]:
         while time.monotonic() < end:
             try:
                 text = await asyncio.wait_for(ws.recv(), 0.5)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 continue
             now = time.monotonic()
             msg = json.loads(text)

@@ -14,10 +14,10 @@ import sys
 
 import numpy as np
 
-from gcs.server.runtime import DashboardServer
+from gcs.runtime.station import GroundStation, StationConfig
+from gcs.runtime.streams import StreamPlan
+from gcs.server.dashboard import DashboardServer
 from gcs.sim import SimVehicle
-from gcs.station import GroundStation, StationConfig
-from gcs.vehicle.streams import StreamPlan
 
 MISSION_PLANNER_PERIOD_MS = 200.0
 
@@ -32,7 +32,9 @@ def free_udp_port() -> int:
 
 async def measure(clients: int, seconds: float) -> dict:
     port = free_udp_port()
-    station = GroundStation(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200)))
+    station = GroundStation(
+        StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200))
+    )
     server = DashboardServer(station, port=0, viser=False)
     sim = SimVehicle(profile="pixhawk", script="quad")
     await station.start()
@@ -44,8 +46,14 @@ async def measure(clients: int, seconds: float) -> dict:
             await asyncio.sleep(0.2)
         sub = station.bus.subscribe("bench-arrival", types=["ATTITUDE"], maxlen=100_000)
         proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{server.port}/ws/live", str(clients),
-            str(seconds), stdout=asyncio.subprocess.PIPE)
+            sys.executable,
+            "-m",
+            "bench.ws_clients",
+            f"ws://127.0.0.1:{server.port}/ws/live",
+            str(clients),
+            str(seconds),
+            stdout=asyncio.subprocess.PIPE,
+        )
         reader = asyncio.create_task(proc.communicate())
         while not reader.done():
             for m in sub.drain():
@@ -58,20 +66,38 @@ async def measure(clients: int, seconds: float) -> dict:
         await server.stop()
         sim_task.cancel()
         await station.stop()
-    latencies = [1000 * (recv - arrivals[round(t, 3)]) for per_client in received for t, recv in per_client
-                 if round(t, 3) in arrivals]
+    latencies = [
+        1000 * (recv - arrivals[round(t, 3)])
+        for per_client in received
+        for t, recv in per_client
+        if round(t, 3) in arrivals
+    ]
     p50, p95, p99 = (float(v) for v in np.percentile(latencies, [50, 95, 99]))
-    return {"clients": clients, "attitude_hz": round(rate, 1), "samples": len(latencies),
-            "p50_ms": round(p50, 2), "p95_ms": round(p95, 2), "p99_ms": round(p99, 2), "max_ms": round(max(latencies), 2)}
+    return {
+        "clients": clients,
+        "attitude_hz": round(rate, 1),
+        "samples": len(latencies),
+        "p50_ms": round(p50, 2),
+        "p95_ms": round(p95, 2),
+        "p99_ms": round(p99, 2),
+        "max_ms": round(max(latencies), 2),
+    }
 
 
 def main(seconds: float = 10.0) -> list[dict]:
     rows = []
     for clients in (1, 20):
         r = asyncio.run(measure(clients, seconds))
-        rows.append({"benchmark": f"ws latency, {clients} client(s), 200 Hz", "baseline": "Mission Planner 5 Hz push",
-                     "baseline_ms": MISSION_PLANNER_PERIOD_MS, **r,
-                     "ratio_p99": round(r["p99_ms"] / MISSION_PLANNER_PERIOD_MS, 3), "unit": "ms"})
+        rows.append(
+            {
+                "benchmark": f"ws latency, {clients} client(s), 200 Hz",
+                "baseline": "Mission Planner 5 Hz push",
+                "baseline_ms": MISSION_PLANNER_PERIOD_MS,
+                **r,
+                "ratio_p99": round(r["p99_ms"] / MISSION_PLANNER_PERIOD_MS, 3),
+                "unit": "ms",
+            }
+        )
     return rows
 
 

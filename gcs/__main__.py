@@ -1,3 +1,3 @@
-from gcs.cli import main
+from gcs.commands.cli import main
 
 raise SystemExit(main())

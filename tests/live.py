@@ -6,8 +6,8 @@ import asyncio
 import contextlib
 import time
 
+from gcs.runtime.station import GroundStation, StationConfig
 from gcs.sim import SimVehicle
-from gcs.station import GroundStation, StationConfig
 
 
 @contextlib.asynccontextmanager

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gcs.rotation import euler_to_quat, quat_from_rotvec, quat_multiply, quat_to_matrix
-from gcs.sensors import G0, ImuSample
+from gcs.core.rotation import euler_to_quat, quat_from_rotvec, quat_multiply, quat_to_matrix
+from gcs.core.samples import G0, ImuSample
 
 G_NED = np.array([0.0, 0.0, G0])
 #: An earth field of 0.5 gauss, 60° dip, pointing to magnetic north.

@@ -1,6 +1,6 @@
 import pytest
 
-from gcs.link.address import Address, AddressError, parse_address
+from gcs.transport.address import Address, AddressError, parse_address
 
 
 @pytest.mark.parametrize(
@@ -20,13 +20,16 @@ def test_connection_strings_parse(text, expected):
     assert parse_address(text) == expected
 
 
-@pytest.mark.parametrize("text, fragment", [
-    ("udpin:0.0.0.0", "HOST:PORT"),
-    ("tcp:localhost:http", "not a number"),
-    ("udpout:1.2.3.4:70000", "outside"),
-    ("bogus:1.2.3.4:5", "unknown scheme"),
-    ("", "empty"),
-])
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("udpin:0.0.0.0", "HOST:PORT"),
+        ("tcp:localhost:http", "not a number"),
+        ("udpout:1.2.3.4:70000", "outside"),
+        ("bogus:1.2.3.4:5", "unknown scheme"),
+        ("", "empty"),
+    ],
+)
 def test_bad_connection_strings_say_what_is_wrong(text, fragment):
     with pytest.raises(AddressError, match=fragment):
         parse_address(text)

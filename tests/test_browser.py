@@ -9,22 +9,28 @@ import io
 import os
 
 import pytest
+from conftest import free_port
+from live import running_sim, running_station
 from PIL import Image
 from playwright.async_api import async_playwright
 
-from conftest import free_port
-from live import running_sim, running_station
-from gcs.server.runtime import DashboardServer
+from gcs.server.dashboard import DashboardServer
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
-    "--use-angle=swiftshader", "--enable-unsafe-swiftshader",  # software WebGL for the 3-D view
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",  # software WebGL for the 3-D view
     "--disable-gpu-compositing",  # compositing in software without the GPU process: rAF at 60 Hz, not 2-30
     "--no-sandbox",
     "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1",  # not even DNS lookups leave the machine
 ]
 
-pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="chromium missing: run bash .ci/setup")
+
+@pytest.fixture(autouse=True)
+def _chromium_installed() -> None:
+    """A missing browser fails these tests (CI must have it), it never skips them."""
+    if not os.path.exists(CHROMIUM):
+        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
 
 
 def test_dashboard_in_chromium(udp_port, artifacts_dir):
@@ -38,8 +44,10 @@ def test_dashboard_in_chromium(udp_port, artifacts_dir):
 
 async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
     report: dict = {"console_errors": []}
-    async with running_station(f"udpin:127.0.0.1:{udp_port}") as station, \
-            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"):
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+    ):
         server = DashboardServer(station, port=0, viser_port=free_port())
         await server.start()
         try:
@@ -81,14 +89,18 @@ async def slider_latency(page) -> float:
     slider = page.locator('input[type=range][data-estimator="kf"][data-gain="declination"]')
     before = await yaw_error(page)
     assert abs(before) < 10, f"kf − onboard yaw error already {before:.1f}° before the change"
-    await slider.evaluate("el => { window.gcsMoved = performance.now(); el.value = 1.0; "
-                          "el.dispatchEvent(new Event('input', {bubbles: true})); }")
+    await slider.evaluate(
+        "el => { window.gcsMoved = performance.now(); el.value = 1.0; "
+        "el.dispatchEvent(new Event('input', {bubbles: true})); }"
+    )
     await page.wait_for_function(f"Math.abs({JS_YAW_ERROR}) > 10", timeout=5_000)
     return await page.evaluate("(performance.now() - window.gcsMoved) / 1000")
 
 
-JS_YAW_ERROR = ("(() => { const s = gcsPlots.errors.find((x) => x.e === 'kf' && x.r === 'onboard').series; "
-                "s.update(); return s.v[2].length ? s.v[2][s.v[2].length - 1] : 0; })()")
+JS_YAW_ERROR = (
+    "(() => { const s = gcsPlots.errors.find((x) => x.e === 'kf' && x.r === 'onboard').series; "
+    "s.update(); return s.v[2].length ? s.v[2][s.v[2].length - 1] : 0; })()"
+)
 
 
 async def yaw_error(page) -> float:
@@ -107,7 +119,7 @@ async def pose_view_colours(page) -> int:
             await asyncio.sleep(2.0)
             shot = await canvas.screenshot()
             colours = len(Image.open(io.BytesIO(shot)).convert("RGB").getcolors(maxcolors=1 << 24))
-        except Exception as exc:  # noqa: BLE001 — retried once, then reported as 0 colours
+        except Exception as exc:
             print(f"pose view attempt {attempt}: {exc}")
         if colours > 20:
             break

@@ -1,7 +1,7 @@
 import asyncio
 
-from gcs.bus import Message, MessageBus, vehicle_time_of
-from gcs.link.dialect import mavlink
+from gcs.mavlink.dialect import mavlink
+from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 
 
 def _item(i: int) -> Message:

@@ -8,7 +8,7 @@ import socket
 import subprocess
 import sys
 
-from gcs.cli import SUBCOMMANDS
+from gcs.commands.cli import SUBCOMMANDS
 
 GCS = [sys.executable, "-m", "gcs"]
 
@@ -22,11 +22,18 @@ def test_help_lists_every_subcommand_and_each_has_help():
 
 
 def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port):
-    sim = subprocess.Popen(GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{udp_port}"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    sim = subprocess.Popen(
+        GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{udp_port}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     try:
-        done = subprocess.run(GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8", "--no-record",
-                                     "--json"], capture_output=True, text=True, timeout=60)
+        done = subprocess.run(
+            GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8", "--no-record", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
     finally:
         sim.terminate()
         sim.wait(10)
@@ -51,8 +58,12 @@ def test_demo_shows_live_data_within_10_s(tmp_path):
     from conftest import free_port
 
     port = free_port(socket.SOCK_STREAM)
-    proc = subprocess.Popen(GCS + ["demo", "--no-record", "--port", str(port), "--duration", "10"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        GCS + ["demo", "--no-record", "--port", str(port), "--duration", "10"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert f"dashboard at http://127.0.0.1:{port}" in out

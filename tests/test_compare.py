@@ -5,11 +5,11 @@ from pathlib import Path
 
 import pytest
 
-from gcs.estimators import registry
-from gcs.estimators.compare import Comparison, compare_stream
-from gcs.rotation import euler_to_quat
-from gcs.sensors import AttitudeSample
-from gcs.sessions.readers import read_samples
+from gcs.core.comparison import Comparison, compare_stream
+from gcs.core.estimators import registry
+from gcs.core.rotation import euler_to_quat
+from gcs.core.samples import AttitudeSample
+from gcs.logs.readers import read_samples
 
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 D = math.radians
@@ -92,7 +92,7 @@ def test_live_numbers_equal_offline_recomputation():
     live = Comparison()
     est = registry.create("dcm")
     for k in range(0, len(samples), 500):
-        compare_stream(samples[k:k + 500], est, live)
+        compare_stream(samples[k : k + 500], est, live)
         live.summary()
     offline = compare_stream(samples, registry.create("dcm")).summary()
     assert live.summary() == offline

@@ -10,13 +10,19 @@ import os
 
 import pyarrow.parquet as pq
 import pytest
-from playwright.async_api import async_playwright
-
 from live import running_sim, running_station, wait_for
+from playwright.async_api import async_playwright
 from test_browser import CHROMIUM, CHROMIUM_ARGS
-from gcs.server.runtime import DashboardServer
 
-pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="chromium missing: run bash .ci/setup")
+from gcs.server.dashboard import DashboardServer
+
+
+@pytest.fixture(autouse=True)
+def _chromium_installed() -> None:
+    """A missing browser fails these tests (CI must have it), it never skips them."""
+    if not os.path.exists(CHROMIUM):
+        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
+
 
 TOKEN = "s3cret-panel-token"
 
@@ -49,8 +55,10 @@ def test_tuning_panel(udp_port, artifacts_dir):
 
 async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
     errors: list[str] = []
-    async with running_station(f"udpin:127.0.0.1:{udp_port}") as station, \
-            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad") as sim:
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad") as sim,
+    ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         # As if reachable from other machines: every change needs the token the page got in its URL.
@@ -66,11 +74,16 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 await download.click()
                 current = page.locator("#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur")
                 await page.wait_for_function(
-                    "() => { const c = document.querySelector('#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur');"
-                    " return c && c.textContent !== '–' && c.textContent !== ''; }", timeout=30_000)
+                    "() => { const c = document.querySelector("
+                    "'#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur');"
+                    " return c && c.textContent !== '–' && c.textContent !== ''; }",
+                    timeout=30_000,
+                )
                 assert station.params.complete
                 assert "downloaded" in await page.text_content("#param-progress-text")
-                names = await page.eval_on_selector_all("#tuning-table tr.tune", "rows => rows.map((r) => r.dataset.param)")
+                names = await page.eval_on_selector_all(
+                    "#tuning-table tr.tune", "rows => rows.map((r) => r.dataset.param)"
+                )
                 assert {"ATC_RAT_RLL_P", "ATC_RAT_PIT_P"} <= set(names), names
                 start = before["ATC_RAT_RLL_P"]
                 assert abs(float(await current.text_content()) - start) < 1e-4
@@ -81,16 +94,22 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 new = round(start + 0.01, 4)
                 result = page.locator("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result")
                 await set_number(page, "tr.tune-edit[data-param=ATC_RAT_RLL_P] input[type=number]", new)
-                await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.verified", timeout=10_000)
+                await page.wait_for_selector(
+                    "tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.verified", timeout=10_000
+                )
                 assert "verified" in await result.text_content()
                 assert abs(sim.params["ATC_RAT_RLL_P"] - new) < 1e-6
                 await page.wait_for_function(
                     f"Math.abs(Number(document.querySelector('#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur')"
-                    f".textContent) - {new}) < 1e-5", timeout=5_000)
+                    f".textContent) - {new}) < 1e-5",
+                    timeout=5_000,
+                )
                 assert await page.locator("#tuning-table tr.tune[data-param=ATC_RAT_RLL_P].changed").count() == 1
 
                 # Too large a step is refused, with the server's reason on the page; the vehicle keeps its value.
-                await set_number(page, "tr.tune-edit[data-param=ATC_RAT_RLL_P] input[type=number]", round(new + 0.15, 4))
+                await set_number(
+                    page, "tr.tune-edit[data-param=ATC_RAT_RLL_P] input[type=number]", round(new + 0.15, 4)
+                )
                 await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.refused", timeout=10_000)
                 text = await result.text_content()
                 assert "refused" in text and "more than the largest step 0.02" in text, text
@@ -101,23 +120,29 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 slider = page.locator("tr.tune-edit[data-param=ATC_RAT_PIT_P] input[type=range]")
                 lo, hi = await slider.evaluate("el => [Number(el.min), Number(el.max)]")
                 assert hi - lo <= 2 * 0.02 + 1e-9
-                sent = await slider.evaluate(f"el => {{ el.value = {hi}; el.dispatchEvent(new Event('change', {{bubbles: true}}));"
-                                             " return Number(el.value); }")
+                sent = await slider.evaluate(
+                    f"el => {{ el.value = {hi}; el.dispatchEvent(new Event('change', {{bubbles: true}}));"
+                    " return Number(el.value); }"
+                )
                 assert sent > before["ATC_RAT_PIT_P"] + 0.015
-                await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=10_000)
+                await page.wait_for_selector(
+                    "tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=10_000
+                )
                 assert abs(sim.params["ATC_RAT_PIT_P"] - sent) < 1e-6
                 await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning.png"))
 
                 # Revert all puts back every pre-flight value, in the vehicle.
                 await page.click("#tuning-revert")
                 try:
-                    await page.wait_for_function("document.querySelector('#tuning-message').textContent.includes('reverted')",
-                                                 timeout=15_000)
+                    await page.wait_for_function(
+                        "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=15_000
+                    )
                 except Exception:
                     raise AssertionError(f"revert: page says {await page.text_content('#tuning-message')!r}") from None
                 assert sim.params.as_dict() == before
-                await page.wait_for_function("document.querySelectorAll('#tuning-table tr.tune.changed').length === 0",
-                                             timeout=5_000)
+                await page.wait_for_function(
+                    "document.querySelectorAll('#tuning-table tr.tune.changed').length === 0", timeout=5_000
+                )
                 assert abs(float(await current.text_content()) - start) < 1e-4
                 await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning-reverted.png"))
                 await browser.close()
@@ -141,23 +166,33 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 browser, page = await open_page(pw, server.url, errors)
                 async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0):
                     await page.click("#tabs button[data-tab=sessions]")
-                    await page.wait_for_function("document.querySelector('#rec-status').textContent.includes('recording')",
-                                                 timeout=10_000)
+                    await page.wait_for_function(
+                        "document.querySelector('#rec-status').textContent.includes('recording')", timeout=10_000
+                    )
                     assert str(root) in await page.text_content("#rec-status")
                     assert "REC" in await page.text_content("#rec-pill")
                     await page.fill("#rec-note", "gusty, swapped props")
                     await page.click("#rec-note-btn")
-                    await page.wait_for_function("document.querySelector('#rec-message').textContent.includes('note added')",
-                                                 timeout=5_000)
+                    await page.wait_for_function(
+                        "document.querySelector('#rec-message').textContent.includes('note added')", timeout=5_000
+                    )
                     await wait_for(lambda: station.estimation.pipeline.imu_samples > 600, 20, "IMU samples")
-                    await page.wait_for_function("document.querySelector('#rec-status').textContent.match(/[1-9][0-9.]* (KiB|MiB)/)",
-                                                 timeout=10_000)
-                    await page.locator("#tab-sessions").screenshot(path=str(artifacts_dir / "panel-sessions-recording.png"))
+                    await page.wait_for_function(
+                        "document.querySelector('#rec-status').textContent.match(/[1-9][0-9.]* (KiB|MiB)/)",
+                        timeout=10_000,
+                    )
+                    await page.locator("#tab-sessions").screenshot(
+                        path=str(artifacts_dir / "panel-sessions-recording.png")
+                    )
                     await page.click("#rec-stop")
                     await page.wait_for_function(  # listed, closed (the open session was listed while recording)
                         "(() => { const r = document.querySelectorAll('#sessions-table tr[data-session]');"
-                        " return r.length === 1 && !r[0].textContent.includes('(open)'); })()", timeout=15_000)
-                await page.wait_for_function("document.querySelector('#rec-status').textContent.includes('stopped')", timeout=5_000)
+                        " return r.length === 1 && !r[0].textContent.includes('(open)'); })()",
+                        timeout=15_000,
+                    )
+                await page.wait_for_function(
+                    "document.querySelector('#rec-status').textContent.includes('stopped')", timeout=5_000
+                )
                 assert await page.locator("#rec-stop").is_disabled()
                 assert await page.locator("#sessions-table tr[data-session]").count() == 1
                 name = await page.get_attribute("#sessions-table tr[data-session]", "data-session")
@@ -166,19 +201,25 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
 
                 # The export links work from the page: the CSV parses, the Parquet has the same rows.
                 href = await page.get_attribute("#sessions-table tr[data-session] a.export-csv", "href")
-                csv = await page.evaluate("(href) => fetch(href).then((r) => r.ok ? r.text() : 'HTTP ' + r.status)", href)
+                csv = await page.evaluate(
+                    "(href) => fetch(href).then((r) => r.ok ? r.text() : 'HTTP ' + r.status)", href
+                )
                 lines = csv.splitlines()
                 assert lines[0] == '"wall_time","t","source","roll_deg","pitch_deg","yaw_deg"', lines[:2]
                 assert len(lines) > 100 and all(len(line.split(",")) == 6 for line in lines[1:50])
                 href = await page.get_attribute("#sessions-table tr[data-session] a.export-parquet", "href")
-                data = await page.evaluate("(href) => fetch(href).then((r) => r.arrayBuffer())"
-                                           ".then((b) => Array.from(new Uint8Array(b)))", href)
+                data = await page.evaluate(
+                    "(href) => fetch(href).then((r) => r.arrayBuffer()).then((b) => Array.from(new Uint8Array(b)))",
+                    href,
+                )
                 assert pq.read_table(io.BytesIO(bytes(data))).num_rows == len(lines) - 1
 
                 # Logs from other tools in the recording folder are offered as sources too.
                 os.symlink(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")
                 await page.click("#sessions-refresh")
-                await page.wait_for_selector("#replay-source option[value='fragment.bin']", state="attached", timeout=5_000)
+                await page.wait_for_selector(
+                    "#replay-source option[value='fragment.bin']", state="attached", timeout=5_000
+                )
                 assert await page.locator("#whatif-source option[value='fragment.bin']").count() == 1
 
                 # Replay (the simulator is gone): the replayed points reach the plots, and the page says it is a replay.
@@ -193,7 +234,9 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 await page.wait_for_function(f"(gcsStats.received.onboard || 0) > {received} + 50", timeout=10_000)
                 await page.wait_for_function("(gcsStats.received.dcm || 0) > 50", timeout=10_000)
                 await page.click("#replay-pause")
-                await page.wait_for_function("document.querySelector('#replay-pill').textContent.includes('paused')", timeout=5_000)
+                await page.wait_for_function(
+                    "document.querySelector('#replay-pill').textContent.includes('paused')", timeout=5_000
+                )
                 await page.screenshot(path=str(artifacts_dir / "dashboard-replay.png"))
                 await page.locator("#tab-sessions").screenshot(path=str(artifacts_dir / "panel-sessions.png"))
                 await page.click("#replay-close")
@@ -206,17 +249,22 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 await page.fill("#whatif-gains input[data-gain=kp_rp]", "0.9")
                 await page.click("#whatif-run")
                 await page.wait_for_selector("#whatif-table tr[data-reference]", timeout=30_000)
-                refs = await page.eval_on_selector_all("#whatif-table tr[data-reference]", "rows => rows.map((r) => r.dataset.reference)")
+                refs = await page.eval_on_selector_all(
+                    "#whatif-table tr[data-reference]", "rows => rows.map((r) => r.dataset.reference)"
+                )
                 assert {"onboard", "truth"} <= set(refs), refs
-                cells = await page.eval_on_selector_all("#whatif-table tr[data-reference=truth] td", "tds => tds.map((t) => t.textContent)")
+                cells = await page.eval_on_selector_all(
+                    "#whatif-table tr[data-reference=truth] td", "tds => tds.map((t) => t.textContent)"
+                )
                 assert len(cells) == 7 and cells[1] != cells[2], cells
                 assert await page.locator("#whatif-plot canvas").count() >= 1
                 await page.locator("#tab-whatif").screenshot(path=str(artifacts_dir / "panel-whatif.png"))
 
                 # A recording failure (a full disk) is shown on the page, whichever tab is open.
                 station.recorder.report_error("cannot write session: No space left on device")
-                await page.wait_for_function("document.querySelector('#panel-warnings').textContent.includes('No space left')",
-                                             timeout=5_000)
+                await page.wait_for_function(
+                    "document.querySelector('#panel-warnings').textContent.includes('No space left')", timeout=5_000
+                )
                 await page.click("#tabs button[data-tab=sessions]")
                 assert "No space left" in await page.text_content("#rec-error")
                 await page.screenshot(path=str(artifacts_dir / "dashboard-recording-failed.png"))

@@ -8,11 +8,11 @@ import pytest
 from broad import broad_rmse
 from synthetic import imu, spinning, static
 
-from gcs.estimators.dcm import DcmEstimator, renormalize, rotate_rows
-from gcs.estimators.compare import compare_stream
-from gcs.rotation import euler_to_quat, quat_to_euler
-from gcs.sensors import GpsSample
-from gcs.sessions.readers import read_samples
+from gcs.core.comparison import compare_stream
+from gcs.core.estimators.dcm import DcmEstimator, renormalize, rotate_rows
+from gcs.core.rotation import euler_to_quat, quat_to_euler
+from gcs.core.samples import GpsSample
+from gcs.logs.readers import read_samples
 
 HOP = str(Path(__file__).resolve().parents[2] / "shared/data/logs/arducopter-sitl-hop.tlog")
 D = math.radians
@@ -127,7 +127,7 @@ def test_magnetic_disturbance_is_rejected_then_relearned():
     """Level and still, then the field grows 40% and turns 30° (a magnet nearby): the heading must
     not follow it; once the disturbed field has been steady for mag_relearn s of turning it becomes
     the reference and the yaw correction is used again."""
-    from gcs.rotation import quat_from_rotvec, quat_to_matrix
+    from gcs.core.rotation import quat_from_rotvec, quat_to_matrix
 
     def run(**kw):
         est = DcmEstimator(mag_relearn=5.0, **kw)

@@ -13,9 +13,9 @@ import pytest
 from conftest import DATA, ROOT
 from synthetic import MAG_NED, Z_UP, angle_between, imu, spinning, static
 
-from gcs.estimators.compare import compare_stream
-from gcs.estimators.ekf import EkfEstimator
-from gcs.rotation import (
+from gcs.core.comparison import compare_stream
+from gcs.core.estimators.ekf import EkfEstimator
+from gcs.core.rotation import (
     euler_to_quat,
     matrix_to_quat,
     quat_from_rotvec,
@@ -24,8 +24,8 @@ from gcs.rotation import (
     quat_to_matrix,
     wrap_pi,
 )
-from gcs.sensors import G0, GpsSample
-from gcs.sessions.readers import read_samples
+from gcs.core.samples import G0, GpsSample
+from gcs.logs.readers import read_samples
 
 D = math.radians
 BIAS = np.array([0.01, -0.02, 0.015])  # rad/s, body FRD
@@ -69,8 +69,9 @@ def test_gyro_bias_is_estimated_in_motion():
 
 
 def test_fast_constant_rotation():
-    samples, truth = spinning(in_frame(euler_to_quat(D(20), D(10), D(170)), Z_UP), [2.0, -1.0, 3.0], rate=200,
-                              duration=10, frame=Z_UP)
+    samples, truth = spinning(
+        in_frame(euler_to_quat(D(20), D(10), D(170)), Z_UP), [2.0, -1.0, 3.0], rate=200, duration=10, frame=Z_UP
+    )
     est = EkfEstimator()
     worst = 0.0
     for s, q in zip(samples, truth):
@@ -297,8 +298,19 @@ def test_broad_fast_translation_decimated_regression(tmp_path):
     if not (DATA / "broad").is_dir():
         pytest.fail(f"BROAD data missing: {DATA / 'broad'}")
     out = tmp_path / "rows.json"
-    cmd = [sys.executable, "-m", "bench.broad", "--trials", "15_undisturbed_fast_translation",
-           "--every", "6", "--estimators", "ekf", "--json", str(out)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "bench.broad",
+        "--trials",
+        "15_undisturbed_fast_translation",
+        "--every",
+        "6",
+        "--estimators",
+        "ekf",
+        "--json",
+        str(out),
+    ]
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, timeout=120)
     row = next(r for r in json.loads(out.read_text()) if r["estimator"] == "ekf" and not r["trial"].startswith("mean"))
     assert row["total"] < 2.0 and row["inclination"] < 1.5, row

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from synthetic import Z_UP, spinning
 
-from gcs.estimators import offline
-from gcs.rotation import euler_to_quat
+from gcs.commands import estimate as offline
+from gcs.core.rotation import euler_to_quat
 
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -55,8 +55,19 @@ def test_csv_with_gps_velocity_columns_and_gains(tmp_path):
     samples, _ = spinning(euler_to_quat(0.0, 0.0, 0.0), [0.0, 0.0, 0.0], rate=50, duration=2)
     gps = [("", "", "")] * 50 + [(1.0, 0.0, 0.0)] * 50
     write_csv(tmp_path / "in.csv", samples, gps)
-    rc = estimate(tmp_path / "in.csv", "-e", "dcm", "--preset", "seed000", "--gain", "kp_rp=1.5",
-                  "--gain", "declination=0.1", "-o", tmp_path / "out.csv")
+    rc = estimate(
+        tmp_path / "in.csv",
+        "-e",
+        "dcm",
+        "--preset",
+        "seed000",
+        "--gain",
+        "kp_rp=1.5",
+        "--gain",
+        "declination=0.1",
+        "-o",
+        tmp_path / "out.csv",
+    )
     assert rc == 0
     _, rows = read_out(tmp_path / "out.csv")
     assert len(rows) == 100 and float(rows[-1][7]) == pytest.approx(math.degrees(0.1), abs=0.5)
@@ -71,16 +82,29 @@ def test_tlog_input(tmp_path):
 def test_list(capsys):
     assert estimate("--list") == 0
     out = capsys.readouterr().out
-    for text in ("dcm:", "kf:", "ardupilot (default)", "seed000", "seed004", "kp_rp", "default 0.2", "[0, 50]",
-                 "1/s", "roll-pitch proportional gain", "declination"):
+    for text in (
+        "dcm:",
+        "kf:",
+        "ardupilot (default)",
+        "seed000",
+        "seed004",
+        "kp_rp",
+        "default 0.2",
+        "[0, 50]",
+        "1/s",
+        "roll-pitch proportional gain",
+        "declination",
+    ):
         assert text in out
 
 
 @pytest.mark.parametrize(
     "content, expected",
     [
-        ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n0.01,0,abc,0,0,0,-9.8,,,\n",
-         "line 3: field 'gy': 'abc' is not a number"),
+        (
+            "t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n0.01,0,abc,0,0,0,-9.8,,,\n",
+            "line 3: field 'gy': 'abc' is not a number",
+        ),
         ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,-9.8\n", "line 1: header lacks column(s) mx, my, mz"),
         ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,nan,,,\n", "line 2: field 'az': 'nan' is not finite"),
         ("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,1,,\n", "line 2: field 'mx'/'my'/'mz'"),
@@ -119,8 +143,12 @@ def test_bad_arguments_exit_2(tmp_path, capsys, argv, expected):
 def test_not_a_tlog_is_a_clear_error(tmp_path):
     bad = tmp_path / "junk.tlog"
     bad.write_bytes(bytes(range(256)) * 10)
-    proc = subprocess.run([sys.executable, "-m", "gcs.estimators.offline", str(bad), "-e", "dcm", "-o",
-                           str(tmp_path / "o.csv")], capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    proc = subprocess.run(
+        [sys.executable, "-m", "gcs.commands.estimate", str(bad), "-e", "dcm", "-o", str(tmp_path / "o.csv")],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).parents[1],
+    )
     assert proc.returncode == 2
     assert f"{bad}: offset 0: no IMU message" in proc.stderr and "Traceback" not in proc.stderr
 
@@ -136,8 +164,21 @@ def test_dcm_runs_five_minutes_at_285_hz_in_seconds(tmp_path):
 
 
 def test_through_the_gcs_command(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "gcs", "estimate", str(LOGS / "arducopter-sitl-hop.tlog"),
-                           "--estimator", "kf", "--out", str(tmp_path / "o.csv")],
-                          capture_output=True, text=True, cwd=Path(__file__).parents[1])
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "gcs",
+            "estimate",
+            str(LOGS / "arducopter-sitl-hop.tlog"),
+            "--estimator",
+            "kf",
+            "--out",
+            str(tmp_path / "o.csv"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).parents[1],
+    )
     assert proc.returncode == 0, proc.stderr
     assert read_out(tmp_path / "o.csv")[0] == HEADER

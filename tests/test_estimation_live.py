@@ -9,12 +9,12 @@ import json
 import math
 
 import pytest
-
 from conftest import free_port
-from gcs.rotation import wrap_pi
-from gcs.sessions.replay import ReplaySession
-from gcs.sessions.sources import open_source
 from live import running_sim, running_station, wait_for
+
+from gcs.core.rotation import wrap_pi
+from gcs.runtime.replay import ReplaySession
+from gcs.sessions.sources import open_source
 
 ESTIMATORS = ("dcm", "kf", "ekf")
 
@@ -54,7 +54,10 @@ def test_live_estimators_converge_and_match_offline_recomputation(profile, tmp_p
 
     live, folder = asyncio.run(fly())
     worst = errors_after(points, 10.0, 16.0)
-    print(f"\n{profile}: max error vs truth after 10 s (roll, pitch, yaw deg):", {k: tuple(round(x, 2) for x in v) for k, v in worst.items()})
+    print(
+        f"\n{profile}: max error vs truth after 10 s (roll, pitch, yaw deg):",
+        {k: tuple(round(x, 2) for x in v) for k, v in worst.items()},
+    )
     for name, (roll, pitch, yaw) in worst.items():
         assert roll < 3.0 and pitch < 3.0, f"{profile} {name}: roll/pitch error {roll:.2f}/{pitch:.2f} deg after 10 s"
         assert yaw < 10.0, f"{profile} {name}: yaw error {yaw:.2f} deg after 10 s"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from synthetic import Z_UP, angle_between, imu, spinning, static
 
-from gcs.estimators import registry
-from gcs.rotation import euler_to_quat, matrix_to_quat, quat_to_euler, quat_to_matrix
+from gcs.core.estimators import registry
+from gcs.core.rotation import euler_to_quat, matrix_to_quat, quat_to_euler, quat_to_matrix
 
 NAMES = registry.names()
 D = math.radians

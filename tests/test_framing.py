@@ -6,8 +6,8 @@ from __future__ import annotations
 import random
 import time
 
-from gcs.link.dialect import Encoder, mavlink
-from gcs.link.framing import MavlinkDecoder
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.mavlink.framing import MavlinkDecoder
 
 STREAMS = 10_000
 TIME_LIMIT_S = 120.0

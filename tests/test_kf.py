@@ -8,10 +8,10 @@ import pytest
 from broad import broad_rmse
 from synthetic import imu, static
 
-from gcs.estimators.compare import compare_stream
-from gcs.estimators.kf import SEED004_Q, SEED004_R, KalmanAttitudeFilter, mag_heading
-from gcs.rotation import euler_to_quat, quat_to_euler
-from gcs.sessions.readers import read_samples
+from gcs.core.comparison import compare_stream
+from gcs.core.estimators.kf import SEED004_Q, SEED004_R, KalmanAttitudeFilter, mag_heading
+from gcs.core.rotation import euler_to_quat, quat_to_euler
+from gcs.logs.readers import read_samples
 
 HOP = str(Path(__file__).resolve().parents[2] / "shared/data/logs/arducopter-sitl-hop.tlog")
 D = math.radians
@@ -77,6 +77,7 @@ def test_gain_change_takes_effect():
 @pytest.mark.slow
 def test_sitl_hop_accuracy_vs_simstate():
     """RMS roll/pitch vs SIMSTATE (measured: telemetry 0.30°/0.22°, seed004 1.75°/1.19°)."""
+
     def rms(preset):
         c = compare_stream(read_samples(HOP), KalmanAttitudeFilter(preset, declination=D(12.5)))
         return c.summary()["references"]["truth"]["session"]["rms"]

@@ -6,9 +6,9 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-
-from gcs.link.connection import LinkState
 from live import running_sim, running_station, wait_for
+
+from gcs.runtime.link import LinkState
 
 #: The estimator-critical messages each profile must deliver at the requested rate.
 CRITICAL = {

@@ -6,9 +6,9 @@ from __future__ import annotations
 import asyncio
 
 import httpx
-
 from live import wait_for
 from test_params_protocol import station_and_sim
+
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 
@@ -17,8 +17,9 @@ TOKEN = "s3cret-token"
 
 async def _client(station, token):
     app = create_app(station, token=token)
-    return app, httpx.AsyncClient(transport=httpx.ASGITransport(app=app, client=("10.0.0.7", 5000)),
-                                  base_url="http://gcs")
+    return app, httpx.AsyncClient(
+        transport=httpx.ASGITransport(app=app, client=("10.0.0.7", 5000)), base_url="http://gcs"
+    )
 
 
 def test_tuning_over_rest_needs_the_token_when_not_local():
@@ -28,10 +29,12 @@ def test_tuning_over_rest_needs_the_token_when_not_local():
             before = sim.params.as_dict()
             async with client:
                 # Refused before anything else happens: no session, no download, no write.
-                for request in (client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}),
-                                client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16},
-                                           headers={TOKEN_HEADER: "wrong"}),
-                                client.post("/api/tuning/revert"), client.post("/api/params/download")):
+                for request in (
+                    client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}),
+                    client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}, headers={TOKEN_HEADER: "wrong"}),
+                    client.post("/api/tuning/revert"),
+                    client.post("/api/params/download"),
+                ):
                     response = await request
                     assert response.status_code == 401, response.text
                     assert "token" in response.json()["detail"]
@@ -76,8 +79,11 @@ def test_tuning_over_rest_needs_the_token_when_not_local():
 
             writes = [e.data | {"client": e.client} for e in station.events.recent if e.kind == "param"]
             assert [(w["name"], w["verified"], w["client"]) for w in writes] == [
-                ("RATE_RLL_P", True, "api:10.0.0.7"), ("STB_RLL_P", False, "api:10.0.0.7"),
-                ("RATE_RLL_P", True, "api:10.0.0.7"), ("STB_RLL_P", True, "api:10.0.0.7")]
+                ("RATE_RLL_P", True, "api:10.0.0.7"),
+                ("STB_RLL_P", False, "api:10.0.0.7"),
+                ("RATE_RLL_P", True, "api:10.0.0.7"),
+                ("STB_RLL_P", True, "api:10.0.0.7"),
+            ]
 
     asyncio.run(asyncio.wait_for(scenario(), 90))
 

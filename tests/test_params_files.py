@@ -7,12 +7,12 @@ import asyncio
 import sys
 
 import pytest
-
 from conftest import ROOT, free_port
 from live import running_sim
-from gcs.vehicle import param_files
-from gcs.vehicle.param_files import ParamFileError
-from gcs.vehicle.params import float32
+
+from gcs.mavlink import param_files
+from gcs.mavlink.param_files import ParamFileError
+from gcs.mavlink.params import float32
 
 
 def test_both_formats_comments_and_round_trip(tmp_path):
@@ -27,13 +27,16 @@ def test_both_formats_comments_and_round_trip(tmp_path):
     assert snapshot.name.startswith("preflight-") and param_files.load(snapshot).keys() == vehicle.keys()
 
 
-@pytest.mark.parametrize("text,message", [
-    ("RATE_RLL_P,abc", r"t.param:1: RATE_RLL_P: 'abc' is not a number"),
-    ("A,1\nB\n", r"t.param:2: expected NAME,VALUE or NAME VALUE, got 'B'"),
-    ("A,1\nA,2\n", r"t.param:2: A already set on line 1"),
-    ("A_NAME_LONGER_THAN_16,1", r"t.param:1: 'A_NAME_LONGER_THAN_16' is not a parameter name"),
-    ("A,1,2", r"t.param:1: expected NAME,VALUE"),
-])
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("RATE_RLL_P,abc", r"t.param:1: RATE_RLL_P: 'abc' is not a number"),
+        ("A,1\nB\n", r"t.param:2: expected NAME,VALUE or NAME VALUE, got 'B'"),
+        ("A,1\nA,2\n", r"t.param:2: A already set on line 1"),
+        ("A_NAME_LONGER_THAN_16,1", r"t.param:1: 'A_NAME_LONGER_THAN_16' is not a parameter name"),
+        ("A,1,2", r"t.param:1: expected NAME,VALUE"),
+    ],
+)
 def test_bad_lines_are_named(text, message):
     with pytest.raises(ParamFileError, match=message):
         param_files.parse(text, "t.param")
@@ -48,16 +51,25 @@ def test_diff_compares_as_the_vehicle_stores_values():
     a = {"A": 0.15, "B": 1.0, "C": 2.0}
     b = {"A": float32(0.15), "B": 1.5, "D": 3.0}
     differences = param_files.diff(a, b)
-    assert [d.as_dict() for d in differences] == [{"name": "B", "a": 1.0, "b": 1.5},
-                                                  {"name": "C", "a": 2.0, "b": None},
-                                                  {"name": "D", "a": None, "b": 3.0}]
+    assert [d.as_dict() for d in differences] == [
+        {"name": "B", "a": 1.0, "b": 1.5},
+        {"name": "C", "a": 2.0, "b": None},
+        {"name": "D", "a": None, "b": 3.0},
+    ]
     assert param_files.format_diff(differences).split("\n")[2].split() == ["C", "2", "(missing)"]
 
 
 async def _gcs(*args: str) -> tuple[int, str, str]:
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "gcs", "params", *args, cwd=ROOT,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        sys.executable,
+        "-m",
+        "gcs",
+        "params",
+        *args,
+        cwd=ROOT,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
     out, err = await asyncio.wait_for(proc.communicate(), 60)
     return proc.returncode, out.decode(), err.decode()
 

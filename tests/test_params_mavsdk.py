@@ -6,10 +6,10 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-
 from conftest import free_port
 from live import running_sim, running_station
-from gcs.vehicle.tuning import open_session
+
+from gcs.runtime.tuning import open_session
 
 
 @pytest.mark.parametrize("profile,gain,new", [("pixhawk", "ATC_RAT_RLL_P", 0.155), ("px4", "MC_ROLLRATE_P", 0.17)])
@@ -21,8 +21,9 @@ def test_mavsdk_sees_values_gcs_tunes(udp_port, profile, gain, new):
 
     async def scenario():
         connect = f"udpin:127.0.0.1:{udp_port}"
-        async with running_station(connect, outputs=[f"udpout:127.0.0.1:{out_port}"], estimate=False,
-                                   request_streams=False) as station:
+        async with running_station(
+            connect, outputs=[f"udpout:127.0.0.1:{out_port}"], estimate=False, request_streams=False
+        ) as station:
             async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile=profile) as sim:
                 assert await station.link.wait_connected(10)
                 session = await open_session(station.params)
@@ -38,8 +39,15 @@ def test_mavsdk_sees_values_gcs_tunes(udp_port, profile, gain, new):
                     await session.set(gain, new, "test")
                     table = await everything
                     seen_after = await param.get_param_float(gain)
-                return (seen_before, seen_after, autostart, sim.params[gain], station.outputs[0].status(),
-                        table, sim.params.as_dict())
+                return (
+                    seen_before,
+                    seen_after,
+                    autostart,
+                    sim.params[gain],
+                    station.outputs[0].status(),
+                    table,
+                    sim.params.as_dict(),
+                )
 
     before, after, autostart, stored, out, table, truth = asyncio.run(asyncio.wait_for(scenario(), 90))
     mavsdk_values = {p.name: p.value for p in [*table.float_params, *table.int_params]}

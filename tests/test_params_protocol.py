@@ -8,11 +8,13 @@ import contextlib
 import time
 
 import pytest
-
 from conftest import free_port
 from live import running_sim, running_station
-from gcs.vehicle.params import ParamError, ParamMismatch, UnknownParam, encode, format_value
-from gcs.link.dialect import mavlink
+
+from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.params import ParamError, encode, format_value
+from gcs.runtime.params import ParamMismatch, UnknownParam
+
 
 @contextlib.asynccontextmanager
 async def station_and_sim(profile: str, streams: bool = False, estimate: bool = False, **sim_kwargs):
@@ -43,8 +45,9 @@ async def _download(profile: str, drop: float, streams: bool):
         return table, sim, station.params.progress(), station.params.bytewise, elapsed
 
 
-@pytest.mark.parametrize("profile,drop", [("pixhawk", 0.0), ("pixhawk", 0.1), ("apm25", 0.0), ("apm25", 0.1),
-                                          ("px4", 0.0), ("px4", 0.1)])
+@pytest.mark.parametrize(
+    "profile,drop", [("pixhawk", 0.0), ("pixhawk", 0.1), ("apm25", 0.0), ("apm25", 0.1), ("px4", 0.0), ("px4", 0.1)]
+)
 def test_full_download_is_exact_with_lost_packets(profile, drop):
     # apm25 runs with its streams requested, as over the radio in the field (MAVLink 1).
     table, sim, progress, bytewise, elapsed = asyncio.run(_download(profile, drop, streams=profile == "apm25"))
@@ -92,8 +95,16 @@ def test_ardupilot_write_is_verified_and_logged():
             assert not params.bytewise  # ArduPilot: integers as plain floats
             events = [e.as_dict() for e in station.events.recent if e.kind == "param"]
             assert events[0] | {"wall_time": 0, "host_time": 0} == {
-                "wall_time": 0, "host_time": 0, "kind": "param", "client": "test", "name": "RATE_RLL_P",
-                "old": pytest.approx(0.15), "new": stored.value, "asked": stored.value, "verified": True}
+                "wall_time": 0,
+                "host_time": 0,
+                "kind": "param",
+                "client": "test",
+                "name": "RATE_RLL_P",
+                "old": pytest.approx(0.15),
+                "new": stored.value,
+                "asked": stored.value,
+                "verified": True,
+            }
             assert events[1]["name"] == "LOG_BITMASK" and events[1]["old"] == 830
 
     asyncio.run(asyncio.wait_for(scenario(), 30))
@@ -135,8 +146,11 @@ def test_incomplete_download_reports_what_is_missing():
         async with station_and_sim("apm25", param_drop=0.6, seed=1) as (station, sim):
             params = station.params
             params.reply_timeout, params.read_attempts, params.list_gap, params.window = 0.2, 1, 0.3, 64
-            with pytest.raises(ParamError, match=r"parameter download incomplete \(each asked 1 times\): "
-                                                 r"\d+ of 501 missing, indices \d+"):
+            with pytest.raises(
+                ParamError,
+                match=r"parameter download incomplete \(each asked 1 times\): "
+                r"\d+ of 501 missing, indices \d+",
+            ):
                 await params.download()
             progress = params.progress()
             assert progress["state"] == "incomplete" and progress["count"] == len(sim.params)

@@ -6,13 +6,14 @@ import asyncio
 import dataclasses
 
 import numpy as np
-
 from conftest import free_port
+from live import running_sim, running_station, wait_for
+
+from gcs.core.estimation import GainChange
+from gcs.runtime.replay import ReplaySession
 from gcs.server.gains import GainControl
 from gcs.sessions import columnar
-from gcs.sessions.replay import ReplaySession
-from gcs.sessions.sources import GainChange, open_source
-from live import running_sim, running_station, wait_for
+from gcs.sessions.sources import open_source
 
 
 def _as_array(points) -> tuple[list[str], np.ndarray]:
@@ -54,13 +55,19 @@ def test_replay_of_recorded_session_equals_live(tmp_path):
 
     recorded = columnar.read_table(folder, "attitude")
     assert recorded.column("source").to_pylist() == live_sources
-    assert np.array_equal(np.column_stack([recorded.column(c).to_numpy() for c in ("t", "roll", "pitch", "yaw")]),
-                          live_values)
+    assert np.array_equal(
+        np.column_stack([recorded.column(c).to_numpy() for c in ("t", "roll", "pitch", "yaw")]), live_values
+    )
 
     # the same replay without the recorded gain changes differs: the test sees a lost event
-    without = dataclasses.replace(source, _inputs=None, frames=[
-        dataclasses.replace(f, inputs=tuple(i for i in f.inputs if not (isinstance(i, GainChange) and i.estimator)))
-        for f in source.frames])
+    without = dataclasses.replace(
+        source,
+        _inputs=None,
+        frames=[
+            dataclasses.replace(f, inputs=tuple(i for i in f.inputs if not (isinstance(i, GainChange) and i.estimator)))
+            for f in source.frames
+        ],
+    )
     other = []
     session = ReplaySession(without, speed=0)
     session.add_listener(other.extend)

@@ -9,12 +9,12 @@ import pytest
 from pymavlink import mavutil
 from pyulog import ULog
 
-from gcs.cli import main
-from gcs.sessions.dataflash import TYPES
-from gcs.sessions.readers import InputError
-from gcs.sessions.replay import ReplaySession
+from gcs.commands.cli import main
+from gcs.logs.dataflash import TYPES
+from gcs.logs.readers import InputError
+from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
+from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
-from gcs.sessions.ulog import ATTITUDE_TOPIC, IMU_TOPIC
 
 
 def _replay(source) -> ReplaySession:

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from gcs.estimators.gains import GainError
-from gcs.sessions.replay import ReplaySession
+from gcs.core.gains import GainError
+from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
 

@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
-from gcs.cli import main
+from gcs.commands.cli import main
 
 
 def test_report_of_dataflash_log(logs_dir, tmp_path, capsys):

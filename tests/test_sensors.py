@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from gcs import sensors
+from gcs.core import samples
+from gcs.logs import dataflash, ulog
+from gcs.mavlink import sampling
 
 
 def wire(msg, system=1):
@@ -16,24 +18,24 @@ def wire(msg, system=1):
 
 
 def test_unit_conversions():
-    assert sensors.mg_to_mps2(1000) == pytest.approx(9.80665)
-    assert sensors.mg_to_mps2(-1001) == pytest.approx(-9.81645665, rel=1e-9)
-    assert sensors.mrad_to_rads(1500) == pytest.approx(1.5)
-    assert sensors.mgauss_to_gauss(224) == pytest.approx(0.224)
-    assert sensors.degE7_to_deg(-353632610) == pytest.approx(-35.363261)
-    assert sensors.cdeg_to_rad(18000) == pytest.approx(math.pi)
-    assert sensors.cm_to_m(250) == pytest.approx(2.5)
-    assert sensors.mm_to_m(584090) == pytest.approx(584.09)
-    assert sensors.hpa_to_pa(945.03) == pytest.approx(94503.0)
-    assert sensors.cdegc_to_degc(2606) == pytest.approx(26.06)
-    assert sensors.usec_to_s(14204316) == pytest.approx(14.204316)
-    assert sensors.ms_to_s(14204) == pytest.approx(14.204)
+    assert samples.mg_to_mps2(1000) == pytest.approx(9.80665)
+    assert samples.mg_to_mps2(-1001) == pytest.approx(-9.81645665, rel=1e-9)
+    assert samples.mrad_to_rads(1500) == pytest.approx(1.5)
+    assert samples.mgauss_to_gauss(224) == pytest.approx(0.224)
+    assert samples.degE7_to_deg(-353632610) == pytest.approx(-35.363261)
+    assert samples.cdeg_to_rad(18000) == pytest.approx(math.pi)
+    assert samples.cm_to_m(250) == pytest.approx(2.5)
+    assert samples.mm_to_m(584090) == pytest.approx(584.09)
+    assert samples.hpa_to_pa(945.03) == pytest.approx(94503.0)
+    assert samples.cdegc_to_degc(2606) == pytest.approx(26.06)
+    assert samples.usec_to_s(14204316) == pytest.approx(14.204316)
+    assert samples.ms_to_s(14204) == pytest.approx(14.204)
 
 
 def test_raw_imu():
     msg = wire(mavlink.MAVLink_raw_imu_message(14204316, 10, -20, -1001, 100, -200, 300, 224, 80, -528, 0, 2524))
-    s = sensors.sample_from_message(msg)
-    assert isinstance(s, sensors.ImuSample) and s.source == "RAW_IMU"
+    s = sampling.sample_from_message(msg)
+    assert isinstance(s, samples.ImuSample) and s.source == "RAW_IMU"
     assert s.t == pytest.approx(14.204316)
     np.testing.assert_allclose(s.accel, [0.0980665, -0.196133, -9.81645665], rtol=1e-6)
     np.testing.assert_allclose(s.gyro, [0.1, -0.2, 0.3])
@@ -42,25 +44,29 @@ def test_raw_imu():
 
 def test_scaled_imu_without_compass():
     msg = wire(mavlink.MAVLink_scaled_imu2_message(5684, 0, 0, -1000, 0, 0, 0, 0, 0, 0, 2524))
-    s = sensors.sample_from_message(msg)
+    s = sampling.sample_from_message(msg)
     assert s.t == pytest.approx(5.684) and s.source == "SCALED_IMU2"
     assert s.mag is None
     assert s.accel[2] == pytest.approx(-9.80665)
 
 
 def test_highres_imu_is_si():
-    msg = wire(mavlink.MAVLink_highres_imu_message(2_000_000, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4,
-                                                   1013.0, 0.0, 0.0, 20.0, 0, 0))
-    s = sensors.sample_from_message(msg)
+    msg = wire(
+        mavlink.MAVLink_highres_imu_message(
+            2_000_000, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 20.0, 0, 0
+        )
+    )
+    s = sampling.sample_from_message(msg)
     assert s.t == pytest.approx(2.0)
     np.testing.assert_allclose(s.accel, [0.1, 0.2, -9.8], rtol=1e-6)
     np.testing.assert_allclose(s.gyro, [0.01, 0.02, 0.03], rtol=1e-6)
 
 
 def test_gps_raw_int():
-    msg = wire(mavlink.MAVLink_gps_raw_int_message(55363000, 3, -353632610, 1491652299, 584090, 100, 100,
-                                                   500, 9000, 10))
-    s = sensors.sample_from_message(msg)
+    msg = wire(
+        mavlink.MAVLink_gps_raw_int_message(55363000, 3, -353632610, 1491652299, 584090, 100, 100, 500, 9000, 10)
+    )
+    s = sampling.sample_from_message(msg)
     assert s.t == pytest.approx(55.363) and s.fix_type == 3
     assert (s.lat, s.lon, s.alt) == pytest.approx((-35.363261, 149.1652299, 584.09))
     assert s.ground_speed == pytest.approx(5.0) and s.course == pytest.approx(math.pi / 2)
@@ -69,25 +75,25 @@ def test_gps_raw_int():
 
 def test_gps_raw_int_unknown_velocity():
     msg = wire(mavlink.MAVLink_gps_raw_int_message(1, 3, 0, 0, 0, 100, 100, 65535, 65535, 10))
-    s = sensors.sample_from_message(msg)
+    s = sampling.sample_from_message(msg)
     assert math.isnan(s.ground_speed) and math.isnan(s.course) and s.vel_ned is None
 
 
 def test_scaled_pressure_and_unknown_types():
-    s = sensors.sample_from_message(wire(mavlink.MAVLink_scaled_pressure_message(5684, 945.03, 0.0, 2606)))
+    s = sampling.sample_from_message(wire(mavlink.MAVLink_scaled_pressure_message(5684, 945.03, 0.0, 2606)))
     assert (s.t, s.pressure, s.temperature) == pytest.approx((5.684, 94503.0, 26.06))
-    assert sensors.sample_from_message(wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3))) is None
+    assert sampling.sample_from_message(wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3))) is None
 
 
 def test_vehicle_clock_stamps_untimed_messages_per_system():
-    clock = sensors.VehicleClock()
+    clock = sampling.VehicleClock()
     assert clock.observe(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0))) is None
     assert clock.observe(wire(mavlink.MAVLink_attitude_message(14204, 0, 0, 0, 0, 0, 0))) == pytest.approx(14.204)
     assert clock.observe(wire(mavlink.MAVLink_attitude_message(99000, 0, 0, 0, 0, 0, 0), system=2)) == 99.0
     ahrs2 = wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0))
     t = clock.observe(ahrs2)
     assert t == pytest.approx(14.204)
-    ref = sensors.attitude_from_message(ahrs2, t)
+    ref = sampling.attitude_from_message(ahrs2, t)
     assert ref.source == "ahrs2" and (ref.roll, ref.pitch, ref.yaw) == pytest.approx((0.1, 0.2, 0.3))
 
 
@@ -96,11 +102,13 @@ def test_log_records():
         def __init__(self, **kw):
             self.__dict__.update(kw)
 
-    s = sensors.imu_from_dataflash(Record(TimeUS=1_500_000, I=0, GyrX=0.1, GyrY=0.2, GyrZ=0.3,
-                                          AccX=0.0, AccY=0.0, AccZ=-9.8))
+    s = dataflash.imu_from_dataflash(
+        Record(TimeUS=1_500_000, I=0, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8)
+    )
     assert s.t == 1.5 and s.gyro.tolist() == [0.1, 0.2, 0.3] and s.mag is None
-    g = sensors.gps_from_dataflash(Record(TimeUS=2_000_000, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0,
-                                          GCrs=180.0, VZ=-0.5, Status=3))
+    g = dataflash.gps_from_dataflash(
+        Record(TimeUS=2_000_000, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=180.0, VZ=-0.5, Status=3)
+    )
     np.testing.assert_allclose(g.vel_ned, [-2.0, 0.0, -0.5], atol=1e-12)
-    u = sensors.imu_from_ulog_sensor_combined(3_000_000, [0.0, 0.1, 0.0], [0.0, 0.0, -9.81])
+    u = ulog.imu_from_ulog_sensor_combined(3_000_000, [0.0, 0.1, 0.0], [0.0, 0.0, -9.81])
     assert u.t == 3.0 and u.source == "sensor_combined"

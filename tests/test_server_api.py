@@ -5,9 +5,9 @@ from __future__ import annotations
 import asyncio
 
 import httpx
-
 from live import running_sim, running_station, wait_for
-from gcs.server.runtime import DashboardServer
+
+from gcs.server.dashboard import DashboardServer
 
 
 def test_rest_api_status_estimates_gains_token(udp_port):
@@ -15,14 +15,19 @@ def test_rest_api_status_estimates_gains_token(udp_port):
 
 
 async def api_scenario(udp_port: int) -> None:
-    async with running_station(f"udpin:127.0.0.1:{udp_port}") as station, \
-            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"):
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+    ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         try:
             async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:
-                await wait_for(lambda: {"onboard", "truth", "dcm", "kf", "ekf"} <= set(station.estimation.pipeline.latest),
-                               15, "every source")
+                await wait_for(
+                    lambda: {"onboard", "truth", "dcm", "kf", "ekf"} <= set(station.estimation.pipeline.latest),
+                    15,
+                    "every source",
+                )
                 await asyncio.sleep(1.5)
                 await check_status_and_estimates(api)
                 await check_gains(api, station)
@@ -77,7 +82,10 @@ async def check_gains(api: httpx.AsyncClient, station) -> None:
     assert station.estimation.pipeline.estimators["dcm"].gains["kp_rp"] == 0.5
     event = station.events.recent[-1]
     assert (event.kind, event.client, event.data) == (
-        "gain", "api:127.0.0.1", {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5})
+        "gain",
+        "api:127.0.0.1",
+        {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5},
+    )
     bad = await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 51})
     assert bad.status_code == 422 and bad.json()["detail"] == "gain kp_rp: 51 1/s is outside [0, 50] 1/s"
     assert (await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": "x"})).status_code == 422
@@ -85,5 +93,6 @@ async def check_gains(api: httpx.AsyncClient, station) -> None:
     assert (await api.put("/api/estimators/nope/gains/kp_rp", json={"value": 1})).status_code == 404
     reset = (await api.post("/api/estimators/dcm/preset", json={})).json()
     assert reset["preset"] == "ardupilot" and reset["changes"] == [
-        {"estimator": "dcm", "gain": "kp_rp", "old": 0.5, "new": 0.2}]
+        {"estimator": "dcm", "gain": "kp_rp", "old": 0.5, "new": 0.2}
+    ]
     assert (await api.post("/api/estimators/dcm/preset", json={"preset": "nope"})).status_code == 422

@@ -9,10 +9,10 @@ import json
 
 import httpx
 import pyarrow.parquet as pq
-
-from gcs.server.runtime import DashboardServer
-from gcs.sessions import layout
 from live import running_sim, running_station, wait_for
+
+from gcs.server.dashboard import DashboardServer
+from gcs.sessions import layout
 
 
 def test_sessions_api(udp_port, tmp_path):
@@ -20,8 +20,10 @@ def test_sessions_api(udp_port, tmp_path):
 
 
 async def scenario(udp_port: int, root) -> None:
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station, \
-            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0):
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
+    ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         try:
@@ -60,8 +62,9 @@ async def scenario(udp_port: int, root) -> None:
                 assert (await api.post("/api/replay/speed", json={"speed": 2})).json()["speed"] == 2
                 assert (await api.post("/api/replay/pause")).json()["playing"] is False
 
-                result = (await api.post("/api/whatif", json={"source": name, "estimator": "dcm",
-                                                              "gains": {"kp_rp": 0.9}})).json()
+                result = (
+                    await api.post("/api/whatif", json={"source": name, "estimator": "dcm", "gains": {"kp_rp": 0.9}})
+                ).json()
                 assert len(result["t"]) == len(result["old"]["roll"]) == len(result["new"]["roll"]) > 100
                 assert {row["reference"] for row in result["table"]} >= {"onboard", "truth"}
                 assert result["table"][0]["old_rms"] != result["table"][0]["new_rms"]

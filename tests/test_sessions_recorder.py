@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
 import resource
 import signal
 import subprocess
@@ -15,12 +14,12 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import ROOT, free_port
+from live import running_sim, running_station, wait_for
 from pymavlink import mavutil
 
-from conftest import ROOT, free_port
-from gcs.link.tlog import read_tlog_records
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import columnar, layout
-from live import running_sim, running_station, wait_for
 
 PY = sys.executable
 #: Wall seconds recorded before the kill; the simulator runs 2.5x, so this is 30 s of flight.
@@ -102,8 +101,12 @@ def _small_disk(path: Path, size: str = "64k"):
     """A 64 KiB tmpfs at path; without permission to mount, RLIMIT_FSIZE gives the same EFBIG-style
     write error for files over the limit."""
     path.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
-                             capture_output=True).returncode == 0
+    mounted = (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True
+        ).returncode
+        == 0
+    )
     if mounted:
         try:
             yield "tmpfs"
@@ -137,7 +140,9 @@ def test_full_disk_gives_clear_error_and_keeps_valid_files(tmp_path):
         status, imu_at_failure, imu_later, events = asyncio.run(record())
         print(f"\nfull disk via {how}: {status['error']}")
         assert status["state"] == "failed"
-        assert "cannot write" in status["error"] and ("No space left" in status["error"] or "too large" in status["error"])
+        assert "cannot write" in status["error"] and (
+            "No space left" in status["error"] or "too large" in status["error"]
+        )
         assert any(e.get("event") == "error" for e in events)
         assert imu_later > imu_at_failure  # the live estimation kept running
         folder = _one_session(disk)

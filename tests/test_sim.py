@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from gcs.link.dialect import MARKER_V1, MARKER_V2, Encoder, mavlink
+from gcs.mavlink.dialect import MARKER_V1, MARKER_V2, Encoder, mavlink
 from gcs.sim import SensorFaults, SimVehicle
 from gcs.sim.autopilot import milli_g
 from gcs.sim.motion import GRAVITY

@@ -12,10 +12,10 @@ import time
 
 import pytest
 
-from gcs.link.dialect import Encoder, mavlink
-from gcs.link.transport import make_transport
+from gcs.commands.sim import parse_faults
+from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.sim import SimVehicle
-from gcs.sim.command import parse_faults
+from gcs.transport.pipes import make_transport
 
 
 async def read_messages(fd: int, kinds: set[str], timeout: float = 3.0) -> list:
@@ -53,7 +53,7 @@ def test_pty_serves_mavlink_vanishes_on_close_and_is_recreated(tmp_path):
     path = str(tmp_path / "ttySIM")
 
     async def scenario():
-        for attempt in range(2):  # the second run recreates the port at the same path
+        for _attempt in range(2):  # the second run recreates the port at the same path
             sim = SimVehicle(profile="apm25", speed=5.0)
             task = asyncio.create_task(sim.run(f"pty:{path}"))
             for _ in range(100):
@@ -93,8 +93,9 @@ def test_udp_smoke_vehicle_talks_to_a_ground_station_socket():
                 kinds |= {m.get_type() for m in parser.parse_buffer(data) or []}
             received.clear()
             if "HEARTBEAT" in kinds and not requested:  # replies go back to the vehicle's socket
-                command = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                                               mavlink.MAVLINK_MSG_ID_ATTITUDE, 20000, 0, 0, 0, 0, 0)
+                command = mavlink.MAVLink_command_long_message(
+                    1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mavlink.MAVLINK_MSG_ID_ATTITUDE, 20000, 0, 0, 0, 0, 0
+                )
                 gcs_side.write(Encoder(255, 190).encode(command))
                 requested = True
         task.cancel()
@@ -107,8 +108,9 @@ def test_udp_smoke_vehicle_talks_to_a_ground_station_socket():
 
 
 def test_fault_options_parse_and_reject_nonsense():
-    faults, drop, clamp = parse_faults(["gyro_noise=0.01", "mag_hard_iron=0.1,0,-0.1", "param_drop=0.2",
-                                        "param_clamp.ATC_RAT_RLL_P=0.5"])
+    faults, drop, clamp = parse_faults(
+        ["gyro_noise=0.01", "mag_hard_iron=0.1,0,-0.1", "param_drop=0.2", "param_clamp.ATC_RAT_RLL_P=0.5"]
+    )
     assert faults.gyro_noise == 0.01 and faults.mag_hard_iron == (0.1, 0.0, -0.1)
     assert drop == 0.2 and clamp == {"ATC_RAT_RLL_P": 0.5}
     perfect, _, _ = parse_faults(["perfect=1", "vibration=0.5"])
@@ -120,8 +122,12 @@ def test_fault_options_parse_and_reject_nonsense():
 
 def test_gcs_sim_command_prints_where_it_serves_and_stops_on_ctrl_c(tmp_path):
     path = tmp_path / "ttyCLI"
-    proc = subprocess.Popen([sys.executable, "-m", "gcs", "sim", "--profile", "px4", "--script", "quad",
-                             "--link", f"pty:{path}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs", "sim", "--profile", "px4", "--script", "quad", "--link", f"pty:{path}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         assert "px4" in line and f"pty:{path}" in line
@@ -140,13 +146,26 @@ def test_gcs_sim_command_prints_where_it_serves_and_stops_on_ctrl_c(tmp_path):
 
 def test_gcs_sim_help_lists_profiles_scripts_links_and_faults():
     out = subprocess.run([sys.executable, "-m", "gcs", "sim", "--help"], capture_output=True, text=True).stdout
-    for word in ("apm25", "pixhawk", "px4", "bench", "circuit", "quad", "udpout:", "tcpin:", "pty:",
-                 "gyro_noise", "param_drop", "param_clamp"):
+    for word in (
+        "apm25",
+        "pixhawk",
+        "px4",
+        "bench",
+        "circuit",
+        "quad",
+        "udpout:",
+        "tcpin:",
+        "pty:",
+        "gyro_noise",
+        "param_drop",
+        "param_clamp",
+    ):
         assert word in out
 
 
 def test_two_vehicles_feed_one_ground_station_port(udp_port):
     """The vehicle's udpout socket binds an ephemeral port: two vehicles can feed one GCS port."""
+
     async def scenario():
         sims = [SimVehicle(profile="px4", sysid=n) for n in (1, 2)]
         tasks = [asyncio.create_task(s.run(f"udpout:127.0.0.1:{udp_port}")) for s in sims]
@@ -160,7 +179,7 @@ def test_two_vehicles_feed_one_ground_station_port(udp_port):
         while systems != {1, 2} and time.monotonic() < deadline:
             try:
                 data = await asyncio.wait_for(loop.sock_recv(sock, 4096), 0.5)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 continue
             systems |= {m.get_srcSystem() for m in parser.parse_buffer(data) or []}
         for t in tasks:
@@ -193,7 +212,8 @@ def test_tcpin_serves_the_latest_client(tcp_port):
 
 @pytest.mark.parametrize("link", ["bogus:1:2", "/dev/ttyUSB0"])
 def test_gcs_sim_rejects_a_link_it_cannot_serve(link):
-    done = subprocess.run([sys.executable, "-m", "gcs", "sim", "--link", link], capture_output=True, text=True,
-                          timeout=20)
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs", "sim", "--link", link], capture_output=True, text=True, timeout=20
+    )
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert link in done.stderr

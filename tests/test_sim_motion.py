@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs.rotation import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
+from gcs.core.rotation import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
 from gcs.sim.motion import GRAVITY, SCRIPTS, make_script
 
 

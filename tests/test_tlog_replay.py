@@ -9,7 +9,7 @@ from collections import Counter
 import pytest
 from pymavlink import mavutil
 
-from gcs.link.connection import Link, LinkState
+from gcs.runtime.link import Link, LinkState
 
 TLOGS = ["arducopter-sitl-hop.tlog", "arduplane-sitl-vtol.tlog"]
 

@@ -6,16 +6,29 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-
 from test_params_protocol import station_and_sim
-from gcs.sim import param_tables
-from gcs.vehicle.params import ParamMismatch
-from gcs.vehicle.tuning import (GLOBAL_PER_SECOND, PER_PARAM_INTERVAL, ProfileError, RateLimited, RateLimiter,
-                                TuningRefused, available_profiles, detect_profile, load_profile, open_session,
-                                parse_profile)
 
-FIRMWARE_TABLES = {"arducopter-3.2": param_tables.arducopter_32, "arducopter-4": param_tables.arducopter_4,
-                   "px4": param_tables.px4_115}
+from gcs.runtime.params import ParamMismatch
+from gcs.runtime.tuning import (
+    GLOBAL_PER_SECOND,
+    PER_PARAM_INTERVAL,
+    ProfileError,
+    RateLimited,
+    RateLimiter,
+    TuningRefused,
+    available_profiles,
+    detect_profile,
+    load_profile,
+    open_session,
+    parse_profile,
+)
+from gcs.sim import param_tables
+
+FIRMWARE_TABLES = {
+    "arducopter-3.2": param_tables.arducopter_32,
+    "arducopter-4": param_tables.arducopter_4,
+    "px4": param_tables.px4_115,
+}
 
 
 @pytest.mark.parametrize("name", sorted(FIRMWARE_TABLES))
@@ -32,19 +45,39 @@ def test_shipped_profiles_fit_their_firmware(name):
 
 
 def test_required_gains_are_in_the_profiles():
-    assert {"RATE_RLL_P", "RATE_PIT_P", "RATE_YAW_P", "RATE_RLL_I", "STB_RLL_P", "STB_PIT_P", "STB_YAW_P",
-            "AHRS_RP_P", "AHRS_YAW_P"} <= set(load_profile("arducopter-3.2").params)
+    assert {
+        "RATE_RLL_P",
+        "RATE_PIT_P",
+        "RATE_YAW_P",
+        "RATE_RLL_I",
+        "STB_RLL_P",
+        "STB_PIT_P",
+        "STB_YAW_P",
+        "AHRS_RP_P",
+        "AHRS_YAW_P",
+    } <= set(load_profile("arducopter-3.2").params)
     assert {f"ATC_RAT_{axis}_{term}" for axis in ("RLL", "PIT") for term in "PID"} | {
-        "ATC_RAT_YAW_P", "ATC_RAT_YAW_I", "ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P", "AHRS_RP_P",
-        "AHRS_YAW_P"} <= set(load_profile("arducopter-4").params)
+        "ATC_RAT_YAW_P",
+        "ATC_RAT_YAW_I",
+        "ATC_ANG_RLL_P",
+        "ATC_ANG_PIT_P",
+        "ATC_ANG_YAW_P",
+        "AHRS_RP_P",
+        "AHRS_YAW_P",
+    } <= set(load_profile("arducopter-4").params)
     assert {f"MC_{axis}RATE_{term}" for axis in ("ROLL", "PITCH") for term in "PID"} | {
-        "MC_YAWRATE_P", "MC_ROLL_P", "MC_PITCH_P", "MC_YAW_P"} <= set(load_profile("px4").params)
+        "MC_YAWRATE_P",
+        "MC_ROLL_P",
+        "MC_PITCH_P",
+        "MC_YAW_P",
+    } <= set(load_profile("px4").params)
 
 
 def test_bad_profiles_are_named():
     with pytest.raises(ProfileError, match=r"x.toml: params.A: min 2.0 is not below max 1.0"):
-        parse_profile('name="x"\nautopilot="PX4"\ndetect="A"\n[params.A]\nmin=2\nmax=1\nstep=0.1\nmeaning="m"',
-                      "x.toml")
+        parse_profile(
+            'name="x"\nautopilot="PX4"\ndetect="A"\n[params.A]\nmin=2\nmax=1\nstep=0.1\nmeaning="m"', "x.toml"
+        )
     with pytest.raises(ProfileError, match="x.toml: params.A: missing meaning"):
         parse_profile('name="x"\nautopilot="PX4"\ndetect="A"\n[params.A]\nmin=0\nmax=1\nstep=0.1', "x.toml")
     with pytest.raises(ProfileError, match="unknown tuning profile 'ardu'; shipped: arducopter-3.2"):
@@ -55,8 +88,11 @@ def test_profile_refusals_name_the_rule_and_the_numbers():
     profile = load_profile("arducopter-4")
     with pytest.raises(TuningRefused, match=r"ATC_RAT_RLL_P = 0.6 is outside the allowed range \[0.01, 0.5\]"):
         profile.check("ATC_RAT_RLL_P", 0.6, 0.45)
-    with pytest.raises(TuningRefused, match=r"ATC_RAT_RLL_P: 0.135 -> 0.2 changes it by 0.065, more than the "
-                                            r"largest step 0.02 allowed per write"):
+    with pytest.raises(
+        TuningRefused,
+        match=r"ATC_RAT_RLL_P: 0.135 -> 0.2 changes it by 0.065, more than the "
+        r"largest step 0.02 allowed per write",
+    ):
         profile.check("ATC_RAT_RLL_P", 0.2, 0.135)
     with pytest.raises(TuningRefused, match="FRAME_CLASS is not in the tuning profile arducopter-4"):
         profile.check("FRAME_CLASS", 1, 1)
@@ -83,8 +119,10 @@ def test_rate_limiter_numbers():
 
 def test_session_refuses_writes_audits_them_and_reverts_exactly():
     async def scenario():
-        async with station_and_sim("pixhawk", param_drop=0.1, seed=7,
-                                   param_clamp={"ATC_RAT_PIT_P": 0.14}) as (station, sim):
+        async with station_and_sim("pixhawk", param_drop=0.1, seed=7, param_clamp={"ATC_RAT_PIT_P": 0.14}) as (
+            station,
+            sim,
+        ):
             session = await open_session(station.params)
             assert session.profile.name == "arducopter-4" and station.params.complete
             before = sim.params.as_dict()
@@ -120,11 +158,13 @@ def test_session_refuses_writes_audits_them_and_reverts_exactly():
 
             writes = [e.as_dict() for e in station.events.recent if e.kind == "param"]
             assert [(w["name"], w["client"], w["verified"]) for w in writes] == [
-                ("ATC_RAT_RLL_P", "api:10.0.0.2", True), ("AHRS_RP_P", "viser", True),
-                ("AHRS_YAW_P", "viser", True), ("ATC_RAT_PIT_P", "test", False),
                 ("ATC_RAT_RLL_P", "api:10.0.0.2", True),
-                *((name, "test", True) for name in ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "AHRS_RP_P",
-                                                     "AHRS_YAW_P"))]  # revert: in profile order
+                ("AHRS_RP_P", "viser", True),
+                ("AHRS_YAW_P", "viser", True),
+                ("ATC_RAT_PIT_P", "test", False),
+                ("ATC_RAT_RLL_P", "api:10.0.0.2", True),
+                *((name, "test", True) for name in ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "AHRS_RP_P", "AHRS_YAW_P")),
+            ]  # revert: in profile order
             assert all(w["wall_time"] > 0 and "old" in w and "new" in w for w in writes)
             assert writes[0]["old"] == before["ATC_RAT_RLL_P"]
 

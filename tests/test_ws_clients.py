@@ -10,12 +10,12 @@ import socket
 import sys
 
 import websockets
-
 from conftest import ROOT
 from live import running_station, wait_for
+
+from gcs.runtime.streams import StreamPlan
+from gcs.server.dashboard import DashboardServer
 from gcs.server.live import LiveHub
-from gcs.server.runtime import DashboardServer
-from gcs.vehicle.streams import StreamPlan
 
 READERS = 19
 READER_SECONDS = 30.0
@@ -42,11 +42,23 @@ async def twenty_clients(udp_port: int, seconds: float = 8.0) -> dict:
     plan = StreamPlan(imu_hz=200, attitude_hz=200)
     # The simulator runs in its own process, as a vehicle would: this process is the server's.
     sim = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "gcs", "sim", "--profile", "pixhawk", "--script", "quad",
-        "--link", f"udpout:127.0.0.1:{udp_port}", stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+        sys.executable,
+        "-m",
+        "gcs",
+        "sim",
+        "--profile",
+        "pixhawk",
+        "--script",
+        "quad",
+        "--link",
+        f"udpout:127.0.0.1:{udp_port}",
+        stdout=asyncio.subprocess.DEVNULL,
+        stderr=asyncio.subprocess.DEVNULL,
+    )
     async with running_station(f"udpin:127.0.0.1:{udp_port}", plan=plan) as station:
-        server = DashboardServer(station, port=0, viser=False, hub=LiveHub(seconds=60, client_max_frames=100),
-                                 send_buffer=32 * 1024)
+        server = DashboardServer(
+            station, port=0, viser=False, hub=LiveHub(seconds=60, client_max_frames=100), send_buffer=32 * 1024
+        )
         await server.start()
         url = f"ws://127.0.0.1:{server.port}/ws/live"
         try:
@@ -57,13 +69,23 @@ async def twenty_clients(udp_port: int, seconds: float = 8.0) -> dict:
             # The readers run in their own process, as browsers would: their JSON parsing must
             # not load the server's event loop.
             readers = await asyncio.create_subprocess_exec(
-                sys.executable, "-m", "bench.ws_clients", url, str(READERS), str(READER_SECONDS), cwd=ROOT,
-                stdout=asyncio.subprocess.PIPE)
+                sys.executable,
+                "-m",
+                "bench.ws_clients",
+                url,
+                str(READERS),
+                str(READER_SECONDS),
+                cwd=ROOT,
+                stdout=asyncio.subprocess.PIPE,
+            )
             output = asyncio.create_task(readers.communicate())
             await wait_for(lambda: len(server.hub.clients) == READERS + 1, 10, "20 clients connected")
             # Measure while the stuck client is already dropping (its socket buffers are full).
-            await wait_for(lambda: stuck_feed.dropped_points > 0, READER_SECONDS - seconds - 2,
-                           "the stuck client's queue to overflow")
+            await wait_for(
+                lambda: stuck_feed.dropped_points > 0,
+                READER_SECONDS - seconds - 2,
+                "the stuck client's queue to overflow",
+            )
             sub = station.bus.subscribe("test-attitude", types=["ATTITUDE"], maxlen=100_000)
             await asyncio.sleep(seconds)
             sent = {round(m.vehicle_time, 3) for m in sub.drain()}
@@ -72,11 +94,15 @@ async def twenty_clients(udp_port: int, seconds: float = 8.0) -> dict:
             framing = station.link.stats.framing
             result = {
                 "attitude_sent": len(sent),
-                "reader_share": sorted(round(len(sent & {round(t, 3) for t, _ in got}) / len(sent), 4) for got in received),
-                "stuck_dropped": stuck_feed.dropped_points, "stuck_queued": len(stuck_feed.frames),
+                "reader_share": sorted(
+                    round(len(sent & {round(t, 3) for t, _ in got}) / len(sent), 4) for got in received
+                ),
+                "stuck_dropped": stuck_feed.dropped_points,
+                "stuck_queued": len(stuck_feed.frames),
                 "max_frames": server.hub.client_max_frames,
                 "estimation_drops": sum(s.dropped for s in station.bus.subscriptions() if s.name == "estimation"),
-                "lost": station.link.stats.packets_lost(), "crc_errors": framing.crc_errors,
+                "lost": station.link.stats.packets_lost(),
+                "crc_errors": framing.crc_errors,
                 "malformed": framing.malformed,
             }
             await stuck.close()

@@ -11,25 +11,29 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
-from gcs.events import Event
+from gcs.runtime.events import Event
+from gcs.runtime.station import GroundStation
 from gcs.server.gains import GainControl
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
-from gcs.station import GroundStation
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 
 
-def create_app(station: GroundStation, hub: LiveHub | None = None, *, token: str | None = None,
-               viser_port: int | None = None) -> FastAPI:
+def create_app(
+    station: GroundStation, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
+) -> FastAPI:
     """The app for one running station. `token`: required on state-changing requests (None when
     only this machine can connect). The hub is attached to the station's estimation here."""
     if not (UPLOT_DIR / "uPlot.iife.min.js").is_file():
         raise FileNotFoundError(f"uPlot missing in {UPLOT_DIR}: run `npm ci` in {WEB_DIR} (bash .ci/setup does)")
     hub = hub or LiveHub()
-    app = FastAPI(title="gcs", version=__version__,
-                  description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.")
+    app = FastAPI(
+        title="gcs",
+        version=__version__,
+        description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.",
+    )
     app.state.station = station
     app.state.hub = hub
     app.state.gains = GainControl(station)

@@ -19,7 +19,7 @@ import secrets
 from fastapi import HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
-from gcs.station import GroundStation
+from gcs.runtime.station import GroundStation
 
 TOKEN_HEADER = "X-GCS-Token"
 
@@ -50,7 +50,7 @@ def require_token(request: Request) -> None:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,
             detail=f"this server is reachable from other machines: changes need the token printed at "
-                   f"start-up ({TOKEN_HEADER} header or ?token=)",
+            f"start-up ({TOKEN_HEADER} header or ?token=)",
         )
 
 

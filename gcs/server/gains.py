@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from gcs.estimators.gains import Gain, GainSet
-from gcs.station import GroundStation
+from gcs.core.gains import Gain, GainSet
+from gcs.runtime.station import GroundStation
 
 #: Steps across a slider.
 SLIDER_STEPS = 1000
@@ -79,4 +79,3 @@ class GainControl:
                 changes[name] = (old, new)
         est.preset = preset
         return changes
-

@@ -12,9 +12,9 @@ It goes to two places, both O(1) per point and never awaiting anyone:
   queue (`ClientFeed`).
 
 A client's queue holds `client_max_frames` frames (10 s). Each WebSocket has its own sender task
-that sends whatever its queue holds, several frames joined into one message when it fell behind. A client that stops reading fills its queue; the oldest
-frames are then dropped and counted for that client alone, so the others and the link never wait.
-Nothing is ever decimated for a client that keeps up.
+that sends whatever its queue holds, several frames joined into one message when it fell behind.
+A client that stops reading fills its queue; the oldest frames are then dropped and counted for
+that client alone, so the others and the link never wait. Nothing is ever decimated for a client that keeps up.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.estimators.pipeline import AttitudePoint
+from gcs.core.estimation import AttitudePoint
 
 DEG = 180.0 / math.pi
 
@@ -101,7 +101,9 @@ class ClientFeed:
         self.frames.clear()
         points = sum(n for _, n in frames)
         self.queued_points -= points
-        text = frames[0][0] if len(frames) == 1 else '{"type":"batch","frames":[' + ",".join(f for f, _ in frames) + "]}"
+        text = (
+            frames[0][0] if len(frames) == 1 else '{"type":"batch","frames":[' + ",".join(f for f, _ in frames) + "]}"
+        )
         return text, points
 
     def sent(self, points: int) -> None:
@@ -109,17 +111,28 @@ class ClientFeed:
         self.sent_messages += 1
 
     def as_dict(self) -> dict:
-        return {"id": self.id, "address": self.address, "sent_points": self.sent_points,
-                "sent_messages": self.sent_messages, "dropped_points": self.dropped_points,
-                "dropped_frames": self.dropped_frames, "queued_frames": len(self.frames),
-                "connected_s": round(time.monotonic() - self.connected_at, 1)}
+        return {
+            "id": self.id,
+            "address": self.address,
+            "sent_points": self.sent_points,
+            "sent_messages": self.sent_messages,
+            "dropped_points": self.dropped_points,
+            "dropped_frames": self.dropped_frames,
+            "queued_frames": len(self.frames),
+            "connected_s": round(time.monotonic() - self.connected_at, 1),
+        }
 
 
 class LiveHub:
     """Receives every AttitudePoint, keeps the live store and feeds the WebSocket clients."""
 
-    def __init__(self, seconds: float = 600.0, max_rate: float = 400.0, frame_interval: float = 0.010,
-                 client_max_frames: int = 1000) -> None:
+    def __init__(
+        self,
+        seconds: float = 600.0,
+        max_rate: float = 400.0,
+        frame_interval: float = 0.010,
+        client_max_frames: int = 1000,
+    ) -> None:
         self.capacity = int(seconds * max_rate)
         self.seconds = seconds
         self.frame_interval = frame_interval
@@ -175,8 +188,10 @@ class LiveHub:
         if not self._pending_n:
             return
         self._last_flush = time.monotonic()
-        text = json.dumps({"type": "points", "seq": next(self._seq), "server_time": self._last_flush,
-                           "points": self._pending}, separators=(",", ":"))
+        text = json.dumps(
+            {"type": "points", "seq": next(self._seq), "server_time": self._last_flush, "points": self._pending},
+            separators=(",", ":"),
+        )
         n = self._pending_n
         self._pending, self._pending_n = {}, 0
         self.frames_out += 1
@@ -199,8 +214,9 @@ class LiveHub:
 
     def history(self, seconds: float) -> dict[str, list[list[float]]]:
         """Per source, the samples of the last `seconds` of vehicle time, columnar like a frame."""
-        newest = max((ring.t[(ring.count - 1) % ring.capacity] for ring in self.store.values() if ring.count),
-                     default=None)
+        newest = max(
+            (ring.t[(ring.count - 1) % ring.capacity] for ring in self.store.values() if ring.count), default=None
+        )
         if newest is None:
             return {}
         out = {}

@@ -29,8 +29,9 @@ class ErrorStats(BaseModel):
 class SourceEstimate(Angles):
     source: str
     kind: str = Field(description='"reference" (onboard, ahrs2, truth) or "estimator"')
-    errors: dict[str, ErrorStats] = Field(default_factory=dict,
-                                          description="estimators only: against 'onboard' and 'truth' when present")
+    errors: dict[str, ErrorStats] = Field(
+        default_factory=dict, description="estimators only: against 'onboard' and 'truth' when present"
+    )
 
 
 class EstimatesResponse(BaseModel):

@@ -21,19 +21,25 @@ from __future__ import annotations
 
 import asyncio
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import viser
 
-from gcs.estimators.pipeline import AttitudePoint
-from gcs.events import Event
-from gcs.rotation import euler_to_quat
+from gcs.core.estimation import AttitudePoint
+from gcs.core.rotation import euler_to_quat
+from gcs.runtime.events import Event
 from gcs.server.gains import GainControl, slider_spec
 
 #: Ghost colours per estimator (falls back to grey); the page uses the same ones.
-COLORS = {"onboard": (30, 30, 30), "dcm": (214, 39, 40), "kf": (31, 119, 180), "ekf": (44, 160, 44),
-          "truth": (148, 103, 189), "ahrs2": (255, 127, 14)}
+COLORS = {
+    "onboard": (30, 30, 30),
+    "dcm": (214, 39, 40),
+    "kf": (31, 119, 180),
+    "ekf": (44, 160, 44),
+    "truth": (148, 103, 189),
+    "ahrs2": (255, 127, 14),
+}
 GHOST_OPACITY = 0.35
 
 
@@ -50,16 +56,23 @@ def add_ground(server: viser.ViserServer) -> None:
     server.initial_camera.look_at = (0.0, 0.0, 0.0)
 
 
-def add_vehicle(server: viser.ViserServer, name: str, color: tuple[int, int, int], opacity: float | None,
-                axes_length: float) -> viser.FrameHandle:
+def add_vehicle(
+    server: viser.ViserServer, name: str, color: tuple[int, int, int], opacity: float | None, axes_length: float
+) -> viser.FrameHandle:
     """A quadcopter-like body under a frame /name: fuselage, two arms, a nose marker, body axes."""
     frame = server.scene.add_frame(f"/{name}", axes_length=axes_length, axes_radius=0.012)
     server.scene.add_box(f"/{name}/fuselage", color=color, dimensions=(0.7, 0.16, 0.08), opacity=opacity)
     for k, angle in enumerate((math.pi / 4, -math.pi / 4)):
-        server.scene.add_box(f"/{name}/arm{k}", color=color, dimensions=(0.9, 0.04, 0.03), opacity=opacity,
-                             wxyz=(math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)))
-    server.scene.add_icosphere(f"/{name}/nose", radius=0.06, color=(250, 200, 0), opacity=opacity,
-                               position=(0.38, 0.0, 0.0))
+        server.scene.add_box(
+            f"/{name}/arm{k}",
+            color=color,
+            dimensions=(0.9, 0.04, 0.03),
+            opacity=opacity,
+            wxyz=(math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)),
+        )
+    server.scene.add_icosphere(
+        f"/{name}/nose", radius=0.06, color=(250, 200, 0), opacity=opacity, position=(0.38, 0.0, 0.0)
+    )
     return frame
 
 
@@ -69,9 +82,12 @@ class PoseView:
     def __init__(self, server: viser.ViserServer, estimators: list[str]) -> None:
         add_ground(server)
         self.onboard = add_vehicle(server, "onboard", COLORS["onboard"], None, axes_length=0.5)
-        self.ghosts = {name: add_vehicle(server, f"ghost_{name}", COLORS.get(name, (128, 128, 128)), GHOST_OPACITY,
-                                         axes_length=0.35)
-                       for name in estimators}
+        self.ghosts = {
+            name: add_vehicle(
+                server, f"ghost_{name}", COLORS.get(name, (128, 128, 128)), GHOST_OPACITY, axes_length=0.35
+            )
+            for name in estimators
+        }
 
     def update(self, latest: dict[str, AttitudePoint], quaternions: dict[str, np.ndarray]) -> None:
         onboard = latest.get("onboard")
@@ -85,8 +101,9 @@ class PoseView:
 class GainPanel:
     """viser sliders for every declared gain, driving GainControl on the event loop."""
 
-    def __init__(self, server: viser.ViserServer, gains: GainControl, loop: asyncio.AbstractEventLoop,
-                 editable: bool) -> None:
+    def __init__(
+        self, server: viser.ViserServer, gains: GainControl, loop: asyncio.AbstractEventLoop, editable: bool
+    ) -> None:
         self.gains = gains
         self.loop = loop
         self.sliders: dict[tuple[str, str], tuple[viser.GuiInputHandle, str]] = {}
@@ -103,11 +120,22 @@ class GainPanel:
 
     def _add_slider(self, server, estimator: str, gain, est, editable: bool) -> None:
         spec = slider_spec(gain, est.gains.presets)
-        label = f"{gain.name} (log₁₀ {gain.unit})" if spec.scale == "log" else f"{gain.name} ({gain.unit})" if gain.unit else gain.name
-        slider = server.gui.add_slider(label, min=spec.lo, max=spec.hi, step=spec.step,
-                                       initial_value=self._position(spec.scale, spec.lo, spec.hi, est.gains[gain.name]),
-                                       hint=f"{gain.meaning} [{gain.min:g} … {gain.max:g} {gain.unit}]",
-                                       disabled=not editable)
+        label = (
+            f"{gain.name} (log₁₀ {gain.unit})"
+            if spec.scale == "log"
+            else f"{gain.name} ({gain.unit})"
+            if gain.unit
+            else gain.name
+        )
+        slider = server.gui.add_slider(
+            label,
+            min=spec.lo,
+            max=spec.hi,
+            step=spec.step,
+            initial_value=self._position(spec.scale, spec.lo, spec.hi, est.gains[gain.name]),
+            hint=f"{gain.meaning} [{gain.min:g} … {gain.max:g} {gain.unit}]",
+            disabled=not editable,
+        )
         self.sliders[(estimator, gain.name)] = (slider, spec.scale)
         slider.on_update(self._on_slider(estimator, gain.name, slider, spec.scale))
 
@@ -121,8 +149,9 @@ class GainPanel:
         def changed(_event) -> None:
             if self._reflecting:
                 return
-            value = 10 ** slider.value if scale == "log" else slider.value
+            value = 10**slider.value if scale == "log" else slider.value
             self.loop.call_soon_threadsafe(self._apply, estimator, gain, value)
+
         return changed
 
     def _apply(self, estimator: str, gain: str, value: float) -> None:
@@ -137,6 +166,7 @@ class GainPanel:
     def _on_reset(self, estimator: str) -> Callable:
         def clicked(_event) -> None:
             self.loop.call_soon_threadsafe(self.gains.reset, estimator, None, "viser")
+
         return clicked
 
     def reflect(self, event: Event) -> None:

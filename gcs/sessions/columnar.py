@@ -17,32 +17,40 @@ import pyarrow.parquet as pq
 
 from gcs.sessions import layout
 
-ATTITUDE_SCHEMA = pa.schema([
-    ("wall_time", pa.float64()),  # host UNIX time the point was produced, s
-    ("t", pa.float64()),  # vehicle time, s since boot
-    ("source", pa.string()),  # "onboard", "ahrs2", "truth" or an estimator name
-    ("roll", pa.float64()),  # rad, Z-Y-X
-    ("pitch", pa.float64()),
-    ("yaw", pa.float64()),
-])
+ATTITUDE_SCHEMA = pa.schema(
+    [
+        ("wall_time", pa.float64()),  # host UNIX time the point was produced, s
+        ("t", pa.float64()),  # vehicle time, s since boot
+        ("source", pa.string()),  # "onboard", "ahrs2", "truth" or an estimator name
+        ("roll", pa.float64()),  # rad, Z-Y-X
+        ("pitch", pa.float64()),
+        ("yaw", pa.float64()),
+    ]
+)
 
 #: One row per estimator per reference per snapshot: session RMS / max |error| in degrees.
-COMPARISON_SCHEMA = pa.schema([
-    ("wall_time", pa.float64()),
-    ("estimator", pa.string()),
-    ("reference", pa.string()),
-    ("n", pa.int64()),
-    ("rms_roll", pa.float64()), ("rms_pitch", pa.float64()), ("rms_yaw", pa.float64()),
-    ("max_roll", pa.float64()), ("max_pitch", pa.float64()), ("max_yaw", pa.float64()),
-    ("lag_s", pa.float64()),
-    ("imu_rate_hz", pa.float64()),
-])
+COMPARISON_SCHEMA = pa.schema(
+    [
+        ("wall_time", pa.float64()),
+        ("estimator", pa.string()),
+        ("reference", pa.string()),
+        ("n", pa.int64()),
+        ("rms_roll", pa.float64()),
+        ("rms_pitch", pa.float64()),
+        ("rms_yaw", pa.float64()),
+        ("max_roll", pa.float64()),
+        ("max_pitch", pa.float64()),
+        ("max_yaw", pa.float64()),
+        ("lag_s", pa.float64()),
+        ("imu_rate_hz", pa.float64()),
+    ]
+)
 
 SCHEMAS = {"attitude": ATTITUDE_SCHEMA, "comparison": COMPARISON_SCHEMA}
 
 
 def attitude_rows(points, wall_time: float) -> list[tuple]:
-    """AttitudePoints (gcs.estimators.pipeline) → attitude table rows."""
+    """AttitudePoints (gcs.core.estimation) → attitude table rows."""
     return [(wall_time, p.t, p.source, p.roll, p.pitch, p.yaw) for p in points]
 
 
@@ -54,8 +62,9 @@ def comparison_rows(summary: dict, wall_time: float) -> list[tuple]:
         lag = comp.get("lag")
         for ref, stats in comp["references"].items():
             s = stats["session"]
-            rows.append((wall_time, name, ref, s["n"], *s["rms"], *s["max"],
-                         math.nan if lag is None else lag, comp["imu_rate"]))
+            rows.append(
+                (wall_time, name, ref, s["n"], *s["rms"], *s["max"], math.nan if lag is None else lag, comp["imu_rate"])
+            )
     return rows
 
 
@@ -71,8 +80,9 @@ class StreamEncoder:
     def encode(self, rows: list[tuple]) -> bytes:
         if rows:
             columns = list(zip(*rows))
-            batch = pa.record_batch([pa.array(c, type=f.type) for c, f in zip(columns, self.schema)],
-                                    schema=self.schema)
+            batch = pa.record_batch(
+                [pa.array(c, type=f.type) for c, f in zip(columns, self.schema)], schema=self.schema
+            )
             self._writer.write_batch(batch)
         data = self._sink.getvalue()
         self._sink.seek(0)

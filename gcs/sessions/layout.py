@@ -98,10 +98,15 @@ def session_info(folder: Path) -> SessionInfo:
     start, end = meta.get("start"), meta.get("end")
     size = sum(f.stat().st_size for f in folder.iterdir() if f.is_file())
     return SessionInfo(
-        name=folder.name, path=str(folder), start=start, end=end,
+        name=folder.name,
+        path=str(folder),
+        start=start,
+        end=end,
         duration_s=round(end - start, 3) if start is not None and end is not None else None,
-        size_bytes=size, vehicle=meta.get("vehicle", {}).get("label") if isinstance(meta.get("vehicle"), dict) else None,
-        open=end is None, recovered=bool(meta.get("recovered")),
+        size_bytes=size,
+        vehicle=meta.get("vehicle", {}).get("label") if isinstance(meta.get("vehicle"), dict) else None,
+        open=end is None,
+        recovered=bool(meta.get("recovered")),
     )
 
 

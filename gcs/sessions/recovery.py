@@ -14,7 +14,7 @@ import os
 import time
 from pathlib import Path
 
-from gcs.link.tlog import read_tlog_records
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import columnar, layout
 
 
@@ -81,8 +81,14 @@ def recover_sessions(root: Path) -> list[dict]:
             continue  # another process is recording it now
         try:
             meta = close_session(folder, meta, recovered=True)
-            line = {"wall_time": time.time(), "kind": "recording", "client": "recorder", "event": "recovered",
-                    "end": meta["end"], **meta["recovery"]}
+            line = {
+                "wall_time": time.time(),
+                "kind": "recording",
+                "client": "recorder",
+                "event": "recovered",
+                "end": meta["end"],
+                **meta["recovery"],
+            }
             with open(folder / layout.EVENTS, "a+b") as fh:
                 fh.seek(0, os.SEEK_END)
                 cut = fh.tell() > 0 and (fh.seek(-1, os.SEEK_END), fh.read(1))[1] != b"\n"

@@ -1,4 +1,4 @@
-"""`gcs report`: a self-contained HTML flight-test report of a session or any replayable log.
+"""A self-contained HTML flight-test report of a session or any replayable log.
 
 The source is replayed through every estimator (for a session this reproduces the live
 numbers). The page holds: what was replayed (vehicle, duration, damage), the attitude of every
@@ -10,7 +10,6 @@ can be attached to a write-up.
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import io
@@ -18,29 +17,27 @@ import time
 
 import numpy as np
 
-from gcs.sessions.errors import errors_against
+from gcs import __version__
+from gcs.core.attitude_errors import errors_against
+from gcs.core.estimation import AttitudePoint
+from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
 #: Reference used for the error plot, best first.
 ERROR_REFERENCES = ("truth", "onboard", "ahrs2")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a session folder, or a .tlog, .bin or .ulg file")
-    parser.add_argument("--out", required=True, help="the HTML file to write")
-
-
 def collect(source, progress=None) -> tuple[dict[str, np.ndarray], object]:
     """Replay source through every estimator; returns {source name: N×4 array t, roll, pitch, yaw}
     and the pipeline (for its comparisons)."""
-    from gcs.sessions.replay import ReplaySession
-
     series: dict[str, list] = {}
-    session = ReplaySession(source, speed=0)
-    session.add_listener(lambda points: [series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
-                                         for p in points])
-    session.run_to_end(progress)
-    return {name: np.array(rows) for name, rows in series.items()}, session.pipeline
+
+    def keep(points: list[AttitudePoint]) -> None:
+        for p in points:
+            series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
+
+    pipeline = source.replay(source.new_pipeline(), keep, progress)
+    return {name: np.array(rows) for name, rows in series.items()}, pipeline
 
 
 def _png(fig) -> str:
@@ -50,7 +47,7 @@ def _png(fig) -> str:
 
 
 def plot_attitude(series: dict[str, np.ndarray]) -> str:
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # noqa: PLC0415 - ~0.5 s to import; only reports plot
 
     fig = Figure(figsize=(11, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
@@ -66,7 +63,7 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
 
 
 def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference: str) -> str:
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # noqa: PLC0415 - ~0.5 s to import; only reports plot
 
     fig = Figure(figsize=(11, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
@@ -105,8 +102,10 @@ def accuracy_rows(pipeline) -> list[list]:
 def traffic_rows(source) -> list[list]:
     """Per message / record type: count and mean rate over the source's span."""
     span = (source.span[1] - source.span[0]) if source.span else 0.0
-    return [[kind, n, f"{n / span:.1f}" if span > 0 else "-"]
-            for kind, n in sorted(source.counts.items(), key=lambda kv: -kv[1])]
+    return [
+        [kind, n, f"{n / span:.1f}" if span > 0 else "-"]
+        for kind, n in sorted(source.counts.items(), key=lambda kv: -kv[1])
+    ]
 
 
 def loss_rows(source) -> list[list]:
@@ -114,32 +113,48 @@ def loss_rows(source) -> list[list]:
     if f is None:
         return []
     lost = sum(f.lost.values())
-    return [["packets", f.packets], ["CRC errors", f.crc_errors], ["bytes skipped", f.bytes_skipped],
-            ["lost (by sequence number)", lost],
-            ["loss", f"{100 * lost / max(lost + f.packets, 1):.2f} %"],
-            *[[f"lost from sys {s} comp {c}", n] for (s, c), n in sorted(f.lost.items())]]
+    return [
+        ["packets", f.packets],
+        ["CRC errors", f.crc_errors],
+        ["bytes skipped", f.bytes_skipped],
+        ["lost (by sequence number)", lost],
+        ["loss", f"{100 * lost / max(lost + f.packets, 1):.2f} %"],
+        *[[f"lost from sys {s} comp {c}", n] for (s, c), n in sorted(f.lost.items())],
+    ]
 
 
 def render(source, series: dict[str, np.ndarray], pipeline) -> str:
-    from gcs import __version__
 
     estimators = list(pipeline.estimators)
     reference = next((r for r in ERROR_REFERENCES if r in series), None)
     meta = source.meta
-    facts = [["source", source.path], ["kind", source.kind], ["duration", f"{source.duration:.1f} s"],
-             ["IMU samples", pipeline.imu_samples], ["damage", source.damage or "none"]]
+    facts = [
+        ["source", source.path],
+        ["kind", source.kind],
+        ["duration", f"{source.duration:.1f} s"],
+        ["IMU samples", pipeline.imu_samples],
+        ["damage", source.damage or "none"],
+    ]
     if meta:
         vehicle = meta.get("vehicle") or {}
-        facts += [["vehicle", vehicle.get("label")], ["firmware", vehicle.get("firmware")],
-                  ["link", (meta.get("link") or {}).get("address")], ["recovered", meta.get("recovered")]]
+        facts += [
+            ["vehicle", vehicle.get("label")],
+            ["firmware", vehicle.get("firmware")],
+            ["link", (meta.get("link") or {}).get("address")],
+            ["recovered", meta.get("recovered")],
+        ]
     sections = [f"<h2>Summary</h2>{_table(['', ''], facts)}"]
     if series:
         sections.append(f"<h2>Attitude, every source</h2><img src='{plot_attitude(series)}'>")
     if reference is not None:
         sections.append(f"<h2>Errors against {reference}</h2><img src='{plot_errors(series, estimators, reference)}'>")
-    sections.append("<h2>Accuracy (whole run, degrees)</h2>" + _table(
-        ["estimator", "reference", "n", "RMS roll", "RMS pitch", "RMS yaw", "max roll", "max pitch", "max yaw"],
-        accuracy_rows(pipeline)))
+    sections.append(
+        "<h2>Accuracy (whole run, degrees)</h2>"
+        + _table(
+            ["estimator", "reference", "n", "RMS roll", "RMS pitch", "RMS yaw", "max roll", "max pitch", "max yaw"],
+            accuracy_rows(pipeline),
+        )
+    )
     for name, comparison in pipeline.comparisons.items():
         reliable, reason = comparison.reliability()
         if not reliable:
@@ -152,26 +167,13 @@ def render(source, series: dict[str, np.ndarray], pipeline) -> str:
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse;margin:8px 0}}
 td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:100%}}.warn{{color:#a40}}</style>
 </head><body><h1>{html.escape(title)}</h1>
-<p>generated {time.strftime('%Y-%m-%d %H:%M:%S')} by gcs {__version__}</p>
-{''.join(sections)}</body></html>"""
+<p>generated {time.strftime("%Y-%m-%d %H:%M:%S")} by gcs {__version__}</p>
+{"".join(sections)}</body></html>"""
 
 
 def write_report(path: str, out: str, progress=None) -> None:
-    from gcs.sessions.sources import open_source
-
     source = open_source(path)
     series, pipeline = collect(source, progress)
     text = render(source, series, pipeline)
     with open(out, "w") as fh:
         fh.write(text)
-
-
-def run(args: argparse.Namespace) -> int:
-    from gcs.sessions.command import run_reporting_errors
-    from gcs.sessions.replay import progress_bar
-
-    def work() -> str:
-        write_report(args.path, args.out, progress_bar("report"))
-        return f"wrote {args.out}"
-
-    return run_reporting_errors("report", args.out, work)

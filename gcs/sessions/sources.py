@@ -14,30 +14,21 @@ from __future__ import annotations
 import json
 import os
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from gcs.estimators import registry
-from gcs.estimators.pipeline import INPUT_TYPES, EstimationPipeline
-from gcs.link.framing import FramingCounters, MavlinkDecoder
-from gcs.link.tlog import read_tlog_records
-from gcs.sensors import AttitudeSample, GpsSample, ImuSample
+from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
+from gcs.core.estimators import registry
+from gcs.core.samples import AttitudeSample
+from gcs.logs.logfile import InputError
+from gcs.logs.readers import READERS
+from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
+from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import layout
-from gcs.sessions.readers import READERS, InputError
-
-
-@dataclass(frozen=True, slots=True)
-class GainChange:
-    """Set gain `name` to `value` on `estimator` (None: every estimator) at this point."""
-
-    estimator: str | None
-    name: str
-    value: float
-
-
-Input = ImuSample | GpsSample | AttitudeSample | GainChange
 
 
 @dataclass(slots=True)
@@ -45,7 +36,7 @@ class Frame:
     t: float  # pacing time, s: the record's wall time (tlog) or the vehicle time (logs)
     packet: bytes | None  # the MAVLink packet of a tlog record, else None
     sent: bool  # the ground station sent it (tlog link bits 3)
-    inputs: tuple  # Inputs for the estimation pipeline, in order
+    inputs: tuple[EstimationInput, ...]  # for the estimation pipeline, in order
 
 
 @dataclass
@@ -66,7 +57,7 @@ class ReplaySource:
     def duration(self) -> float:
         return 0.0 if not self.frames else self.frames[-1].t - self.frames[0].t
 
-    def inputs(self) -> list[Input]:
+    def inputs(self) -> list[EstimationInput]:
         """Every estimation input in order (cached: what-if runs over this list)."""
         if self._inputs is None:
             self._inputs = [i for frame in self.frames for i in frame.inputs]
@@ -87,8 +78,9 @@ class ReplaySource:
         conf = self.pipeline_config.get("estimators", {}).get(name, {})
         return conf.get("preset"), dict(conf.get("gains", {}))
 
-    def new_pipeline(self, names: list[str] | None = None,
-                     overrides: dict[str, dict[str, float]] | None = None) -> EstimationPipeline:
+    def new_pipeline(
+        self, names: list[str] | None = None, overrides: dict[str, dict[str, float]] | None = None
+    ) -> EstimationPipeline:
         """A pipeline as the source's live one started (recorded presets and gains), with only
         `names` (default: every registered estimator) and gain overrides per estimator."""
         overrides = overrides or {}
@@ -96,34 +88,43 @@ class ReplaySource:
         for name in names or registry.names():
             preset, gains = self.estimator_config(name)
             estimators[name] = registry.create(name, preset, **{**gains, **overrides.get(name, {})})
-        return EstimationPipeline(estimators, self.pipeline_config.get("imu_type"),
-                                  self.pipeline_config.get("system"))
+        return EstimationPipeline(estimators)
+
+    def replay(
+        self,
+        pipeline: EstimationPipeline,
+        on_points: Callable[[list[AttitudePoint]], None] | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> EstimationPipeline:
+        """Feed every input to `pipeline` at once (no pacing), handing the points it produces to
+        `on_points`; `progress(done, total)` is told every 5000 frames and at the end."""
+        total = len(self.frames)
+        for done, frame in enumerate(self.frames, start=1):
+            for item in frame.inputs:
+                points = pipeline.feed(item)
+                if points and on_points is not None:
+                    on_points(points)
+            if progress is not None and done % 5000 == 0:
+                progress(done, total)
+        if progress is not None:
+            progress(total, total)
+        return pipeline
 
 
-def apply(pipeline: EstimationPipeline, item: Input) -> list:
-    """Feed one input to a pipeline; returns the AttitudePoints it produced."""
-    if isinstance(item, GainChange):
-        targets = pipeline.estimators if item.estimator is None else (
-            [item.estimator] if item.estimator in pipeline.estimators else [])
-        for name in targets:
-            pipeline.set_gain(name, item.name, item.value)
-        return []
-    return pipeline.feed_sample(item)
-
-
-def _tlog_frames(path: str, config: dict,
-                 gain_events: list[tuple[int, GainChange]]) -> tuple[list[Frame], Counter, str | None, FramingCounters]:
+def _tlog_frames(
+    path: str, config: dict, gain_events: list[tuple[int, GainChange]]
+) -> tuple[list[Frame], Counter, str | None, FramingCounters]:
     """Frames of a tlog: one per record; inputs made exactly as the live pipeline makes them."""
     records = read_tlog_records(path)
     decoder = MavlinkDecoder()
-    probe = EstimationPipeline({}, config.get("imu_type"), config.get("system"))  # sampler + declination
+    to_inputs = MessageInputs(config.get("imu_type"), config.get("system"))
     pending = sorted(gain_events, key=lambda e: e[0])
     frames: list[Frame] = []
     counts: Counter[str] = Counter()
     position = 0  # estimation input messages so far (the live pipeline's input index)
     for usec, packet in records:
         sent = usec & 3 == 3
-        inputs: list[Input] = []
+        inputs: list[EstimationInput] = []
         for msg in decoder.feed(packet, final=True):
             kind = msg.get_type()
             counts[kind] += 1
@@ -132,15 +133,9 @@ def _tlog_frames(path: str, config: dict,
             while pending and pending[0][0] <= position:
                 inputs.append(pending.pop(0)[1])
             position += 1
-            if kind == "PARAM_VALUE":
-                before = probe.declination
-                probe.feed(msg)
-                if probe.declination != before:
-                    inputs.append(GainChange(None, "declination", probe.declination))
-                continue
-            sample = probe.sampler.feed(msg)
-            if sample is not None:
-                inputs.append(sample)
+            item = to_inputs.feed(msg)
+            if item is not None:
+                inputs.append(item)
         frames.append(Frame((usec & ~3) / 1e6, packet, sent, tuple(inputs)))
     if pending and frames:
         frames[-1].inputs += tuple(change for _, change in pending)
@@ -150,8 +145,10 @@ def _tlog_frames(path: str, config: dict,
     if records.truncated_at is not None:
         damage = f"{path}: offset {records.truncated_at}: last record incomplete; replayed up to it"
     elif records.damage_offsets:
-        damage = (f"{path}: offset {records.damage_offsets[0]}: {records.skipped} damaged bytes skipped "
-                  f"({len(records.damage_offsets)} places)")
+        damage = (
+            f"{path}: offset {records.damage_offsets[0]}: {records.skipped} damaged bytes skipped "
+            f"({len(records.damage_offsets)} places)"
+        )
     return frames, counts, damage, decoder.counters
 
 
@@ -202,8 +199,9 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
         raise InputError(f"{path}: no such file or session folder")
     kind = KINDS.get(os.path.splitext(path)[1].lower())
     if kind is None:
-        raise InputError(f"{path}: cannot replay {os.path.splitext(path)[1]!r}; "
-                         f"give a session folder, .tlog, .bin or .ulg")
+        raise InputError(
+            f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin or .ulg"
+        )
     if kind == "tlog":
         frames, counts, damage, framing = _tlog_frames(path, {}, [])
         return ReplaySource(path, kind, frames, dict(counts), _span(frames), damage, framing=framing)

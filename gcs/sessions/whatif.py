@@ -15,11 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.estimators import registry
-from gcs.rotation import quat_to_euler
-from gcs.sensors import GpsSample, ImuSample
-from gcs.sessions.errors import errors_against
-from gcs.sessions.sources import GainChange, ReplaySource, cached_source
+from gcs.core.attitude_errors import errors_against
+from gcs.core.estimation import GainChange
+from gcs.core.estimators import registry
+from gcs.core.rotation import quat_to_euler
+from gcs.core.samples import GpsSample, ImuSample
+from gcs.sessions.sources import ReplaySource, cached_source
 
 
 @dataclass
@@ -53,7 +54,10 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
     for ref, data in source.references().items():
         err = errors_against(series, data)[:, 1:]
         if len(err):
-            errors[ref] = {"rms": np.sqrt(np.mean(err ** 2, axis=0)).tolist(), "max": np.max(np.abs(err), axis=0).tolist()}
+            errors[ref] = {
+                "rms": np.sqrt(np.mean(err**2, axis=0)).tolist(),
+                "max": np.max(np.abs(err), axis=0).tolist(),
+            }
     return EstimatorRun(dict(estimator.gains.values), series[:, 0], series[:, 1:], errors)
 
 
@@ -80,9 +84,17 @@ class WhatIf:
 
     def table(self) -> list[dict]:
         """RMS / max error per reference, old and new, degrees (roll, pitch, yaw)."""
-        return [{"reference": ref, "old_rms": self.old.errors[ref]["rms"], "new_rms": self.new.errors[ref]["rms"],
-                 "old_max": self.old.errors[ref]["max"], "new_max": self.new.errors[ref]["max"]}
-                for ref in self.old.errors if ref in self.new.errors]
+        return [
+            {
+                "reference": ref,
+                "old_rms": self.old.errors[ref]["rms"],
+                "new_rms": self.new.errors[ref]["rms"],
+                "old_max": self.old.errors[ref]["max"],
+                "new_max": self.new.errors[ref]["max"],
+            }
+            for ref in self.old.errors
+            if ref in self.new.errors
+        ]
 
     def as_dict(self, max_points: int = 4000) -> dict:
         """JSON for the dashboard: decimated series in degrees and the table."""
@@ -92,9 +104,15 @@ class WhatIf:
         def series(run: EstimatorRun) -> dict:
             return {axis: (run.euler[::step, k] * deg).tolist() for k, axis in enumerate(("roll", "pitch", "yaw"))}
 
-        return {"estimator": self.estimator, "gains": self.gains, "t": self.old.t[::step].tolist(),
-                "old": series(self.old), "new": series(self.new), "table": self.table(),
-                "elapsed_s": self.elapsed_s}
+        return {
+            "estimator": self.estimator,
+            "gains": self.gains,
+            "t": self.old.t[::step].tolist(),
+            "old": series(self.old),
+            "new": series(self.new),
+            "table": self.table(),
+            "elapsed_s": self.elapsed_s,
+        }
 
 
 def what_if(source: ReplaySource | str | os.PathLike, estimator: str, gains: dict[str, float]) -> WhatIf:

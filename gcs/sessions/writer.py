@@ -15,8 +15,8 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from gcs.sessions import layout
 
@@ -34,7 +34,7 @@ class AppendFile:
         view = memoryview(data)
         try:
             while view:
-                view = view[os.write(self.fd, view):]
+                view = view[os.write(self.fd, view) :]
         except OSError:
             try:
                 os.ftruncate(self.fd, self.good)
@@ -55,8 +55,13 @@ class SessionWriter(threading.Thread):
     `on_error(exc, file name)` is called from this thread, once.
     """
 
-    def __init__(self, folder: Path, interval: float, on_error: Callable[[OSError, str], None],
-                 sources: list[Callable[[], dict[str, bytes]]] | None = None) -> None:
+    def __init__(
+        self,
+        folder: Path,
+        interval: float,
+        on_error: Callable[[OSError, str], None],
+        sources: list[Callable[[], dict[str, bytes]]] | None = None,
+    ) -> None:
         super().__init__(name=f"session-writer {folder.name}", daemon=True)
         self.folder = folder
         self.interval = interval

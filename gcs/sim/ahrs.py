@@ -4,16 +4,16 @@ Real firmware reports its estimate, never the truth, so a ground station compari
 must see realistic small errors and lag. This is a Mahony complementary filter in plain floats,
 run at the autopilot loop rate on the vehicle's own noisy sensors, the way ArduPilot's DCM works:
 gyro integration, roll/pitch pulled toward the accelerometer's gravity after removing the
-vehicle's own acceleration (from GPS velocity differences, as DCM does), heading pulled toward the tilt-compensated compass, and an
-integral term that learns the gyro bias. It is not the ground station's estimator (gcs.estimators);
-it only has to behave like an autopilot's.
+vehicle's own acceleration (from GPS velocity differences, as DCM does), heading pulled toward the
+tilt-compensated compass, and an integral term that learns the gyro bias. It is not the ground
+station's estimator (gcs.core.estimators); it only has to behave like an autopilot's.
 """
 
 from __future__ import annotations
 
 import math
 
-from gcs.rotation import quat_to_euler, wrap_pi
+from gcs.core.rotation import quat_to_euler, wrap_pi
 
 
 class OnboardAhrs:

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from gcs.link.dialect import mavlink
+from gcs.mavlink.dialect import mavlink
 from gcs.sim.ahrs import OnboardAhrs
 from gcs.sim.motion import GRAVITY, Script, Truth
 from gcs.sim.params import ParamTable
@@ -26,9 +26,12 @@ DCM_KI = 0.0087
 PX4_BIAS_GAIN_SCALE = 0.1
 #: SYS_STATUS sensor bits the simulated board has (gyro, accel, mag, baro, GPS, AHRS).
 SENSORS_PRESENT = (
-    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_AHRS
+    mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    | mavlink.MAV_SYS_STATUS_AHRS
 )
 
 
@@ -57,8 +60,15 @@ class Autopilot:
     fix; `build(name, t)` returns the pymavlink message `name` for vehicle time t (s).
     """
 
-    def __init__(self, profile: Profile, script: Script, faults: SensorFaults, params: ParamTable,
-                 seed: np.random.SeedSequence, home: Home) -> None:
+    def __init__(
+        self,
+        profile: Profile,
+        script: Script,
+        faults: SensorFaults,
+        params: ParamTable,
+        seed: np.random.SeedSequence,
+        home: Home,
+    ) -> None:
         self.profile, self.script, self.faults, self.params, self.home = profile, script, faults, params, home
         streams = seed.spawn(2 + profile.imu_count)
         self.imus = [ImuModel(faults, np.random.default_rng(s)) for s in streams[2:]]
@@ -135,13 +145,17 @@ class Autopilot:
         return getattr(self, "_" + name.lower())(t)
 
     def _heartbeat(self, t: float):
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED \
+        base = (
+            mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
             | mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        )
         if self.armed:
             base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
         state = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
-        return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, self.profile.autopilot, base,
-                                                 self.profile.custom_mode, state, 3)
+        return mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, self.profile.autopilot, base, self.profile.custom_mode, state, 3
+        )
 
     def _raw_imu(self, t: float):
         r = self.imus[0].sample(self.truth(t))
@@ -154,8 +168,9 @@ class Autopilot:
     @staticmethod
     def _scaled(r: ImuReading) -> list[int]:
         """ArduPilot's integer units: mG, mrad/s, mgauss, in FRD order x, y, z."""
-        return ([milli_g(a) for a in r.accel] + [_int16(g * 1000.0) for g in r.gyro]
-                + [_int16(m * 1000.0) for m in r.mag])
+        return (
+            [milli_g(a) for a in r.accel] + [_int16(g * 1000.0) for g in r.gyro] + [_int16(m * 1000.0) for m in r.mag]
+        )
 
     def _highres_imu(self, t: float):
         truth = self.truth(t)
@@ -163,51 +178,82 @@ class Autopilot:
         pressure = self.baro.pressure(truth)
         altitude = self.home.alt - float(truth.pos[2])
         return mavlink.MAVLink_highres_imu_message(
-            int(round(t * 1e6)), *r.accel, *r.gyro, *r.mag, pressure / 100.0, 0.0, altitude,
-            self.baro.temperature(truth), 0x1FFF)  # fields_updated: all 13 fields are new
+            int(round(t * 1e6)),
+            *r.accel,
+            *r.gyro,
+            *r.mag,
+            pressure / 100.0,
+            0.0,
+            altitude,
+            self.baro.temperature(truth),
+            0x1FFF,
+        )  # fields_updated: all 13 fields are new
 
     def _scaled_pressure(self, t: float):
         truth = self.truth(t)
         return mavlink.MAVLink_scaled_pressure_message(
-            int(round(t * 1e3)), self.baro.pressure(truth) / 100.0, 0.0,
-            int(round(self.baro.temperature(truth) * 100)))
+            int(round(t * 1e3)), self.baro.pressure(truth) / 100.0, 0.0, int(round(self.baro.temperature(truth) * 100))
+        )
 
     def _sensor_offsets(self, t: float):
         truth = self.truth(t)
         p = self.params
         return mavlink.MAVLink_sensor_offsets_message(
-            *(_int16(p[f"COMPASS_OFS_{axis}"]) for axis in "XYZ"), p["COMPASS_DEC"],
-            int(round(self.baro.pressure(truth))), int(round(self.baro.temperature(truth) * 100)),
-            *(p[f"INS_GYROFFS_{axis}"] for axis in "XYZ"), *(p[f"INS_ACCOFFS_{axis}"] for axis in "XYZ"))
+            *(_int16(p[f"COMPASS_OFS_{axis}"]) for axis in "XYZ"),
+            p["COMPASS_DEC"],
+            int(round(self.baro.pressure(truth))),
+            int(round(self.baro.temperature(truth) * 100)),
+            *(p[f"INS_GYROFFS_{axis}"] for axis in "XYZ"),
+            *(p[f"INS_ACCOFFS_{axis}"] for axis in "XYZ"),
+        )
 
     def _sys_status(self, t: float):
         current = 1500 if self.armed else 60  # cA
-        return mavlink.MAVLink_sys_status_message(SENSORS_PRESENT, SENSORS_PRESENT, SENSORS_PRESENT, 250,
-                                                  12400, current, 80, 0, 0, 0, 0, 0, 0)
+        return mavlink.MAVLink_sys_status_message(
+            SENSORS_PRESENT, SENSORS_PRESENT, SENSORS_PRESENT, 250, 12400, current, 80, 0, 0, 0, 0, 0, 0
+        )
 
     def _gps_raw_int(self, t: float):
         fix = self.fix or self.gps.fix(self.truth(t))
         # HDOP 0.9 / VDOP 1.4 and 12 satellites: a good open-sky u-blox fix; accuracies from the noise.
         return mavlink.MAVLink_gps_raw_int_message(
-            int(round(fix.t * 1e6)), mavlink.GPS_FIX_TYPE_3D_FIX, _deg_e7(fix.lat), _deg_e7(fix.lon),
-            int(round(fix.alt * 1000)), 90, 140, int(round(fix.ground_speed * 100)), _centidegrees(fix.course),
-            12, int(round(fix.alt * 1000)), max(1, int(self.faults.gps_pos_noise * 1000)),
-            max(1, int(self.faults.gps_pos_noise * 1500)), max(1, int(self.faults.gps_vel_noise * 1000)), 0)
+            int(round(fix.t * 1e6)),
+            mavlink.GPS_FIX_TYPE_3D_FIX,
+            _deg_e7(fix.lat),
+            _deg_e7(fix.lon),
+            int(round(fix.alt * 1000)),
+            90,
+            140,
+            int(round(fix.ground_speed * 100)),
+            _centidegrees(fix.course),
+            12,
+            int(round(fix.alt * 1000)),
+            max(1, int(self.faults.gps_pos_noise * 1000)),
+            max(1, int(self.faults.gps_pos_noise * 1500)),
+            max(1, int(self.faults.gps_vel_noise * 1000)),
+            0,
+        )
 
     def _global_position_int(self, t: float):
         fix = self.fix or self.gps.fix(self.truth(t))
         vn, ve, vd = fix.vel_ned
         return mavlink.MAVLink_global_position_int_message(
-            int(round(t * 1e3)), _deg_e7(fix.lat), _deg_e7(fix.lon), int(round(fix.alt * 1000)),
-            int(round((fix.alt - self.home.alt) * 1000)), int(round(vn * 100)), int(round(ve * 100)),
-            int(round(vd * 100)), _centidegrees(self.primary.euler()[2]))
+            int(round(t * 1e3)),
+            _deg_e7(fix.lat),
+            _deg_e7(fix.lon),
+            int(round(fix.alt * 1000)),
+            int(round((fix.alt - self.home.alt) * 1000)),
+            int(round(vn * 100)),
+            int(round(ve * 100)),
+            int(round(vd * 100)),
+            _centidegrees(self.primary.euler()[2]),
+        )
 
     def _attitude(self, t: float):
         return mavlink.MAVLink_attitude_message(int(round(t * 1e3)), *self.primary.euler(), *self.primary.rate)
 
     def _attitude_quaternion(self, t: float):
-        return mavlink.MAVLink_attitude_quaternion_message(int(round(t * 1e3)), *self.primary.q,
-                                                           *self.primary.rate)
+        return mavlink.MAVLink_attitude_quaternion_message(int(round(t * 1e3)), *self.primary.q, *self.primary.rate)
 
     def _ahrs(self, t: float):
         dcm = self.secondary or self.primary
@@ -220,11 +266,13 @@ class Autopilot:
     def _simstate(self, t: float):
         truth = self.truth(t)
         lat, lon = self.home.lat_lon(float(truth.pos[0]), float(truth.pos[1]))
-        return mavlink.MAVLink_simstate_message(*truth.euler, *map(float, truth.specific_force),
-                                                *map(float, truth.omega_body), _deg_e7(lat), _deg_e7(lon))
+        return mavlink.MAVLink_simstate_message(
+            *truth.euler, *map(float, truth.specific_force), *map(float, truth.omega_body), _deg_e7(lat), _deg_e7(lon)
+        )
 
     def _autopilot_version(self, t: float):
         p = self.profile
         vendor, product, uid = 0x1209, 0x5741, 0x5349_4D00_0001  # pid.codes open-source ids; "SIM" uid
         return mavlink.MAVLink_autopilot_version_message(
-            p.capabilities, p.flight_sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, vendor, product, uid)
+            p.capabilities, p.flight_sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, vendor, product, uid
+        )

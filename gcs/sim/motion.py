@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.rotation import euler_to_quat
+from gcs.core.rotation import euler_to_quat
 
 #: Standard gravity (m/s²), the value ArduPilot uses (GRAVITY_MSS).
 GRAVITY = 9.80665
@@ -155,8 +155,7 @@ def timeline(start: float, steps: list[tuple[float, float]]) -> list[tuple[float
 def there_and_back(duration: float, first: float, second: float) -> list[tuple[float, float]]:
     """Timeline steps filling `duration`: level, to `first` and held, level, to `second` and held,
     level again (a side slope one way then the other, or a dip then a rise)."""
-    shape = [(0.2, 0.0), (0.1, first), (0.1, first), (0.1, 0.0), (0.1, second), (0.1, second), (0.1, 0.0),
-             (0.2, 0.0)]
+    shape = [(0.2, 0.0), (0.1, first), (0.1, first), (0.1, 0.0), (0.1, second), (0.1, second), (0.1, 0.0), (0.2, 0.0)]
     return [(fraction * duration, value) for fraction, value in shape]
 
 
@@ -226,8 +225,9 @@ class CircuitScript(Script):
 
     name = "circuit"
 
-    def __init__(self, speed: float = 3.0, long_side: float = 40.0, short_side: float = 20.0,
-                 turn: float = 6.0) -> None:
+    def __init__(
+        self, speed: float = 3.0, long_side: float = 40.0, short_side: float = 20.0, turn: float = 6.0
+    ) -> None:
         self.speed = speed
         t_long, t_short = long_side / speed, short_side / speed
         bump = there_and_back(t_long, math.radians(-16), math.radians(16))
@@ -289,8 +289,17 @@ class QuadScript(Script):
 
     name = "quad"
 
-    def __init__(self, speed: float = 8.0, radius: float = 20.0, laps: int = 2, altitude: float = 10.0,
-                 climb: float = 6.0, ramp: float = 4.0, idle: float = 2.0, hover: float = 2.0) -> None:
+    def __init__(
+        self,
+        speed: float = 8.0,
+        radius: float = 20.0,
+        laps: int = 2,
+        altitude: float = 10.0,
+        climb: float = 6.0,
+        ramp: float = 4.0,
+        idle: float = 2.0,
+        hover: float = 2.0,
+    ) -> None:
         self.speed, self.radius, self.ramp = speed, radius, ramp
         cruise = 2 * math.pi * radius * laps / speed - ramp  # ramps cover speed·ramp/2 each
         if cruise < 0:
@@ -299,8 +308,15 @@ class QuadScript(Script):
         self.t_cruise = self.t_go + ramp
         self.t_brake = self.t_cruise + cruise
         t_stop = self.t_brake + ramp
-        self.height = Keyframes([(0.0, 0.0), (idle, 0.0), (idle + climb, altitude),
-                                 (t_stop + hover, altitude), (t_stop + hover + climb, 0.0)])
+        self.height = Keyframes(
+            [
+                (0.0, 0.0),
+                (idle, 0.0),
+                (idle + climb, altitude),
+                (t_stop + hover, altitude),
+                (t_stop + hover + climb, 0.0),
+            ]
+        )
         self.period = self.height.end + idle
 
     def _arc(self, t: float) -> tuple[float, float, float, float]:
@@ -311,13 +327,13 @@ class QuadScript(Script):
         if t < self.t_cruise:
             u = (t - self.t_go) / T
             s, ds, dds, _ = min_jerk(u)
-            return V * T * u ** 4 * (2.5 - 3 * u + u * u), V * s, V * ds / T, V * dds / (T * T)
+            return V * T * u**4 * (2.5 - 3 * u + u * u), V * s, V * ds / T, V * dds / (T * T)
         if t < self.t_brake:
             return V * T / 2 + V * (t - self.t_cruise), V, 0.0, 0.0
         base = V * T / 2 + V * (self.t_brake - self.t_cruise)
         u = min((t - self.t_brake) / T, 1.0)
         s, ds, dds, _ = min_jerk(u)
-        covered = V * T * (u - u ** 4 * (2.5 - 3 * u + u * u))  # ∫ V (1 − s(u)) dt
+        covered = V * T * (u - u**4 * (2.5 - 3 * u + u * u))  # ∫ V (1 − s(u)) dt
         return base + covered, V * (1 - s), -V * ds / T, -V * dds / (T * T)
 
     def _state(self, t: float) -> tuple:
@@ -331,7 +347,7 @@ class QuadScript(Script):
         vel = (v * ca, v * sa, -dh)
         a_n = v * v / r  # centripetal
         acc = (a_t * ca - a_n * sa, a_t * sa + a_n * ca, -ddh)
-        jt, jn = j_t - v ** 3 / (r * r), 3 * v * a_t / r
+        jt, jn = j_t - v**3 / (r * r), 3 * v * a_t / r
         jerk = (jt * ca - jn * sa, jt * sa + jn * ca, -dddh)
         yaw, yaw_rate = alpha, v / r
         # Specific force in the heading frame (x along course, y to the right).

@@ -219,62 +219,77 @@ def arducopter_32() -> list[Row]:
     rows += [(f"SR{n}_{g}", 0.0, "i16") for n in range(4) for g in _SR_GROUPS_32]
     rows += _family("RC{}_", range(1, 15), "MIN 1100 i16\nTRIM 1500 i16\nMAX 1900 i16\nREV 1 i8\nDZ 30 i16")
     rows += _family("RC{}_", range(5, 15), "FUNCTION 0 i8")
-    rows += _prefixed({
-        "CAM_": "TRIGG_TYPE 0 i8\nDURATION 10 i8\nSERVO_ON 1300 i16\nSERVO_OFF 1100 i16\n"
-            "TRIGG_DIST 0",
-        "MNT_": "MODE 3 i8\nRETRACT_X 0\nRETRACT_Y 0\nRETRACT_Z 0\nNEUTRAL_X 0\nNEUTRAL_Y 0\n"
+    rows += _prefixed(
+        {
+            "CAM_": "TRIGG_TYPE 0 i8\nDURATION 10 i8\nSERVO_ON 1300 i16\nSERVO_OFF 1100 i16\nTRIGG_DIST 0",
+            "MNT_": "MODE 3 i8\nRETRACT_X 0\nRETRACT_Y 0\nRETRACT_Z 0\nNEUTRAL_X 0\nNEUTRAL_Y 0\n"
             "NEUTRAL_Z 0\nCONTROL_X 0\nCONTROL_Y 0\nCONTROL_Z 0\nSTAB_ROLL 0 i8\nSTAB_TILT 0 i8\n"
             "STAB_PAN 0 i8\nRC_IN_ROLL 0 i8\nRC_IN_TILT 0 i8\nRC_IN_PAN 0 i8\nANGMIN_ROL -4500 i16\n"
             "ANGMAX_ROL 4500 i16\nANGMIN_TIL -4500 i16\nANGMAX_TIL 4500 i16\nANGMIN_PAN -4500 i16\n"
             "ANGMAX_PAN 4500 i16\nJSTICK_SPD 0 i8",
-        "EKF_": "VELNE_NOISE 0.5\nVELD_NOISE 0.7\nPOSNE_NOISE 0.5\nALT_NOISE 1\nMAG_NOISE 1.3\n"
+            "EKF_": "VELNE_NOISE 0.5\nVELD_NOISE 0.7\nPOSNE_NOISE 0.5\nALT_NOISE 1\nMAG_NOISE 1.3\n"
             "EAS_NOISE 1.4\nWIND_PNOISE 0.1\nWIND_PSCALE 0.5\nGYRO_PNOISE 0.015\nACC_PNOISE 0.25\n"
             "GBIAS_PNOISE 1e-6\nABIAS_PNOISE 0.0002\nMAGE_PNOISE 0.0003\nMAGB_PNOISE 0.0003\n"
             "VEL_DELAY 220 i16\nPOS_DELAY 220 i16\nGPS_TYPE 0 i8\nVEL_GATE 5 i16\nPOS_GATE 10 i16\n"
             "HGT_GATE 10 i16\nMAG_GATE 3 i16\nEAS_GATE 10 i16\nMAG_CAL 1 i8\nGLITCH_ACCEL 150 i16\n"
             "GLITCH_RAD 15 i16\nGND_GRADIENT 2 i8\nFLOW_NOISE 0.3\nFLOW_GATE 3 i16\nFLOW_DELAY 25 i8\n"
             "RNG_GATE 5 i16\nMAX_FLOW 2.5\nFALLBACK 1 i8\nALT_SOURCE 0 i8",
-        "TERRAIN_": "ENABLE 1 i8\nSPACING 100 i16",
-        "BRD_": "PWM_COUNT 4 i8\nSER1_RTSCTS 2 i8\nSER2_RTSCTS 2 i8\nSAFETYENABLE 1 i8",
-        "LOG_": "FILE_BUFSIZE 16 i8",
-        "RELAY_": "PIN -1 i8\nPIN2 -1 i8\nDEFAULT 0 i8",
-        "CHUTE_": "ENABLED 0 i8\nTYPE 0 i8\nSERVO_ON 1300 i16\nSERVO_OFF 1100 i16\n"
-            "ALT_MIN 10 i16",
-        "RALLY_": "TOTAL 0 i8\nLIMIT_KM 0.3",
-        "LAND_": "REPOSITION 1 i8",
-        "SONAR_": "TYPE 0 i8\nPIN 0 i8\nSCALING 3\nOFFSET 0\nFUNCTION 0 i8\n"
+            "TERRAIN_": "ENABLE 1 i8\nSPACING 100 i16",
+            "BRD_": "PWM_COUNT 4 i8\nSER1_RTSCTS 2 i8\nSER2_RTSCTS 2 i8\nSAFETYENABLE 1 i8",
+            "LOG_": "FILE_BUFSIZE 16 i8",
+            "RELAY_": "PIN -1 i8\nPIN2 -1 i8\nDEFAULT 0 i8",
+            "CHUTE_": "ENABLED 0 i8\nTYPE 0 i8\nSERVO_ON 1300 i16\nSERVO_OFF 1100 i16\nALT_MIN 10 i16",
+            "RALLY_": "TOTAL 0 i8\nLIMIT_KM 0.3",
+            "LAND_": "REPOSITION 1 i8",
+            "SONAR_": "TYPE 0 i8\nPIN 0 i8\nSCALING 3\nOFFSET 0\nFUNCTION 0 i8\n"
             "MIN_CM 20 i16\nMAX_CM 700 i16\nSTOP_PIN -1 i8\nSETTLE 0 i16\nRMETRIC 1 i8\nGAIN 0.8",
-        "EPM_": "ENABLE 0 i8\nGRAB 1900 i16\nRELEASE 1100 i16\nNEUTRAL 1500 i16",
-        "GND_": "ABS_PRESS 0\nTEMP 0\nALT_OFFSET 0 i8",
-        "MIS_": "TOTAL 0 i16\nRESTART 0 i8",
-        "SCHED_": "DEBUG 0 i8",
-        "OF_": "RLL_P 2.5\nRLL_I 0.5\nRLL_D 0.12\nRLL_IMAX 100\nPIT_P 2.5\nPIT_I 0.5\n"
-            "PIT_D 0.12\nPIT_IMAX 100",
-        "AUTOTUNE_": "AXES 7 i8\nAGGR 0.1",
-        "FLOW_": "ENABLE 0 i8",
-        "TELEM_": "DELAY 0 i8",
-        "H_": "SV1_POS -60 i16\nSV2_POS 60 i16\nSV3_POS 180 i16\nSV4_POS 0 i16\n"
+            "EPM_": "ENABLE 0 i8\nGRAB 1900 i16\nRELEASE 1100 i16\nNEUTRAL 1500 i16",
+            "GND_": "ABS_PRESS 0\nTEMP 0\nALT_OFFSET 0 i8",
+            "MIS_": "TOTAL 0 i16\nRESTART 0 i8",
+            "SCHED_": "DEBUG 0 i8",
+            "OF_": "RLL_P 2.5\nRLL_I 0.5\nRLL_D 0.12\nRLL_IMAX 100\nPIT_P 2.5\nPIT_I 0.5\nPIT_D 0.12\nPIT_IMAX 100",
+            "AUTOTUNE_": "AXES 7 i8\nAGGR 0.1",
+            "FLOW_": "ENABLE 0 i8",
+            "TELEM_": "DELAY 0 i8",
+            "H_": "SV1_POS -60 i16\nSV2_POS 60 i16\nSV3_POS 180 i16\nSV4_POS 0 i16\n"
             "SWASH_TYPE 0 i8\nGYR_GAIN 350 i16\nPHANG 0 i16\nCOLYAW 0",
-    })
+        }
+    )
     return rows + sitl_rows()
 
 
 def sitl_rows() -> list[Row]:
     """ArduPilot SITL's own SIM_* parameters (the simulated vehicle is a SITL-like build)."""
-    rows = _prefixed({"SIM_": "ACC_RND 0\nGYR_RND 0\nMAG_RND 0\nBARO_RND 0\nGPS_NOISE 0\n"
-                   "GPS_DISABLE 0 i8\nGPS_DELAY 1 i8\nGPS_TYPE 1 i8\nGPS_BYTELOSS 0\nGPS_NUMSATS 10 i8\n"
-                   "GPS_GLITCH_X 0\nGPS_GLITCH_Y 0\nGPS_GLITCH_Z 0\nGPS_HZ 5 i8\nGPS_DRIFTALT 0\n"
-                   "DRIFT_SPEED 0.05\nDRIFT_TIME 5\nWIND_SPD 0\nWIND_DIR 180\nWIND_TURB 0\nWIND_DELAY 0 i16\n"
-                   "MAG_ERROR 0\nMAG_DELAY 0 i16\nMAG_ORIENT 0 i8\nBARO_DRIFT 0\nBARO_GLITCH 0\nBARO_DELAY 0 i16\n"
-                   "ENGINE_MUL 1\nENGINE_FAIL 0 i8\nFLOAT_EXCEPT 1 i8\nSPEEDUP 1 i16\nRATE_HZ 400 i16\n"
-                   "LOOP_DELAY 0 i32\nTERRAIN 1 i8\nSONAR_SCALE 12.12\nSONAR_GLITCH 0\nSONAR_RND 0\n"
-                   "ACC_FAIL_MSK 0 i8\nGYR_FAIL_MSK 0 i8\nVIB_FREQ_X 0\nVIB_FREQ_Y 0\nVIB_FREQ_Z 0\n"
-                   "SERVO_SPEED 0.14\nBATT_VOLTAGE 12.6\nBATT_CAP_AH 0\nADSB_COUNT -1 i16\nADSB_RADIUS 10000\n"
-                   "ADSB_ALT 1000\nADSB_TX 0 i8\nFLOW_ENABLE 0 i8\nFLOW_RATE 10 i16\nFLOW_DELAY 0 i8\n"
-                   "TEMP_START 25\nTEMP_FLIGHT 35\nTEMP_TCONST 30\nGND_BEHAV -1 i8\nPIN_MASK 0 i16\n"
-                   "OPOS_LAT 0\nOPOS_LNG 0\nOPOS_ALT 0\nOPOS_HDG 0"})
-    vectors = ("MAG_OFS_", "ACC_BIAS_", "GYR_BIAS_", "ACC_SCAL_", "IMU_POS_", "GPS_POS_", "MAG_DIA_", "MAG_ODI_",
-               "MAG_MOT_", "ACC2_BIAS_", "GYR2_BIAS_", "ACC2_SCAL_")
+    rows = _prefixed(
+        {
+            "SIM_": "ACC_RND 0\nGYR_RND 0\nMAG_RND 0\nBARO_RND 0\nGPS_NOISE 0\n"
+            "GPS_DISABLE 0 i8\nGPS_DELAY 1 i8\nGPS_TYPE 1 i8\nGPS_BYTELOSS 0\nGPS_NUMSATS 10 i8\n"
+            "GPS_GLITCH_X 0\nGPS_GLITCH_Y 0\nGPS_GLITCH_Z 0\nGPS_HZ 5 i8\nGPS_DRIFTALT 0\n"
+            "DRIFT_SPEED 0.05\nDRIFT_TIME 5\nWIND_SPD 0\nWIND_DIR 180\nWIND_TURB 0\nWIND_DELAY 0 i16\n"
+            "MAG_ERROR 0\nMAG_DELAY 0 i16\nMAG_ORIENT 0 i8\nBARO_DRIFT 0\nBARO_GLITCH 0\nBARO_DELAY 0 i16\n"
+            "ENGINE_MUL 1\nENGINE_FAIL 0 i8\nFLOAT_EXCEPT 1 i8\nSPEEDUP 1 i16\nRATE_HZ 400 i16\n"
+            "LOOP_DELAY 0 i32\nTERRAIN 1 i8\nSONAR_SCALE 12.12\nSONAR_GLITCH 0\nSONAR_RND 0\n"
+            "ACC_FAIL_MSK 0 i8\nGYR_FAIL_MSK 0 i8\nVIB_FREQ_X 0\nVIB_FREQ_Y 0\nVIB_FREQ_Z 0\n"
+            "SERVO_SPEED 0.14\nBATT_VOLTAGE 12.6\nBATT_CAP_AH 0\nADSB_COUNT -1 i16\nADSB_RADIUS 10000\n"
+            "ADSB_ALT 1000\nADSB_TX 0 i8\nFLOW_ENABLE 0 i8\nFLOW_RATE 10 i16\nFLOW_DELAY 0 i8\n"
+            "TEMP_START 25\nTEMP_FLIGHT 35\nTEMP_TCONST 30\nGND_BEHAV -1 i8\nPIN_MASK 0 i16\n"
+            "OPOS_LAT 0\nOPOS_LNG 0\nOPOS_ALT 0\nOPOS_HDG 0"
+        }
+    )
+    vectors = (
+        "MAG_OFS_",
+        "ACC_BIAS_",
+        "GYR_BIAS_",
+        "ACC_SCAL_",
+        "IMU_POS_",
+        "GPS_POS_",
+        "MAG_DIA_",
+        "MAG_ODI_",
+        "MAG_MOT_",
+        "ACC2_BIAS_",
+        "GYR2_BIAS_",
+        "ACC2_SCAL_",
+    )
     return rows + _prefixed({"SIM_" + vector: _XYZ_ZERO for vector in vectors})
 
 
@@ -538,24 +553,33 @@ _SR_GROUPS_4 = "RAW_SENS EXT_STAT RC_CHAN RAW_CTRL POSITION EXTRA1 EXTRA2 EXTRA3
 def arducopter_4() -> list[Row]:
     rows = _rows(_COPTER4) + _rows(_AHRS)
     for imu in ("", "2"):
-        rows += _prefixed({f"INS_GYR{imu}OFFS_" if imu else "INS_GYROFFS_": _XYZ_ZERO,
-                           f"INS_ACC{imu}OFFS_": _XYZ_ZERO, f"INS_ACC{imu}SCAL_": _XYZ_ONE})
+        rows += _prefixed(
+            {
+                f"INS_GYR{imu}OFFS_" if imu else "INS_GYROFFS_": _XYZ_ZERO,
+                f"INS_ACC{imu}OFFS_": _XYZ_ZERO,
+                f"INS_ACC{imu}SCAL_": _XYZ_ONE,
+            }
+        )
     for mag in ("", "2", "3"):
-        rows += _prefixed({f"COMPASS_OFS{mag}_": _XYZ_ZERO, f"COMPASS_DIA{mag}_": _XYZ_ONE,
-                           f"COMPASS_ODI{mag}_": _XYZ_ZERO})
+        rows += _prefixed(
+            {f"COMPASS_OFS{mag}_": _XYZ_ZERO, f"COMPASS_DIA{mag}_": _XYZ_ONE, f"COMPASS_ODI{mag}_": _XYZ_ZERO}
+        )
     rows += [(f"SR{n}_{g}", 0.0, "i16") for n in range(7) for g in _SR_GROUPS_4]
     rows += _family("SERIAL{}_", range(8), "PROTOCOL 2 i8\nBAUD 57 i32\nOPTIONS 0 i16")
-    rows += _family("SERVO{}_", range(1, 17), "MIN 1100 i16\nMAX 1900 i16\nTRIM 1500 i16\nREVERSED 0 i8\n"
-                    "FUNCTION 0 i16")
-    rows += _family("RC{}_", range(1, 17), "MIN 1100 i16\nTRIM 1500 i16\nMAX 1900 i16\nREVERSED 0 i8\n"
-                    "DZ 20 i16\nOPTION 0 i16")
-    rows += _prefixed({
-        "RCMAP_": "ROLL 1 i8\nPITCH 2 i8\nTHROTTLE 3 i8\nYAW 4 i8",
-        "FENCE_": "ENABLE 0 i8\nTYPE 7 i8\nACTION 1 i8\nALT_MAX 100\nRADIUS 150\nMARGIN 2\n"
-            "TOTAL 0 i8\nALT_MIN -10",
-        "MNT1_": "TYPE 0 i8\nDEFLT_MODE 3 i8\nRC_RATE 90 i16\nROLL_MIN -30\nROLL_MAX 30\n"
+    rows += _family(
+        "SERVO{}_", range(1, 17), "MIN 1100 i16\nMAX 1900 i16\nTRIM 1500 i16\nREVERSED 0 i8\nFUNCTION 0 i16"
+    )
+    rows += _family(
+        "RC{}_", range(1, 17), "MIN 1100 i16\nTRIM 1500 i16\nMAX 1900 i16\nREVERSED 0 i8\nDZ 20 i16\nOPTION 0 i16"
+    )
+    rows += _prefixed(
+        {
+            "RCMAP_": "ROLL 1 i8\nPITCH 2 i8\nTHROTTLE 3 i8\nYAW 4 i8",
+            "FENCE_": "ENABLE 0 i8\nTYPE 7 i8\nACTION 1 i8\nALT_MAX 100\nRADIUS 150\nMARGIN 2\nTOTAL 0 i8\nALT_MIN -10",
+            "MNT1_": "TYPE 0 i8\nDEFLT_MODE 3 i8\nRC_RATE 90 i16\nROLL_MIN -30\nROLL_MAX 30\n"
             "PITCH_MIN -90\nPITCH_MAX 20\nYAW_MIN -180\nYAW_MAX 180\nOPTIONS 0 i32",
-    })
+        }
+    )
     return rows + sitl_rows()
 
 
@@ -782,8 +806,9 @@ SER_TEL2_BAUD 921600 i32
 
 def px4_115() -> list[Row]:
     rows = _rows(_PX4)
-    rows += _family("MAV_{}_", range(3), "CONFIG 0 i32\nMODE 0 i32\nRATE 1200 i32\nFORWARD 0 i32\n"
-                    "RADIO_CTL 1 i32\nFLOW_CTRL 2 i32")
+    rows += _family(
+        "MAV_{}_", range(3), "CONFIG 0 i32\nMODE 0 i32\nRATE 1200 i32\nFORWARD 0 i32\nRADIO_CTL 1 i32\nFLOW_CTRL 2 i32"
+    )
     for sensor, ids in (("ACC", 3), ("GYRO", 3), ("MAG", 3)):
         fields = "ID 0 i32\nPRIO -1 i32\nXOFF 0\nYOFF 0\nZOFF 0"
         if sensor != "GYRO":
@@ -792,9 +817,11 @@ def px4_115() -> list[Row]:
             fields += "\nROT -1 i32\nXODIAG 0\nYODIAG 0\nZODIAG 0\nXCOMP 0\nYCOMP 0\nZCOMP 0"
         rows += _family(f"CAL_{sensor}{{}}_", range(ids), fields)
     rows += _family("CAL_BARO{}_", range(3), "ID 0 i32\nPRIO -1 i32\nOFF 0")
-    rows += _prefixed({
-        "PWM_MAIN_": "TIM0 400 i32\nTIM1 400 i32\nREV 0 i32",
-    })
+    rows += _prefixed(
+        {
+            "PWM_MAIN_": "TIM0 400 i32\nTIM1 400 i32\nREV 0 i32",
+        }
+    )
     for kind, default in (("MIN", 1000), ("MAX", 2000), ("DIS", 900), ("FAIL", 0), ("FUNC", 0)):
         rows += [(f"PWM_MAIN_{kind}{n}", float(default), "i32") for n in range(1, 9)]
         rows += [(f"PWM_AUX_{kind}{n}", float(default), "i32") for n in range(1, 7)]

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import struct
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from gcs.link.dialect import mavlink
+from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.params import decode, encode, float32, param_name
 from gcs.sim.param_tables import Row
 
 PARAM_TYPES = {
@@ -31,13 +32,8 @@ PARAM_TYPES = {
     "i32": mavlink.MAV_PARAM_TYPE_INT32,
     "f": mavlink.MAV_PARAM_TYPE_REAL32,
 }
-#: struct format and inclusive range of each integer type.
-_INT_FORMATS = {"i8": ("<b", -(2 ** 7), 2 ** 7 - 1), "i16": ("<h", -(2 ** 15), 2 ** 15 - 1),
-                "i32": ("<i", -(2 ** 31), 2 ** 31 - 1)}
-
-
-def _float32(value: float) -> float:
-    return struct.unpack("<f", struct.pack("<f", value))[0]
+#: Inclusive range of each integer type.
+_INT_RANGES = {"i8": (-(2**7), 2**7 - 1), "i16": (-(2**15), 2**15 - 1), "i32": (-(2**31), 2**31 - 1)}
 
 
 class ParamTable:
@@ -72,26 +68,20 @@ class ParamTable:
         """The value as the firmware stores it: integers rounded and saturated, floats float32."""
         kind = self.kinds[i]
         if kind == "f":
-            return _float32(float(value))
-        _, lo, hi = _INT_FORMATS[kind]
+            return float32(float(value))
+        lo, hi = _INT_RANGES[kind]
         return float(min(max(int(round(value)), lo), hi))
 
     def wire_value(self, i: int) -> float:
         """The `param_value` float sent for parameter i."""
-        kind = self.kinds[i]
-        if self.bytewise and kind != "f":
-            fmt = _INT_FORMATS[kind][0]
-            raw = struct.pack(fmt, int(self.values[i])).ljust(4, b"\0")
-            return struct.unpack("<f", raw)[0]
+        if self.bytewise:
+            return encode(self.names[i], self.values[i], self.param_type(i), bytewise=True)[0]
         return self.values[i]
 
     def from_wire(self, i: int, wire: float) -> float:
         """Decode a PARAM_SET `param_value` for parameter i."""
-        kind = self.kinds[i]
-        if self.bytewise and kind != "f":
-            fmt = _INT_FORMATS[kind][0]
-            raw = struct.pack("<f", wire)[: struct.calcsize(fmt)]
-            return float(struct.unpack(fmt, raw)[0])
+        if self.bytewise:
+            return float(decode(struct.pack("<f", wire), self.param_type(i), bytewise=True))
         return wire
 
     def param_type(self, i: int) -> int:
@@ -106,9 +96,15 @@ class ParamServer:
     stored value changes (the vehicle applies AHRS gains etc.).
     """
 
-    def __init__(self, table: ParamTable, rng: np.random.Generator, drop: float = 0.0,
-                 clamp: dict[str, float] | None = None, rate_hz: float = 250.0,
-                 on_change: Callable[[str, float], None] | None = None) -> None:
+    def __init__(
+        self,
+        table: ParamTable,
+        rng: np.random.Generator,
+        drop: float = 0.0,
+        clamp: dict[str, float] | None = None,
+        rate_hz: float = 250.0,
+        on_change: Callable[[str, float], None] | None = None,
+    ) -> None:
         self.table = table
         self.rng = rng
         self.drop = drop
@@ -125,8 +121,7 @@ class ParamServer:
             self.dropped += 1
             return []
         t = self.table
-        return [mavlink.MAVLink_param_value_message(
-            t.names[i].encode(), t.wire_value(i), t.param_type(i), len(t), i)]
+        return [mavlink.MAVLink_param_value_message(t.names[i].encode(), t.wire_value(i), t.param_type(i), len(t), i)]
 
     def handle(self, msg, now: float) -> list:
         kind = msg.get_type()
@@ -135,10 +130,10 @@ class ParamServer:
             self.next_due = now
             return []
         if kind == "PARAM_REQUEST_READ":
-            i = self._lookup(msg.param_id, msg.param_index)
+            i = self._lookup(param_name(msg), msg.param_index)
             return [] if i is None else self._value_msg(i)
         if kind == "PARAM_SET":
-            i = self._lookup(msg.param_id, -1)
+            i = self._lookup(param_name(msg), -1)
             if i is None:
                 return []
             name = self.table.names[i]
@@ -162,9 +157,8 @@ class ParamServer:
             self.next_due = None
         return out
 
-    def _lookup(self, param_id, index: int) -> int | None:
-        """Index of a parameter named by param_id (str or bytes), or by index when that is >= 0."""
+    def _lookup(self, param_id: str, index: int) -> int | None:
+        """Index of a parameter by name, or by index when that is >= 0."""
         if index is not None and index >= 0:
             return index if index < len(self.table) else None
-        name = param_id.decode(errors="replace") if isinstance(param_id, bytes) else param_id
-        return self.table.index.get(name.rstrip("\0"))
+        return self.table.index.get(param_id)

@@ -11,10 +11,10 @@ rates, rate caps, commands it knows, parameter encoding. Facts from research/anc
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
-from gcs.link.dialect import mavlink
+from gcs.mavlink.dialect import mavlink
 from gcs.sim import param_tables
 from gcs.sim.param_tables import Row
 
@@ -87,8 +87,18 @@ APM25 = Profile(
     name="apm25",
     mavlink1=True,
     autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-    messages=("HEARTBEAT", "RAW_IMU", "SCALED_PRESSURE", "SENSOR_OFFSETS", "SYS_STATUS", "GPS_RAW_INT",
-              "GLOBAL_POSITION_INT", "ATTITUDE", "SIMSTATE", "AHRS"),
+    messages=(
+        "HEARTBEAT",
+        "RAW_IMU",
+        "SCALED_PRESSURE",
+        "SENSOR_OFFSETS",
+        "SYS_STATUS",
+        "GPS_RAW_INT",
+        "GLOBAL_POSITION_INT",
+        "ATTITUDE",
+        "SIMSTATE",
+        "AHRS",
+    ),
     groups={  # ArduCopter/GCS_Mavlink.pde (3.2.1)
         RAW_SENSORS: ("RAW_IMU", "SCALED_PRESSURE", "SENSOR_OFFSETS"),
         EXTENDED_STATUS: ("SYS_STATUS", "GPS_RAW_INT"),
@@ -105,8 +115,20 @@ PIXHAWK = Profile(
     name="pixhawk",
     mavlink1=False,
     autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-    messages=("HEARTBEAT", "RAW_IMU", "SCALED_IMU2", "SCALED_PRESSURE", "SYS_STATUS", "GPS_RAW_INT",
-              "GLOBAL_POSITION_INT", "ATTITUDE", "SIMSTATE", "AHRS2", "AHRS", "AUTOPILOT_VERSION"),
+    messages=(
+        "HEARTBEAT",
+        "RAW_IMU",
+        "SCALED_IMU2",
+        "SCALED_PRESSURE",
+        "SYS_STATUS",
+        "GPS_RAW_INT",
+        "GLOBAL_POSITION_INT",
+        "ATTITUDE",
+        "SIMSTATE",
+        "AHRS2",
+        "AHRS",
+        "AUTOPILOT_VERSION",
+    ),
     groups={  # libraries/GCS_MAVLink/GCS_MAVLink_Parameters.cpp (4.x), messages the sim has
         RAW_SENSORS: ("RAW_IMU", "SCALED_IMU2", "SCALED_PRESSURE"),
         EXTENDED_STATUS: ("SYS_STATUS", "GPS_RAW_INT"),
@@ -127,13 +149,27 @@ PX4 = Profile(
     name="px4",
     mavlink1=False,
     autopilot=mavlink.MAV_AUTOPILOT_PX4,
-    messages=("HEARTBEAT", "HIGHRES_IMU", "ATTITUDE", "ATTITUDE_QUATERNION", "GPS_RAW_INT", "SYS_STATUS",
-              "GLOBAL_POSITION_INT", "SIMSTATE", "AUTOPILOT_VERSION"),
+    messages=(
+        "HEARTBEAT",
+        "HIGHRES_IMU",
+        "ATTITUDE",
+        "ATTITUDE_QUATERNION",
+        "GPS_RAW_INT",
+        "SYS_STATUS",
+        "GLOBAL_POSITION_INT",
+        "SIMSTATE",
+        "AUTOPILOT_VERSION",
+    ),
     groups={},
     param_rows=param_tables.px4_115,
     # mavlink_main.cpp configure_streams_to_default, "normal" mode; SIMSTATE is the sim's truth.
-    default_rates={"ATTITUDE": 15.0, "GPS_RAW_INT": 1.0, "SYS_STATUS": 1.0, "GLOBAL_POSITION_INT": 5.0,
-                   "SIMSTATE": 15.0},
+    default_rates={
+        "ATTITUDE": 15.0,
+        "GPS_RAW_INT": 1.0,
+        "SYS_STATUS": 1.0,
+        "GLOBAL_POSITION_INT": 5.0,
+        "SIMSTATE": 15.0,
+    },
     interval_cap_hz=1000.0,
     loop_hz=250.0,
     param_bytewise=True,

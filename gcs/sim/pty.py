@@ -14,8 +14,8 @@ import asyncio
 import os
 import tty
 
-from gcs.link.address import Address
-from gcs.link.transport import DataCallback, SerialTransport
+from gcs.transport.address import Address
+from gcs.transport.pipes import DataCallback, SerialTransport
 
 
 class PtyTransport(SerialTransport):

@@ -58,11 +58,21 @@ class SensorFaults:
     gps_vel_noise: float = 0.1
     """GPS velocity white noise, σ per fix per axis, m/s."""
 
-    ERROR_TERMS = ("gyro_noise", "gyro_bias", "gyro_bias_walk", "accel_noise", "vibration",
-                   "mag_noise", "mag_hard_iron", "baro_noise", "gps_pos_noise", "gps_vel_noise")
+    ERROR_TERMS = (
+        "gyro_noise",
+        "gyro_bias",
+        "gyro_bias_walk",
+        "accel_noise",
+        "vibration",
+        "mag_noise",
+        "mag_hard_iron",
+        "baro_noise",
+        "gps_pos_noise",
+        "gps_vel_noise",
+    )
 
     @classmethod
-    def perfect(cls, **overrides) -> "SensorFaults":
+    def perfect(cls, **overrides) -> SensorFaults:
         """Error-free sensors (same field geometry); keyword overrides switch single faults on."""
         zero = {name: (0.0, 0.0, 0.0) if name == "mag_hard_iron" else 0.0 for name in cls.ERROR_TERMS}
         return cls(**{**zero, **overrides})
@@ -74,8 +84,11 @@ class SensorFaults:
     def earth_field(self) -> tuple[float, float, float]:
         """Earth magnetic field in NED, gauss: horizontal part along the declination azimuth."""
         horizontal = self.field_strength * math.cos(self.inclination)
-        return (horizontal * math.cos(self.declination), horizontal * math.sin(self.declination),
-                self.field_strength * math.sin(self.inclination))
+        return (
+            horizontal * math.cos(self.declination),
+            horizontal * math.sin(self.declination),
+            self.field_strength * math.sin(self.inclination),
+        )
 
 
 class Normals:
@@ -134,8 +147,10 @@ class ImuModel:
         gyro = tuple(float(w[i]) + self.bias[i] + f.gyro_noise * draw() for i in range(3))
         sf = truth.specific_force
         omega_t = 2 * math.pi * f.vibration_freq * truth.t
-        accel = tuple(float(sf[i]) + f.vibration * math.sin(omega_t + self.vibration_phase[i])
-                      + f.accel_noise * draw() for i in range(3))
+        accel = tuple(
+            float(sf[i]) + f.vibration * math.sin(omega_t + self.vibration_phase[i]) + f.accel_noise * draw()
+            for i in range(3)
+        )
         field_body = truth.rotation.T @ np.array(f.earth_field())
         mag = tuple(float(field_body[i]) + f.mag_hard_iron[i] + f.mag_noise * draw() for i in range(3))
         return ImuReading(truth.t, gyro, accel, mag)

@@ -15,17 +15,19 @@ from __future__ import annotations
 import asyncio
 import heapq
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from gcs.link.dialect import MARKER_V2, Encoder, mavlink
+from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
 from gcs.sim.autopilot import GPS_RATE_HZ, Autopilot
 from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
 from gcs.sim.profiles import Profile, get_profile
+from gcs.sim.pty import PtyTransport
 from gcs.sim.sensors import Home, SensorFaults
+from gcs.transport.pipes import make_transport
 
 #: Internal events, ordered before messages due at the same instant.
 _GPS, _LOOP = "_gps", "_loop"
@@ -51,10 +53,19 @@ class SimVehicle:
     assigning its fields later changes them at run time. `param_drop` / `param_clamp`: parameter
     protocol faults, also settable later through the properties of the same names."""
 
-    def __init__(self, profile: str = "pixhawk", script: str = "bench", seed: int = 0,
-                 faults: SensorFaults | None = None, speed: float = 1.0, sysid: int = 1, compid: int = 1,
-                 home: Home | None = None, param_drop: float = 0.0,
-                 param_clamp: dict[str, float] | None = None) -> None:
+    def __init__(
+        self,
+        profile: str = "pixhawk",
+        script: str = "bench",
+        seed: int = 0,
+        faults: SensorFaults | None = None,
+        speed: float = 1.0,
+        sysid: int = 1,
+        compid: int = 1,
+        home: Home | None = None,
+        param_drop: float = 0.0,
+        param_clamp: dict[str, float] | None = None,
+    ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
         self.faults = faults if faults is not None else SensorFaults()
@@ -67,8 +78,13 @@ class SimVehicle:
             self.params["EKF2_MAG_DECL"] = math.degrees(self.faults.declination)
         param_seed, autopilot_seed = np.random.SeedSequence(seed).spawn(2)
         self.autopilot = Autopilot(self.profile, self.script, self.faults, self.params, autopilot_seed, self.home)
-        self.param_server = ParamServer(self.params, np.random.default_rng(param_seed), drop=param_drop,
-                                        clamp=param_clamp, on_change=self.autopilot.apply_param)
+        self.param_server = ParamServer(
+            self.params,
+            np.random.default_rng(param_seed),
+            drop=param_drop,
+            clamp=param_clamp,
+            on_change=self.autopilot.apply_param,
+        )
         self._encoder = Encoder(sysid, compid, mavlink1=self.profile.mavlink1)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
@@ -273,10 +289,13 @@ class SimVehicle:
             interval = int(round(1e6 / rate)) if rate > 0 else -1
             extra = [mavlink.MAVLink_message_interval_message(int(msg.param1), interval)]
             result = mavlink.MAV_RESULT_ACCEPTED
-        elif cmd in (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES) \
-                and p.knows_autopilot_version:
-            msg_id = int(msg.param1) if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE \
-                else mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+        elif (
+            cmd in (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES)
+            and p.knows_autopilot_version
+        ):
+            msg_id = (
+                int(msg.param1) if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE else mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            )
             name = _message_name(msg_id)
             if name in p.messages:
                 extra = [self.autopilot.build(name, self.t)]
@@ -307,13 +326,8 @@ def _message_name(msg_id: int) -> str:
 
 
 def open_endpoint(address: str):
-    """The vehicle side of a link: a pseudo-terminal for pty:PATH, else a gcs.link transport."""
+    """The vehicle side of a link: a pseudo-terminal for pty:PATH, else a gcs.runtime transport."""
     if address.startswith("pty:"):
-        from gcs.sim.pty import PtyTransport
-
-        return PtyTransport(address[len("pty:"):])
-    from gcs.link.transport import make_transport
+        return PtyTransport(address[len("pty:") :])
 
     return make_transport(address)
-
-

@@ -7,10 +7,10 @@ import math
 
 from fastapi import APIRouter, Depends
 
+from gcs.runtime.station import GroundStation
 from gcs.server.deps import get_station
 from gcs.server.models import ErrorStats, EstimatesResponse, SourceEstimate
 from gcs.server.routers.status import finite
-from gcs.station import GroundStation
 
 router = APIRouter(prefix="/api", tags=["estimates"])
 
@@ -32,13 +32,18 @@ def get_estimates(station: GroundStation = Depends(get_station)) -> EstimatesRes
                 if ref in ERROR_REFERENCES:
                     s = stats.summary()
                     errors[ref] = ErrorStats(
-                        n=s["n"], window_rms_deg=[finite(v) for v in s["window"]["rms"]],
+                        n=s["n"],
+                        window_rms_deg=[finite(v) for v in s["window"]["rms"]],
                         session_rms_deg=[finite(v) for v in s["session"]["rms"]],
                         session_max_deg=[finite(v) for v in s["session"]["max"]],
                     )
         sources[source] = SourceEstimate(
-            source=source, kind="estimator" if is_estimator else "reference", t=p.t,
-            roll_deg=math.degrees(p.roll), pitch_deg=math.degrees(p.pitch), yaw_deg=math.degrees(p.yaw),
+            source=source,
+            kind="estimator" if is_estimator else "reference",
+            t=p.t,
+            roll_deg=math.degrees(p.roll),
+            pitch_deg=math.degrees(p.pitch),
+            yaw_deg=math.degrees(p.yaw),
             errors=errors,
         )
     return EstimatesResponse(sources=sources)

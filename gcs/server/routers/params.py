@@ -18,10 +18,11 @@ import asyncio
 from fastapi import APIRouter, Depends, HTTPException, Request, status
 from pydantic import BaseModel
 
+from gcs.mavlink.params import ParamError
+from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
+from gcs.runtime.station import GroundStation
+from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, open_session
 from gcs.server.deps import client_name, get_station, require_token
-from gcs.station import GroundStation
-from gcs.vehicle.params import ParamError, ParamMismatch, ParamTimeout, UnknownParam
-from gcs.vehicle.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, open_session
 
 router = APIRouter(tags=["params"])
 
@@ -32,12 +33,19 @@ class TunedValue(BaseModel):
 
 def http_error(exc: Exception) -> HTTPException:
     """The status that tells a client what to do about each failure."""
-    code = (status.HTTP_429_TOO_MANY_REQUESTS if isinstance(exc, RateLimited)
-            else status.HTTP_422_UNPROCESSABLE_CONTENT if isinstance(exc, TuningRefused)
-            else status.HTTP_409_CONFLICT if isinstance(exc, ParamMismatch)
-            else status.HTTP_504_GATEWAY_TIMEOUT if isinstance(exc, ParamTimeout)
-            else status.HTTP_404_NOT_FOUND if isinstance(exc, (UnknownParam, ProfileError))
-            else status.HTTP_422_UNPROCESSABLE_CONTENT)
+    code = (
+        status.HTTP_429_TOO_MANY_REQUESTS
+        if isinstance(exc, RateLimited)
+        else status.HTTP_422_UNPROCESSABLE_CONTENT
+        if isinstance(exc, TuningRefused)
+        else status.HTTP_409_CONFLICT
+        if isinstance(exc, ParamMismatch)
+        else status.HTTP_504_GATEWAY_TIMEOUT
+        if isinstance(exc, ParamTimeout)
+        else status.HTTP_404_NOT_FOUND
+        if isinstance(exc, (UnknownParam, ProfileError))
+        else status.HTTP_422_UNPROCESSABLE_CONTENT
+    )
     return HTTPException(code, detail=str(exc))
 
 
@@ -57,8 +65,12 @@ async def tuning_session(request: Request, station: GroundStation = Depends(get_
 @router.get("/api/params")
 async def get_params(station: GroundStation = Depends(get_station)) -> dict:
     params = station.params
-    return {"progress": params.progress(), "complete": params.complete, "bytewise": params.bytewise,
-            "params": [p.as_dict() for p in sorted(params.table.values(), key=lambda p: p.name)]}
+    return {
+        "progress": params.progress(),
+        "complete": params.complete,
+        "bytewise": params.bytewise,
+        "params": [p.as_dict() for p in sorted(params.table.values(), key=lambda p: p.name)],
+    }
 
 
 @router.post("/api/params/download", status_code=status.HTTP_202_ACCEPTED, dependencies=[Depends(require_token)])
@@ -77,21 +89,26 @@ async def get_tuning(session: TuningSession = Depends(tuning_session)) -> dict:
     return session.as_dict()
 
 
-@router.put("/api/tuning/{name}", dependencies=[Depends(require_token)],
-            responses={404: {"description": "unknown parameter"},
-                       409: {"description": "the vehicle stored another value"},
-                       422: {"description": "refused: not in the profile, out of bounds or too large a step"},
-                       429: {"description": "too soon after the previous write"},
-                       504: {"description": "the vehicle did not answer"}})
-async def put_tuned(name: str, body: TunedValue, request: Request,
-                    session: TuningSession = Depends(tuning_session)) -> dict:
+@router.put(
+    "/api/tuning/{name}",
+    dependencies=[Depends(require_token)],
+    responses={
+        404: {"description": "unknown parameter"},
+        409: {"description": "the vehicle stored another value"},
+        422: {"description": "refused: not in the profile, out of bounds or too large a step"},
+        429: {"description": "too soon after the previous write"},
+        504: {"description": "the vehicle did not answer"},
+    },
+)
+async def put_tuned(
+    name: str, body: TunedValue, request: Request, session: TuningSession = Depends(tuning_session)
+) -> dict:
     old = session.params.table[name].value if name in session.params.table else None
     try:
         stored = await session.set(name, body.value, client_name(request))
     except ParamError as exc:
         raise http_error(exc) from None
-    return {"name": name, "old": old, "new": stored.value, "verified": True,
-            "preflight": session.preflight.get(name)}
+    return {"name": name, "old": old, "new": stored.value, "verified": True, "preflight": session.preflight.get(name)}
 
 
 @router.post("/api/tuning/revert", dependencies=[Depends(require_token)])

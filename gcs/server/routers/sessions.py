@@ -18,15 +18,15 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from starlette.background import BackgroundTask
 
-from gcs.estimators.gains import GainError
+from gcs.core.gains import GainError
+from gcs.logs.readers import InputError
+from gcs.runtime.replay import ReplaySession
+from gcs.runtime.station import GroundStation
 from gcs.server.deps import client_name, get_station, require_token
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS, attitude_table, write_table
-from gcs.sessions.readers import InputError
-from gcs.sessions.replay import ReplaySession
 from gcs.sessions.sources import KINDS, cached_source
 from gcs.sessions.whatif import what_if
-from gcs.station import GroundStation
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -94,8 +94,11 @@ def list_logs(station: GroundStation = Depends(get_station)) -> list[dict]:
     root = recording_root(station)
     if not root.is_dir():
         return []
-    return [{"name": p.name, "kind": KINDS[p.suffix.lower()], "size_bytes": p.stat().st_size}
-            for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in KINDS]
+    return [
+        {"name": p.name, "kind": KINDS[p.suffix.lower()], "size_bytes": p.stat().st_size}
+        for p in sorted(root.iterdir())
+        if p.is_file() and p.suffix.lower() in KINDS
+    ]
 
 
 @router.get("/sessions/{name}/export", response_class=FileResponse)
@@ -111,8 +114,11 @@ async def export(name: str, format: str = "csv", station: GroundStation = Depend
     except InputError as exc:
         Path(tmp.name).unlink(missing_ok=True)
         raise HTTPException(422, detail=str(exc)) from None
-    return FileResponse(tmp.name, filename=f"{Path(name).stem}.{format}",
-                        background=BackgroundTask(Path(tmp.name).unlink, missing_ok=True))
+    return FileResponse(
+        tmp.name,
+        filename=f"{Path(name).stem}.{format}",
+        background=BackgroundTask(Path(tmp.name).unlink, missing_ok=True),
+    )
 
 
 @router.get("/recording")

@@ -31,8 +31,10 @@ CLIENT_STATS_PERIOD = 1.0
 
 
 @router.get("/api/history", response_model=History)
-def get_history(seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
-                hub: LiveHub = Depends(get_hub)) -> Response:
+def get_history(
+    seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
+    hub: LiveHub = Depends(get_hub),
+) -> Response:
     # Encoded here, not validated by pydantic: a 10-minute window is a million numbers.
     body = json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
     return Response(body, media_type="application/json")

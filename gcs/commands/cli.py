@@ -1,0 +1,60 @@
+"""The `gcs` command. Each subcommand lives in the module that owns its feature and exposes
+`add_arguments(parser)` and `run(args) -> int`; this file only lists them."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from gcs import __version__
+
+#: subcommand -> (module, one-line help). Modules are imported only when their command runs.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("gcs.commands.demo", "start the simulated vehicle and the ground station together (no hardware needed)"),
+    "status": ("gcs.commands.status", "connect to a vehicle and print link health, rates requested vs achieved"),
+    "sim": ("gcs.commands.sim", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
+    "estimate": ("gcs.commands.estimate", "run an attitude estimator over a log or CSV and write its output CSV"),
+    "serve": (
+        "gcs.commands.serve",
+        "connect to a vehicle and serve the browser dashboard (plots, 3-D view, gain sliders)",
+    ),
+    "sessions": ("gcs.commands.sessions", "list recorded sessions with start, duration, size and vehicle"),
+    "replay": (
+        "gcs.commands.replay",
+        "replay a session, .tlog, .bin or .ulg through the estimators (play at any speed)",
+    ),
+    "export": ("gcs.commands.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
+    "report": ("gcs.commands.report", "write a self-contained HTML flight-test report of a session or log"),
+    "params": ("gcs.commands.params", "read, write (verified), save, load and diff the vehicle's parameters"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gcs",
+        description="MAVLink ground station and telemetry server for flight tests.",
+    )
+    parser.add_argument("--version", action="version", version=f"gcs {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

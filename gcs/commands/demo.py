@@ -1,0 +1,112 @@
+"""`gcs demo`: the simulated vehicle and the ground station together, so the first command a
+user runs shows a working system with no hardware."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import socket
+
+from gcs.commands.options import add_record_arguments, record_dir
+from gcs.commands.serve import add_server_arguments, dashboard
+from gcs.runtime.station import GroundStation, StationConfig
+from gcs.sim import SimVehicle
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--profile",
+        choices=("apm25", "pixhawk", "px4"),
+        default="pixhawk",
+        help="which autopilot the simulator behaves as (default pixhawk)",
+    )
+    parser.add_argument(
+        "--script",
+        choices=("bench", "circuit", "quad"),
+        default="quad",
+        help="the simulated motion (default quad: a flight with coordinated turns)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
+    parser.add_argument(
+        "--out",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also forward the vehicle to this address (e.g. udpout:127.0.0.1:14550 for QGC)",
+    )
+    parser.add_argument(
+        "--duration", type=float, default=0.0, help="stop after this many seconds (0: run until Ctrl-C)"
+    )
+
+    add_record_arguments(parser)
+    add_server_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        asyncio.run(_demo(args))
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def _demo(args: argparse.Namespace) -> None:
+
+    port = _free_udp_port()
+    station = GroundStation(
+        StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args))
+    )
+    sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
+    print(
+        f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
+        flush=True,
+    )
+
+    server = dashboard(station, args)
+    await station.start()
+    sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
+    await server.start()
+    print(f"gcs demo: dashboard at {server.url}  (3-D view on port {server.viser_port})", flush=True)
+    loop = asyncio.get_running_loop()
+    stop_at = loop.time() + args.duration if args.duration > 0 else math.inf
+    try:
+        while loop.time() < stop_at:
+            await asyncio.sleep(1.0)
+            print(_status_line(station), flush=True)
+    finally:
+        sim_task.cancel()
+        await server.stop()
+        await station.stop()
+        await asyncio.gather(sim_task, return_exceptions=True)
+
+
+def _status_line(station) -> str:
+    """Link state and rates, then each source's roll/pitch/yaw, and each estimator's RMS
+    error against the truth (or the onboard attitude when there is no truth)."""
+    rates = station.link.stats.rates()
+    parts = [
+        f"link {station.link.state}",
+        " ".join(
+            f"{name} {rates[name]:.0f}Hz"
+            for name in ("RAW_IMU", "HIGHRES_IMU", "ATTITUDE", "GPS_RAW_INT")
+            if rates.get(name)
+        ),
+    ]
+    summary = station.estimation.pipeline.summary()
+    for source, p in summary["latest"].items():
+        text = f"{source} {p['roll_deg']:6.1f} {p['pitch_deg']:6.1f} {p['yaw_deg']:6.1f}"
+        comparison = summary["estimators"].get(source, {}).get("comparison", {}).get("references", {})
+        for reference in ("truth", "onboard"):
+            if reference in comparison:
+                rms = comparison[reference]["window"]["rms"]
+                text += f" (rms vs {reference} {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f})"
+                break
+        parts.append(text)
+    return " | ".join(p for p in parts if p)

@@ -1,0 +1,127 @@
+"""`gcs estimate`: run one attitude estimator over a log or CSV and write its attitude as CSV.
+
+Contract (other tools call this; keep it stable):
+    gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] --out OUT.csv
+    gcs estimate --list
+INPUT is a .tlog or a CSV (see gcs.logs.readers). OUT has the header
+t,qw,qx,qy,qz,roll,pitch,yaw and one row per IMU sample; q rotates sensor/body → NED and the
+angles are Z-Y-X in degrees. Before the filter is valid the row holds its current (initial)
+attitude. Bad input or arguments: one line on stderr naming what and where, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gcs.core.estimators import registry
+from gcs.core.gains import GainError
+from gcs.core.rotation import quat_to_euler
+from gcs.core.samples import GpsSample, ImuSample
+from gcs.logs.readers import InputError, read_samples
+
+OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "input", nargs="?", help="a .tlog, or a CSV with header t,gx,gy,gz,ax,ay,az,mx,my,mz[,vn,ve,vd]"
+    )
+    parser.add_argument("--estimator", "-e", help="estimator name (see --list)")
+    parser.add_argument("--preset", "-p", help="gain preset (default: the estimator's default)")
+    parser.add_argument("--gain", "-g", action="append", default=[], metavar="NAME=VALUE", help="override one gain")
+    parser.add_argument("--out", "-o", help="output CSV path")
+    parser.add_argument("--list", action="store_true", help="list estimators, presets and gains, then exit")
+
+
+def list_estimators() -> str:
+    """Every registered estimator with its presets and gain declarations."""
+
+    lines = []
+    for name in registry.names():
+        try:
+            cls = registry.get(name)
+        except Exception as exc:  # one broken module must not hide the others
+            lines.append(f"{name}: unavailable ({exc})")
+            continue
+        lines.append(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
+        presets = ", ".join(f"{p}{' (default)' if p == cls.DEFAULT_PRESET else ''}" for p in cls.PRESETS)
+        lines.append(f"  presets: {presets}")
+        for g in cls.GAINS:
+            values = " ".join(f"{p}={v[g.name]:g}" for p, v in cls.PRESETS.items() if g.name in v)
+            lines.append(
+                f"  {g.name:<14} default {g.default:<8g} [{g.min:g}, {g.max:g}] {g.unit:<5} {g.meaning}"
+                + (f" (presets: {values})" if values else "")
+            )
+    return "\n".join(lines)
+
+
+def _parse_gains(items: list[str]) -> dict[str, str]:
+    gains = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"--gain {item!r}: expected NAME=VALUE")
+        gains[name.strip()] = value.strip()
+    return gains
+
+
+def estimate(input_path: str, estimator, out) -> int:
+    """Feed every sample of input_path to estimator, writing one row per IMU sample to out."""
+
+    out.write(OUT_HEADER + "\n")
+    rows = 0
+    deg = 57.29577951308232
+    for sample in read_samples(input_path):
+        if isinstance(sample, ImuSample):
+            estimator.update_imu(sample)
+            q = estimator.quaternion
+            roll, pitch, yaw = quat_to_euler(q)
+            out.write(
+                f"{sample.t:.6f},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f},"
+                f"{roll * deg:.6f},{pitch * deg:.6f},{yaw * deg:.6f}\n"
+            )
+            rows += 1
+        elif isinstance(sample, GpsSample):
+            estimator.update_gps(sample)
+    return rows
+
+
+def _fail(message: str) -> int:
+    print(f"gcs estimate: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+
+    if args.list:
+        print(list_estimators())
+        return 0
+    for flag, value in (("INPUT", args.input), ("--estimator", args.estimator), ("--out", args.out)):
+        if not value:
+            return _fail(f"{flag} is required (or use --list)")
+    try:
+        estimator = registry.create(args.estimator, args.preset, **_parse_gains(args.gain))
+    except (KeyError, GainError, ValueError) as exc:
+        return _fail(str(exc).strip("'\""))
+    try:
+        with open(args.out, "w", newline="") as out:
+            rows = estimate(args.input, estimator, out)
+    except InputError as exc:
+        return _fail(str(exc))
+    except OSError as exc:
+        return _fail(f"{exc.filename or args.out}: {exc.strerror}")
+    if rows == 0:
+        return _fail(f"{args.input}: no IMU samples")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m gcs.commands.estimate ...`: the same contract without the `gcs` entry point."""
+    parser = argparse.ArgumentParser(prog="gcs estimate", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

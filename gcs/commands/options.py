@@ -1,0 +1,79 @@
+"""Command-line options shared by every command that opens a live link (`status`, `serve`,
+`params`) or records (`demo`), so each option is defined, documented and validated once."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gcs.runtime.station import StationConfig
+from gcs.runtime.streams import StreamPlan
+from gcs.transport.address import AddressError, parse_address
+
+
+def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool = True) -> None:
+    """--connect and the link, stream-rate, forwarding and recording options."""
+    parser.add_argument(
+        "--connect",
+        required=connect_required,
+        metavar="URL",
+        help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:0.0.0.0:5760, "
+        "a serial device, or a .tlog to replay",
+    )
+    parser.add_argument("--baud", default="57600", help="serial baud rate, or 'auto' (default 57600)")
+    parser.add_argument("--speed", type=float, default=1.0, help="replay speed for a .tlog (0 = as fast as possible)")
+    parser.add_argument(
+        "--out",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="forward every vehicle packet to this address and back (repeatable)",
+    )
+    parser.add_argument("--heartbeat-timeout", type=float, default=3.0, help="seconds without heartbeat before 'lost'")
+    parser.add_argument("--imu-rate", type=float, default=50.0, help="raw IMU rate to request, Hz (default 50)")
+    parser.add_argument("--attitude-rate", type=float, default=50.0, help="ATTITUDE rate to request, Hz (default 50)")
+    parser.add_argument("--gps-rate", type=float, default=5.0, help="GPS rate to request, Hz (default 5)")
+    add_record_arguments(parser)
+
+
+def add_record_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--record-dir",
+        default="sessions",
+        metavar="DIR",
+        help="record every session to a folder under DIR (default ./sessions)",
+    )
+    parser.add_argument("--no-record", action="store_true", help="do not record this session")
+
+
+def record_dir(args: argparse.Namespace) -> str | None:
+    return None if args.no_record else args.record_dir
+
+
+def station_config(args: argparse.Namespace):
+    """The StationConfig the link options ask for; AddressError/ValueError for bad options."""
+
+    for address in (args.connect, *args.out):
+        parse_address(address)
+    if args.baud != "auto" and not args.baud.isdigit():
+        raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
+    baud = args.baud if args.baud == "auto" else int(args.baud)
+    return StationConfig(
+        connect=args.connect,
+        baud=baud,
+        speed=args.speed,
+        outputs=args.out,
+        heartbeat_timeout=args.heartbeat_timeout,
+        plan=StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate),
+        record_dir=record_dir(args),
+    )
+
+
+def station_config_or_report(args: argparse.Namespace, command: str):
+    """station_config(args), or None after printing `gcs COMMAND: what is wrong` to stderr."""
+
+    try:
+        return station_config(args)
+    except (AddressError, ValueError) as exc:
+        print(f"gcs {command}: {exc}", file=sys.stderr)
+        return None

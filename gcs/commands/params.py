@@ -1,0 +1,157 @@
+"""`gcs params get|set|save|load|diff`: the vehicle's parameters from the command line.
+
+`set` and `load` write through the same verified path as the tuning panel (each value echoed
+back by the vehicle, or an error naming what it stored), and with `--profile` through the same
+safety limits: a load is checked whole before its first write, and nothing is written if any
+value is refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from gcs.commands.options import add_link_arguments, station_config
+from gcs.mavlink import param_files
+from gcs.mavlink.params import ParamError, format_value, type_name
+from gcs.runtime.station import GroundStation
+from gcs.runtime.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
+
+CLIENT = "cli"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    get = actions.add_parser("get", help="print parameters (all of them when no NAME is given)")
+    get.add_argument("names", nargs="*", metavar="NAME")
+    set_ = actions.add_parser("set", help="write one parameter, verified by the vehicle's echo")
+    set_.add_argument("name", metavar="NAME")
+    set_.add_argument("value", type=float, metavar="VALUE")
+    save = actions.add_parser("save", help="download the whole table into a .param file")
+    save.add_argument("file", metavar="FILE")
+    load = actions.add_parser("load", help="write the values of a .param file that differ from the vehicle")
+    load.add_argument("file", metavar="FILE")
+    load.add_argument("--dry-run", action="store_true", help="only print what would change")
+    diff = actions.add_parser("diff", help="compare a .param file with the vehicle (--connect) or another file")
+    diff.add_argument("file", metavar="FILE")
+    diff.add_argument("other", nargs="?", metavar="FILE2")
+    for p in (set_, load):
+        p.add_argument(
+            "--profile",
+            metavar="NAME|FILE",
+            help=f"refuse values outside this tuning profile's limits ({', '.join(available_profiles())})",
+        )
+    for p in (get, set_, save, load, diff):
+        add_link_arguments(p, connect_required=p is not diff)  # two files need no vehicle
+        p.add_argument("--timeout", type=float, default=120.0, help="seconds allowed for a full download")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.action == "diff" and args.other is not None:
+            a, b = param_files.load(args.file), param_files.load(args.other)
+            print(param_files.format_diff(param_files.diff(a, b), args.file, args.other))
+            return 0
+        if args.connect is None:
+            raise ParamError("diff of one file needs --connect (the vehicle) or a second file")
+        profile = load_profile(args.profile) if getattr(args, "profile", None) else None
+        config = station_config(args)
+    except (ParamError, ProfileError, ValueError) as exc:
+        print(f"gcs params {args.action}: {exc}", file=sys.stderr)
+        return 2
+    config.request_streams = False  # keep the link for the parameter traffic
+    config.estimate = False
+    try:
+        return asyncio.run(_with_station(config, args, profile))
+    except (ParamError, ProfileError) as exc:
+        print(f"gcs params {args.action}: {exc}", file=sys.stderr)
+        return 1
+
+
+async def _with_station(config, args, profile) -> int:
+
+    station = GroundStation(config)
+    await station.start()
+    try:
+        if not await station.link.wait_connected(15.0):
+            raise ParamError(f"no heartbeat from a vehicle on {config.connect} within 15 s")
+        return await ACTIONS[args.action](station.params, args, profile)
+    finally:
+        await station.stop()
+
+
+async def _get(params, args, profile) -> int:
+    found = (
+        [await params.read(name) for name in args.names]
+        if args.names
+        else list((await params.download(args.timeout)).values())
+    )
+    for p in sorted(found, key=lambda p: p.name):
+        print(f"{p.name:<16} {format_value(p.value):>14}  {type_name(p.type)}")
+    return 0
+
+
+async def _set(params, args, profile) -> int:
+    before = params.table.get(args.name) or await params.read(args.name)
+    if profile is not None:
+        stored = await TuningSession(params, profile).set(args.name, args.value, CLIENT)
+    else:
+        stored = await params.set(args.name, args.value, CLIENT)
+    print(f"{args.name}: {format_value(before.value)} -> {format_value(stored.value)} (verified)")
+    return 0
+
+
+async def _save(params, args, profile) -> int:
+    table = await params.download(args.timeout)
+    path = param_files.save(args.file, params.values(), comment=f"{len(table)} parameters from {params.link.address}")
+    print(f"saved {len(table)} parameters to {path}")
+    return 0
+
+
+async def _load(params, args, profile) -> int:
+    wanted = param_files.load(args.file)
+    await params.download(args.timeout)
+    unknown = sorted(set(wanted) - set(params.table))
+    if unknown:
+        raise ParamError(f"{args.file}: not parameters of this vehicle: {', '.join(unknown)}; nothing written")
+    changes = param_files.diff(wanted, {name: params.table[name].value for name in wanted})
+    print(param_files.format_diff(changes, "file", "vehicle"))
+    session = TuningSession(params, profile) if profile is not None else None
+    if session is not None:
+        refused = []
+        for change in changes:
+            try:
+                profile.check(change.name, change.a, change.b)
+            except ParamError as exc:
+                refused.append(str(exc))
+        if refused:
+            raise ParamError("refused by the tuning profile, nothing written:\n  " + "\n  ".join(refused))
+    if args.dry_run or not changes:
+        return 0
+    failed = []
+    for i, change in enumerate(changes):
+        try:
+            if session is not None:
+                if i:
+                    await asyncio.sleep(1.0 / GLOBAL_PER_SECOND)  # stay inside the profile's rate limit
+                await session.set(change.name, change.a, CLIENT)
+            else:
+                await params.set(change.name, change.a, CLIENT)
+        except ParamError as exc:
+            failed.append(str(exc))
+    print(f"wrote {len(changes) - len(failed)} of {len(changes)} parameters, each verified")
+    for line in failed:
+        print(f"  FAILED {line}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+async def _diff(params, args, profile) -> int:
+    wanted = param_files.load(args.file)
+    await params.download(args.timeout)
+    vehicle = {name: params.table[name].value for name in wanted if name in params.table}
+    print(param_files.format_diff(param_files.diff(wanted, vehicle), args.file, "vehicle"))
+    return 0
+
+
+ACTIONS = {"get": _get, "set": _set, "save": _save, "load": _load, "diff": _diff}

@@ -1,0 +1,115 @@
+"""`gcs replay`: a session folder, .tlog, DataFlash .bin or PX4 .ulg through the estimators,
+paced or as fast as possible, then the error table per estimator and reference."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+
+from gcs.commands.common import progress_bar
+from gcs.core.estimation import EstimationPipeline
+from gcs.core.estimators import registry
+from gcs.core.gains import GainError
+from gcs.logs.logfile import InputError
+from gcs.runtime.replay import ReplaySession
+from gcs.sessions.sources import open_source
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", help="a session folder, or a .tlog, DataFlash .bin or PX4 .ulg file")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1 = real time)")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    parser.add_argument(
+        "--estimator", "-e", action="append", metavar="NAME", help="run only this estimator (repeatable; default all)"
+    )
+    parser.add_argument(
+        "--gain",
+        "-g",
+        action="append",
+        default=[],
+        metavar="[EST.]NAME=VALUE",
+        help="override a gain (of EST, or of every selected estimator that has it)",
+    )
+
+
+def parse_gains(items: list[str], names: list[str]) -> dict[str, dict[str, float]]:
+    """`[EST.]NAME=VALUE` items → {estimator: {gain: value}}; ValueError says which item is wrong."""
+    out: dict[str, dict[str, float]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE with a number") from None
+        if not sep:
+            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE")
+        est, dot, gain = key.strip().rpartition(".")
+        targets = [est] if dot else [n for n in names if any(g.name == gain for g in registry.get(n).GAINS)]
+        if not targets:
+            raise ValueError(f"--gain {item!r}: no selected estimator ({', '.join(names)}) has a gain {gain!r}")
+        for name in targets:
+            out.setdefault(name, {})[gain] = value
+    return out
+
+
+def comparison_table(pipeline: EstimationPipeline) -> list[str]:
+    """Session RMS / max error per estimator per reference, degrees (roll, pitch, yaw)."""
+    lines = [f"{'estimator':<10}{'reference':<10}{'n':>7}  {'RMS roll/pitch/yaw deg':<26}{'max roll/pitch/yaw deg'}"]
+    for name, comparison in pipeline.comparisons.items():
+        for ref, stats in comparison.summary()["references"].items():
+            s = stats["session"]
+            lines.append(
+                f"{name:<10}{ref:<10}{s['n']:>7}  "
+                + " ".join(f"{v:7.2f}" for v in s["rms"])
+                + "   "
+                + " ".join(f"{v:7.2f}" for v in s["max"])
+            )
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    names = args.estimator or registry.names()
+    try:
+        for name in names:
+            registry.get(name)
+        gains = parse_gains(args.gain, names)
+        source = open_source(args.path)
+        session = ReplaySession(source, 0 if args.fast else args.speed, names, gains)
+    except (InputError, KeyError, GainError, ValueError) as exc:
+        print(f"gcs replay: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    print(
+        f"{source.kind} {source.path}: {len(source.frames)} frames, {source.duration:.1f} s, "
+        f"{sum(source.counts.values())} messages/records",
+        file=sys.stderr,
+    )
+    started = time.perf_counter()
+    if args.fast:
+        session.run_to_end(progress_bar("replay"))
+    else:
+        asyncio.run(_paced(session))
+    elapsed = time.perf_counter() - started
+    print("\n".join(comparison_table(session.pipeline)))
+    print(
+        f"replayed {source.duration:.1f} s in {elapsed:.2f} s ({source.duration / max(elapsed, 1e-9):.1f}x real time); "
+        f"{session.pipeline.imu_samples} IMU samples"
+    )
+    if source.damage:
+        print(f"damage: {source.damage}", file=sys.stderr)
+    return 0
+
+
+async def _paced(session: ReplaySession) -> None:
+    task = asyncio.create_task(session.run())
+    show = progress_bar("replay")
+    try:
+        while not session.finished.is_set():
+            await asyncio.sleep(1.0)
+            show(session.position, len(session.source.frames))
+        show(len(session.source.frames), len(session.source.frames))
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)

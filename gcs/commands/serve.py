@@ -1,0 +1,71 @@
+"""`gcs serve`: connect to a vehicle and serve the browser dashboard (live plots, 3-D pose view,
+gain sliders) and its REST/WebSocket API."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.runtime.station import GroundStation
+from gcs.server.dashboard import DashboardServer
+from gcs.server.live import LiveHub
+
+
+def add_server_arguments(parser: argparse.ArgumentParser) -> None:
+    """The dashboard options `gcs serve` and `gcs demo` share."""
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to serve on (default 127.0.0.1: this machine only; any other address "
+        "prints a token that changes require)",
+    )
+    parser.add_argument("--port", type=int, default=8000, help="dashboard port (default 8000)")
+    parser.add_argument(
+        "--viser-port", type=int, default=None, help="3-D view port (default: dashboard port + 1, or the next free one)"
+    )
+    parser.add_argument(
+        "--history", type=float, default=600.0, help="seconds of every source kept for newly opened pages (default 600)"
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+
+    add_link_arguments(parser)
+    add_server_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+
+    config = station_config_or_report(args, "serve")
+    if config is None:
+        return 2
+    try:
+        asyncio.run(_serve(config, args))
+    except OSError as exc:
+        print(f"gcs serve: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def dashboard(station, args: argparse.Namespace):
+    """A DashboardServer for the parsed options (not started)."""
+
+    return DashboardServer(station, args.host, args.port, viser_port=args.viser_port, hub=LiveHub(seconds=args.history))
+
+
+async def _serve(config, args: argparse.Namespace) -> None:
+
+    station = GroundStation(config)
+    server = dashboard(station, args)
+    await station.start()
+    try:
+        await server.start()
+        print(
+            f"gcs serve: dashboard at {server.url}  (3-D view on port {server.viser_port}); Ctrl-C to stop", flush=True
+        )
+        await asyncio.Event().wait()
+    finally:
+        await server.stop()
+        await station.stop()

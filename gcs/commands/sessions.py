@@ -1,0 +1,49 @@
+"""`gcs sessions`: the recorded sessions, oldest first. Nothing is ever deleted by gcs; sessions
+a crash left open are shown as such (the next `gcs status`/server start recovers them)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from gcs.sessions.layout import list_sessions
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--dir", default="sessions", help="recording folder (default ./sessions)")
+    parser.add_argument("--json", action="store_true", help="print a JSON list")
+
+
+def format_size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"
+
+
+def format_table(sessions) -> str:
+    lines = [f"{'session':<48}{'start':<21}{'duration':>10}{'size':>11}  {'vehicle':<24}state"]
+    for s in sessions:
+        start = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(s.start)) if s.start else "?"
+        duration = f"{s.duration_s:.1f} s" if s.duration_s is not None else "-"
+        state = "open (recording, or left by a crash)" if s.open else ("recovered" if s.recovered else "closed")
+        lines.append(
+            f"{s.name:<48}{start:<21}{duration:>10}{format_size(s.size_bytes):>11}  {s.vehicle or '?':<24}{state}"
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+
+    sessions = list_sessions(args.dir)
+    if args.json:
+        json.dump([s.as_dict() for s in sessions], sys.stdout, indent=2)
+        print()
+    elif sessions:
+        print(format_table(sessions))
+    else:
+        print(f"no sessions in {args.dir}", file=sys.stderr)
+    return 0

@@ -1,0 +1,135 @@
+"""One vehicle's estimation inputs → every estimator → comparison with the references.
+
+`EstimationPipeline` is synchronous and deterministic: the live ground station and the replay
+of a recording feed it the same inputs (samples, and gain changes at the input position where
+they were applied) in the same order and get the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from gcs.core.comparison import Comparison
+from gcs.core.estimators import registry
+from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.rotation import quat_to_euler
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+
+
+@dataclass(frozen=True, slots=True)
+class GainChange:
+    """Set gain `name` to `value` on `estimator` (None: every estimator that has it) here."""
+
+    estimator: str | None
+    name: str
+    value: float
+
+
+#: What an estimation pipeline consumes, in order.
+EstimationInput = ImuSample | GpsSample | AttitudeSample | GainChange
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudePoint:
+    """One attitude of one source at a vehicle time: a reference ("onboard", "ahrs2",
+    "truth") or an estimator (its name). Angles in rad, Z-Y-X."""
+
+    t: float
+    source: str
+    roll: float
+    pitch: float
+    yaw: float
+
+
+class EstimationPipeline:
+    def __init__(
+        self,
+        estimators: dict[str, AttitudeEstimator] | None = None,
+        window: float = 10.0,
+    ) -> None:
+        self.estimators = estimators if estimators is not None else {n: registry.create(n) for n in registry.names()}
+        self.comparisons = {name: Comparison(window=window) for name in self.estimators}
+        self.latest: dict[str, AttitudePoint] = {}
+        self.imu_samples = 0
+        self.declination: float | None = None  # the vehicle's, once a GainChange for every estimator set it
+
+    def feed(self, item: EstimationInput) -> list[AttitudePoint]:
+        """Fuse one input; returns the attitudes it produced (none, one reference, or one per
+        valid estimator after an IMU sample)."""
+        if isinstance(item, ImuSample):
+            return self._imu(item)
+        if isinstance(item, GpsSample):
+            for est in self.estimators.values():
+                est.update_gps(item)
+            return []
+        if isinstance(item, GainChange):
+            self._gain_change(item)
+            return []
+        return [self._reference(item)]
+
+    def feed_all(self, items: Iterable[EstimationInput]) -> None:
+        for item in items:
+            self.feed(item)
+
+    def _gain_change(self, change: GainChange) -> None:
+        if change.estimator is None:
+            if change.name == "declination":
+                self.declination = change.value
+            targets = [name for name, est in self.estimators.items() if change.name in est.gains.declarations]
+        else:
+            targets = [change.estimator] if change.estimator in self.estimators else []
+        for name in targets:
+            self.set_gain(name, change.name, change.value)
+
+    def _imu(self, sample: ImuSample) -> list[AttitudePoint]:
+        self.imu_samples += 1
+        points = []
+        for name, est in self.estimators.items():
+            valid = est.update_imu(sample)
+            q = est.quaternion
+            self.comparisons[name].add_estimate(sample.t, q)
+            if valid:
+                point = AttitudePoint(sample.t, name, *quat_to_euler(q))
+                self.latest[name] = point
+                points.append(point)
+        return points
+
+    def _reference(self, ref: AttitudeSample) -> AttitudePoint:
+        for comparison in self.comparisons.values():
+            comparison.add_reference(ref)
+        point = AttitudePoint(ref.t, ref.source, ref.roll, ref.pitch, ref.yaw)
+        self.latest[ref.source] = point
+        return point
+
+    def set_gain(self, estimator: str, name: str, value: float) -> tuple[float, float]:
+        """Change one gain of one estimator now; GainError/KeyError name what is wrong."""
+        if estimator not in self.estimators:
+            raise KeyError(f"unknown estimator {estimator!r}; running: {', '.join(self.estimators)}")
+        return self.estimators[estimator].set_gain(name, value)
+
+    def summary(self) -> dict:
+        """Per estimator: preset, gains, health and the comparison; latest attitude per source."""
+        return {
+            "imu_samples": self.imu_samples,
+            "declination_rad": self.declination,
+            "estimators": {
+                name: {
+                    "preset": est.preset,
+                    "gains": dict(est.gains.values),
+                    "health": est.health(),
+                    "comparison": self.comparisons[name].summary(),
+                }
+                for name, est in self.estimators.items()
+            },
+            "latest": {
+                source: {
+                    "t": p.t,
+                    "roll_deg": math.degrees(p.roll),
+                    "pitch_deg": math.degrees(p.pitch),
+                    "yaw_deg": math.degrees(p.yaw),
+                }
+                for source, p in self.latest.items()
+            },
+        }

@@ -1,0 +1,184 @@
+"""What every attitude estimator offers, so the live pipeline, `gcs estimate`, replay and the
+dashboard treat them alike — and the policies they must share so they can be compared fairly:
+
+* **Frames.** Samples may be in ANY right-handed sensor frame (MAVLink's FRD, BROAD's z-up, ...).
+  The earth frame is NED, defined only by physics: "down" is opposite to the specific force at
+  rest and "north" is the horizontal part of the magnetic field rotated by `declination`. No
+  estimator assumes the sensor's z axis points down; the quaternion rotates sensor → NED.
+* **Initialisation** (`initial_attitude`): tilt from the accelerometer, heading from the
+  magnetometer (tilt-compensated), or heading 0 when there is none.
+* **Time** (`_check_time`): estimators integrate on the vehicle clock. A repeated timestamp is a
+  duplicate and is ignored; a clock going back (reboot, log splice) or a gap longer than `max_gap`
+  re-initialises the filter from the current sample, and the reason is kept for `health()`.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from typing import ClassVar
+
+import numpy as np
+
+from gcs.core.gains import Gain, GainSet
+from gcs.core.samples import GpsSample, ImuSample
+
+#: Settings every estimator declares (append them to your own GAINS).
+COMMON_GAINS: tuple[Gain, ...] = (
+    Gain("declination", 0.0, -math.pi, math.pi, "rad", "magnetic declination, east positive; output is true north"),
+    Gain("max_gap", 0.5, 0.01, 10.0, "s", "an IMU gap longer than this re-initialises the filter"),
+)
+
+#: GPS aiding settings shared by the estimators that use `GpsAcceleration`.
+GPS_GAINS: tuple[Gain, ...] = (
+    Gain("gps_gain", 1.0, 0.0, 1.0, "", "weight of the GPS acceleration removed from the specific force"),
+    Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no mag)"),
+)
+
+
+def initial_attitude(accel: np.ndarray, mag: np.ndarray | None, declination: float = 0.0) -> np.ndarray:
+    """Rotation matrix sensor → NED from one specific-force vector and an optional magnetic vector.
+
+    Rows of R are the NED axes seen in the sensor frame (seed 000 eqs. 5-10, as the thesis code
+    builds them, §4.4): D = -f/|f|; N = horizontal part of the field, (D × m) × D, normalised;
+    E = D × N. Without a usable field the heading is 0: N is the sensor axis closest to
+    horizontal, projected. The declination then turns magnetic north into true north.
+    """
+    f = np.asarray(accel, dtype=float)
+    down = -f / np.linalg.norm(f)
+    north = None
+    if mag is not None:
+        h = np.cross(np.cross(down, mag), down)
+        if np.linalg.norm(h) > 1e-9:
+            north = h / np.linalg.norm(h)
+    if north is None:
+        axis = np.eye(3)[int(np.argmin(np.abs(down)))]
+        h = axis - down * float(axis @ down)
+        north = h / np.linalg.norm(h)
+    east = np.cross(down, north)
+    R = np.vstack([north, east, down])
+    c, s = math.cos(declination), math.sin(declination)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
+
+
+class AttitudeEstimator(ABC):
+    """An attitude filter fed SI samples in time order.
+
+    Subclasses declare `name`, `GAINS` (the tunables, ending with COMMON_GAINS) and `PRESETS`;
+    the current values live in `self.gains` and may change between any two samples
+    (`set_gain`) without a restart or a jump in the output.
+    """
+
+    name: ClassVar[str]
+    GAINS: ClassVar[tuple[Gain, ...]]
+    PRESETS: ClassVar[dict[str, dict[str, float]]]
+    DEFAULT_PRESET: ClassVar[str]
+
+    def __init__(self, preset: str | None = None, **gains: float) -> None:
+        self.gains = GainSet(self.GAINS, self.PRESETS)
+        self.gains.apply_preset(preset or self.DEFAULT_PRESET)
+        self.preset = preset or self.DEFAULT_PRESET
+        for name, value in gains.items():
+            self.gains.set(name, value)
+        self.t: float | None = None  # vehicle time of the last fused IMU sample
+        self.reinit_count = 0
+        self.last_reinit = ""  # why the filter last (re)initialised
+        self.duplicates = 0
+
+    def set_gain(self, name: str, value: float) -> tuple[float, float]:
+        """Validate and apply one gain now; returns (old, new)."""
+        return self.gains.set(name, value)
+
+    def _check_time(self, t: float) -> float | None:
+        """dt to integrate over, 0.0 for a duplicate (skip it), or None: re-initialise now.
+
+        Sets `last_reinit` and counts re-initialisations; the caller then initialises from the
+        sample. `self.t` is advanced for every sample that is not a duplicate.
+        """
+        if self.t is None:
+            reason = "first sample"
+        elif t == self.t:
+            self.duplicates += 1
+            return 0.0
+        elif t < self.t:
+            reason = f"clock went back {self.t - t:.3f} s at t={t:.3f} s (reboot?)"
+        elif t - self.t > self.gains["max_gap"]:
+            reason = f"gap of {t - self.t:.3f} s > max_gap {self.gains['max_gap']:g} s at t={t:.3f} s"
+        else:
+            dt = t - self.t
+            self.t = t
+            return dt
+        self.t = t
+        self.reinit_count += 1
+        self.last_reinit = reason
+        return None
+
+    def _common_health(self) -> dict[str, float | str]:
+        return {"reinit_count": self.reinit_count, "last_reinit": self.last_reinit, "duplicates": self.duplicates}
+
+    @abstractmethod
+    def update_imu(self, sample: ImuSample) -> bool:
+        """Advance to sample.t and fuse it. Returns True once the attitude is valid."""
+
+    def update_gps(self, sample: GpsSample) -> None:  # noqa: B027 - a no-op default on purpose
+        """Fuse a GPS fix (velocity/course aiding). Estimators that ignore GPS keep this."""
+
+    @property
+    @abstractmethod
+    def quaternion(self) -> np.ndarray:
+        """Current attitude, unit quaternion (w, x, y, z), sensor/body → earth NED."""
+
+    @abstractmethod
+    def health(self) -> dict[str, float | str]:
+        """Numbers that tell whether to trust the output (accel norm, innovations, ...)."""
+
+
+class GpsAcceleration:
+    """Earth-frame (NED) acceleration from successive GPS velocities, for removing linear and
+    centripetal acceleration from the specific force (Premerlani, "RollPitchDriftCompensation",
+    the "equation 9" of AP_AHRS_DCM): a = (v_k - v_{k-1}) / (t_k - t_{k-1}).
+
+    It is held between fixes and dropped (zero) when the last fix is older than `timeout`, when
+    a fix has no velocity or no 3-D fix, or when fixes are out of order. Repeated fixes (same t)
+    are ignored. The vertical component stays 0 when the source has no vertical speed.
+    """
+
+    def __init__(self, timeout: float = 1.0) -> None:
+        self.timeout = timeout
+        self.reset()
+
+    def reset(self) -> None:
+        self.t: float | None = None
+        self.vel: np.ndarray | None = None
+        self.accel = np.zeros(3)
+        self.ground_speed = 0.0
+        self.course = math.nan
+
+    def update(self, sample: GpsSample) -> None:
+        if self.t is not None and sample.t <= self.t:
+            if sample.t < self.t:  # clock went back: start over
+                self.reset()
+            return
+        if sample.vel_ned is None or sample.fix_type < 3:
+            self.reset()
+            return
+        vel = np.asarray(sample.vel_ned, dtype=float)
+        if self.vel is not None and sample.t - self.t <= self.timeout:
+            self.accel = (vel - self.vel) / (sample.t - self.t)
+        else:
+            self.accel = np.zeros(3)
+        self.t, self.vel = sample.t, vel
+        self.ground_speed, self.course = sample.ground_speed, sample.course
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """The held acceleration (NED, m/s²) if the last fix is recent at vehicle time t, else zeros."""
+        if self.t is None or abs(t - self.t) > self.timeout:
+            return 0.0, 0.0, 0.0
+        a = self.accel
+        return float(a[0]), float(a[1]), float(a[2])
+
+    def course_at(self, t: float, speed_min: float) -> float | None:
+        """Course over ground (rad, true) if recent and the ground speed is at least speed_min."""
+        if self.t is None or abs(t - self.t) > self.timeout or not self.ground_speed >= speed_min:
+            return None
+        return self.course if math.isfinite(self.course) else None

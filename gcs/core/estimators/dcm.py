@@ -1,0 +1,347 @@
+"""Premerlani–Bizard direction-cosine-matrix attitude filter, as in seed 000 (Bermúdez & Niño
+2014, §3 and Annex A) and ArduPilot's AP_AHRS_DCM, fixed where the thesis code is wrong."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration, initial_attitude
+from gcs.core.estimators.magnetic import MagDisturbance
+from gcs.core.gains import Gain
+from gcs.core.rotation import matrix_to_quat
+from gcs.core.samples import G0, GpsSample, ImuSample
+
+#: Spin rate above which the integrator freezes (AP_AHRS_DCM SPIN_RATE_LIMIT, 20 deg/s).
+SPIN_RATE_LIMIT = math.radians(20.0)
+#: Largest gyro bias the integrator may learn, per axis (rad/s); keeps a bad reference from winding it up.
+OMEGA_I_MAX = 0.1
+
+
+def renormalize(X, Y):
+    """Seed 000 eqs. (13)-(17) on the first two rows X, Y of R (3-tuples of floats).
+
+    error = X·Y (13) is split half to each row (14)-(15), Z = X_orth × Y_orth (16), and each row is
+    scaled by the first-order Taylor form of 1/|v|, ½(3 - v·v) (17). Returns the new rows and the
+    largest |1 - v·v| seen, the renormalisation size reported in health.
+    """
+    x0, x1, x2 = X
+    y0, y1, y2 = Y
+    err = 0.5 * (x0 * y0 + x1 * y1 + x2 * y2)
+    x0, x1, x2, y0, y1, y2 = x0 - err * y0, x1 - err * y1, x2 - err * y2, y0 - err * x0, y1 - err * x1, y2 - err * x2
+    z0, z1, z2 = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
+    nx = x0 * x0 + x1 * x1 + x2 * x2
+    ny = y0 * y0 + y1 * y1 + y2 * y2
+    nz = z0 * z0 + z1 * z1 + z2 * z2
+    sx, sy, sz = 0.5 * (3.0 - nx), 0.5 * (3.0 - ny), 0.5 * (3.0 - nz)
+    size = max(abs(1.0 - nx), abs(1.0 - ny), abs(1.0 - nz))
+    return (x0 * sx, x1 * sx, x2 * sx), (y0 * sy, y1 * sy, y2 * sy), (z0 * sz, z1 * sz, z2 * sz), size
+
+
+def rotate_rows(rows, wx: float, wy: float, wz: float):
+    """R · exp([w]×) for a body rotation vector w (rad): Rodrigues' exact form of eqs. (11)-(12)."""
+    a2 = wx * wx + wy * wy + wz * wz
+    if a2 < 1e-12:
+        s, c = 1.0 - a2 / 6.0, 0.5 - a2 / 24.0
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    # M = I + s[w]x + c[w]x²; [w]x² = w wᵀ - a² I
+    m00, m11, m22 = 1.0 + c * (wx * wx - a2), 1.0 + c * (wy * wy - a2), 1.0 + c * (wz * wz - a2)
+    m01, m10 = c * wx * wy - s * wz, c * wx * wy + s * wz
+    m02, m20 = c * wx * wz + s * wy, c * wx * wz - s * wy
+    m12, m21 = c * wy * wz - s * wx, c * wy * wz + s * wx
+    return tuple(
+        (r0 * m00 + r1 * m10 + r2 * m20, r0 * m01 + r1 * m11 + r2 * m21, r0 * m02 + r1 * m12 + r2 * m22)
+        for r0, r1, r2 in rows
+    )
+
+
+class DcmEstimator(AttitudeEstimator):
+    """Direction cosine matrix filter with PI drift correction (Premerlani & Bizard 2009).
+
+    State: R, sensor → NED (rows N, E, D in sensor axes, seed 000 eq. 2/10); ω_I, the learned
+    gyro-bias correction; ω_P and ω_Y, the proportional roll-pitch and yaw corrections.
+
+    Each IMU sample at vehicle time t, with dt from the previous sample:
+
+    1. Gyro update (eqs. 11-12, 26-27): R ← R·exp([ω dt]×), ω = ½(g_prev + g) + ω_I + ω_P + ω_Y.
+    2. Renormalisation (eqs. 13-17): `renormalize`.
+    3. Roll-pitch error in the earth frame (eqs. 21-22 as Premerlani's "equation 9", as in
+       AP_AHRS_DCM): measured specific force f_e = R·f; reference r = (0, 0, -g) + k_gps·a_gps
+       where a_gps = dv_ned/dt from successive GPS velocities: the centripetal (ω × v) AND the
+       along-track acceleration. Both are averaged by the same first-order low-pass (accel_tau)
+       in the earth frame, and f_avg is turned with each P correction (R·ω_P dt) so the average
+       filters the measurement without delaying the loop. e_rp = w·f̂_avg × r̂_avg with its z
+       (yaw) part dropped, so only the yaw reference steers heading; w is the accel weight.
+    4. Yaw error (eqs. 18-20): with a magnetometer, tilt-compensated: m_e = R·m, b = its
+       horizontal unit vector, e_z = b × (cos δ, sin δ) for declination δ, unless the field is
+       disturbed (`gcs.core.estimators.magnetic.MagDisturbance`), then 0; without one, GPS course c when ground speed ≥
+       gps_speed_min: e_z = R11·sin c − R21·cos c (eq. 19).
+    5. PI (eqs. 23-26): ω_P = kp_rp·s·Rᵀe_rp, ω_Y = kp_yaw·e_z·R[2] (eq. 20), with s the
+       ArduPilot spin-rate schedule clip(|ω|/50°/s, 1, 10) when spin_gain = 1 (on ω_Y too
+       only when spin_gain_yaw = 1); ω_I += (ki_rp·Rᵀe_rp + ki_yaw·e_z·R[2])·dt (forward
+       Euler, §4.1.2), frozen above 20°/s, clamped to ±OMEGA_I_MAX.
+    6. Output: q of R; Euler roll = atan2(R32, R33), pitch = −asin(R31), yaw = atan2(R21, R11).
+
+    Deviations from the thesis code, each a fix (seed-000-dcm.md §11):
+    * R1: gyro in rad/s (the code fed deg/s as rad/s, 57.3× too strong).
+    * R2: the heading reference is in radians (the code took cos/sin of degrees).
+    * R3-R5: no ±2 / 0.85 "angle weights" (K_P1..3, eqs. 28-30); they undid an accelerometer
+      mis-scale. Standard Z-Y-X extraction with atan2, valid for |yaw| > 90°.
+    * R7: dt is the real interval on the vehicle clock, not a fixed Ts = 0.02 s.
+    * R9: the centrifugal term is subtracted in consistent SI units (eq. 22 has "+" and mixes
+      deg/s × cm/s with g), and comes from GPS dv/dt, which adds the along-track acceleration
+      and does not assume the velocity lies along body x.
+    * R6: no in-place matrix product.
+    * R11: the magnetometer heading is tilt-compensated; declination is a setting.
+    * Eqs. 11-12: the first-order R_G = I + [ω]×Ts is replaced by its exact exponential
+      (Rodrigues), and ω is the trapezoid of two gyro samples: at telemetry rates (25 Hz) the
+      truncation and the one-sided rate are the largest integration errors.
+    * Eq. 25 / R8: forward Euler integral (as the text says), not the code's trapezoid.
+    * Eqs. 5-10: initial R as the thesis *code* builds it (R12), see `initial_attitude`.
+
+    Robustness without GPS (deviations from AP_AHRS_DCM, whose P/I gains are kept; defaults
+    chosen on the six BROAD trials, Laidig et al. 2021, with physically read values):
+    * accel_tau = 1 s: AP_AHRS_DCM also corrects from the earth-frame specific force *averaged*
+      (`_ra_sum`, over the GPS interval, or ≥ 0.2 s without GPS); VQF low-passes it in the
+      gyro-integrated frame with tauAcc = 3 s. Linear acceleration with a bounded velocity change
+      Δv averages to Δv/T, and a sensor off the rotation axis sees centripetal force that turns
+      with it and averages out. BROAD mean total RMSE is flat within 0.2° for 1-3 s; 1 s keeps
+      more of the tilt bandwidth. 0 = the instantaneous accelerometer (seed 000, old code).
+    * accel_weight: Premerlani & Bizard / ArduIMU "Accel_weight" = clip(1 − 2|1 − |a|/g|, 0, 1),
+      here on the averaged |f_avg|/|r_avg| (the smoothed weight), so single jolts do not count.
+    * spin_gain_yaw = 0: ArduPilot multiplies both P gains by the spin schedule; on BROAD's fast
+      rotations (up to 800°/s) boosting the magnetometer gain ×10 made heading worse (trial 07
+      3.7° → 2.8°, trial 30 9.3° → 5.5° total without it): at dip ~70° every degree of tilt
+      error is ~2.7° of magnetometer heading error, and field-sample lag grows with spin rate.
+      The roll-pitch spin gain is kept (the gyro scale error it fights grows with rate too).
+    * Magnetic disturbance rejection (VQF's, Laidig & Seel 2023): mag_norm_tol 0.1 and
+      mag_dip_tol 10° (VQF magNormTh/magDipTh), reference relearned after mag_relearn = 20 s
+      (magNewTime) of a steady disturbed field while turning ≥ 20°/s (magNewMinGyr). AP_AHRS_DCM
+      itself has no such test. The yaw correction is 0 while rejected (health: mag_disturbed).
+    Setting accel_tau = accel_weight = 0, spin_gain_yaw = 1, mag_norm_tol = 10 and
+    mag_dip_tol = π gives the previous filter exactly.
+
+    Presets: `ardupilot` — AP_AHRS_DCM today (AHRS_RP_P 0.2, AHRS_YAW_P 0.2, _ki 0.0087,
+    _ki_yaw 0.01, spin-rate gain, AHRS_GPS_GAIN 1); the start-up ×8 "fast gains" and the
+    per-GPS-step accumulation of AP_AHRS_DCM are not reproduced (we initialise from the first
+    samples instead). `seed000` — the thesis W_RP = 2, W_Y = 3, Kp = 13.9, Ki = 0.5 in
+    consistent units: the code adds ω_corr = Kp·(W_RP·e_rp + W_Y·e_y) directly to the rate it
+    integrates, with e dimensionless (unit vectors, g units) and the integral K_i·Ts·e per loop,
+    so kp_rp = Kp·W_RP = 27.8 s⁻¹, kp_yaw = Kp·W_Y = 41.7 s⁻¹, ki_rp = Ki·W_RP = 1.0 s⁻²,
+    ki_yaw = Ki·W_Y = 1.5 s⁻², no spin-rate gain, and none of the robustness terms above.
+    (Per loop of Ts = 0.02 s this is the 0.56 step gain of §11 R1: an accelerometer/magnetometer
+    tracker.) Default: `ardupilot`, the more
+    accurate on the ArduCopter SITL hop (RAW_IMU 25 Hz, vs SIMSTATE, declination 12.5°):
+    roll/pitch RMS 0.19°/0.17° (0.29°/0.22° before the averaging) against 2.3°/2.0° for
+    `seed000` (tests/test_dcm.py). BROAD, six trials, mean total RMSE: 2.8° at 285.7 Hz, 2.9°
+    at 47.6 Hz (8.9° / 9.7° before the robustness terms).
+    """
+
+    name = "dcm"
+    GAINS = (
+        (
+            Gain("kp_rp", 0.2, 0.0, 50.0, "1/s", "roll-pitch proportional gain (AHRS_RP_P)"),
+            Gain("ki_rp", 0.0087, 0.0, 10.0, "1/s²", "roll-pitch integral gain (gyro bias learning)"),
+            Gain("kp_yaw", 0.2, 0.0, 50.0, "1/s", "yaw proportional gain (AHRS_YAW_P)"),
+            Gain("ki_yaw", 0.01, 0.0, 10.0, "1/s²", "yaw integral gain"),
+            Gain("spin_gain", 1.0, 0.0, 1.0, "", "1 = roll-pitch P gain × clip(spin/50 deg/s, 1, 10)"),
+            Gain("spin_gain_yaw", 0.0, 0.0, 1.0, "", "1 = scale the yaw P gain with spin rate too (ArduPilot does)"),
+            Gain("accel_tau", 1.0, 0.0, 10.0, "s", "earth-frame average of the specific force"),
+            Gain("accel_weight", 1.0, 0.0, 1.0, "", "1 = roll-pitch weight clip(1 - 2|1 - |f_avg|/g|, 0, 1)"),
+            Gain(
+                "mag_norm_tol", 0.1, 0.0, 10.0, "", "field-magnitude departure (of the reference) that rejects the mag"
+            ),
+            Gain("mag_dip_tol", math.radians(10.0), 0.0, math.pi, "rad", "dip-angle departure that rejects the mag"),
+            Gain("mag_relearn", 20.0, 0.0, 600.0, "s", "turning time in a steady new field before it is the reference"),
+        )
+        + GPS_GAINS
+        + COMMON_GAINS
+    )
+    PRESETS = {
+        "ardupilot": {},
+        "seed000": {
+            "kp_rp": 27.8,
+            "kp_yaw": 41.7,
+            "ki_rp": 1.0,
+            "ki_yaw": 1.5,
+            "spin_gain": 0.0,
+            "accel_tau": 0.0,
+            "accel_weight": 0.0,
+            "mag_norm_tol": 10.0,
+            "mag_dip_tol": math.pi,
+        },
+    }
+    DEFAULT_PRESET = "ardupilot"
+
+    def __init__(self, preset: str | None = None, **gains: float) -> None:
+        super().__init__(preset, **gains)
+        self.gps = GpsAcceleration()
+        self.rows = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+        self._reset_correction((0.0, 0.0, 0.0))
+        self.valid = False
+        self.accel_norm = 0.0
+        self.renorm_size = 0.0
+        self.renorm_max = 0.0
+        self.error_rp = 0.0
+        self.error_yaw = 0.0
+        self.yaw_source = "none"
+        self.mag_rejected = 0
+
+    def _reset_correction(self, gyro) -> None:
+        self.omega_I = [0.0, 0.0, 0.0]
+        self.omega_P = (0.0, 0.0, 0.0)
+        self.omega_Y = (0.0, 0.0, 0.0)
+        self.gyro_prev = gyro
+        self.corr_e = (0.0, 0.0, 0.0)  # R·(ω_P + ω_Y): the P correction as an earth-frame rate
+        self.f_avg: tuple[float, float, float] | None = None  # earth-frame specific force, averaged
+        self.r_avg = (0.0, 0.0, -G0)  # its reference (gravity + GPS acceleration), averaged alike
+        self.accel_w = 1.0
+        self.mag = MagDisturbance()
+
+    def update_gps(self, sample: GpsSample) -> None:
+        self.gps.update(sample)
+
+    def update_imu(self, sample: ImuSample) -> bool:
+        gx, gy, gz = (float(v) for v in sample.gyro)
+        fx, fy, fz = (float(v) for v in sample.accel)
+        self.accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+        dt = self._check_time(sample.t)
+        if dt is None:
+            if self.accel_norm < 1e-6:  # cannot level on a zero vector: wait for a usable sample
+                self.t = None
+                return self.valid
+            R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
+            self.rows = tuple(tuple(float(v) for v in row) for row in R)
+            self._reset_correction((gx, gy, gz))
+            self.valid = True
+            return True
+        if dt == 0.0:
+            return self.valid
+        g = self.gains
+        # 1. gyro update with the corrections computed on the previous sample (eq. 27)
+        px, py, pz = self.gyro_prev
+        self.gyro_prev = (gx, gy, gz)
+        oI, oP, oY = self.omega_I, self.omega_P, self.omega_Y
+        wx = 0.5 * (px + gx) + oI[0] + oP[0] + oY[0]
+        wy = 0.5 * (py + gy) + oI[1] + oP[1] + oY[1]
+        wz = 0.5 * (pz + gz) + oI[2] + oP[2] + oY[2]
+        X, Y, _ = rotate_rows(self.rows, wx * dt, wy * dt, wz * dt)
+        if self.f_avg is not None:
+            # the P corrections just turned the estimate by c·dt in the earth frame (R·ω_P = kp·e):
+            # turn the averaged specific force with it, so the average filters the measurement
+            # and does not delay the feedback loop (VQF's accLp in the gyro-only frame)
+            c0, c1, c2 = self.corr_e
+            F = self.f_avg
+            self.f_avg = (
+                F[0] + (c1 * F[2] - c2 * F[1]) * dt,
+                F[1] + (c2 * F[0] - c0 * F[2]) * dt,
+                F[2] + (c0 * F[1] - c1 * F[0]) * dt,
+            )
+        # 2. renormalisation
+        X, Y, Z, self.renorm_size = renormalize(X, Y)
+        self.renorm_max = max(self.renorm_max, self.renorm_size)
+        self.rows = (X, Y, Z)
+        spin = math.sqrt(wx * wx + wy * wy + wz * wz)
+        # 3. roll-pitch error, earth frame, from the averaged specific force and reference
+        ex = ey = 0.0
+        if self.accel_norm > 1e-6:
+            f0 = X[0] * fx + X[1] * fy + X[2] * fz
+            f1 = Y[0] * fx + Y[1] * fy + Y[2] * fz
+            f2 = Z[0] * fx + Z[1] * fy + Z[2] * fz
+            an, ae, ad = self.gps.at(sample.t)
+            k = g["gps_gain"]
+            r0, r1, r2 = k * an, k * ae, k * ad - G0
+            if self.f_avg is not None:  # first-order low-pass: a = dt/(tau + dt); tau = 0 passes through
+                a = dt / (g["accel_tau"] + dt)
+                F, Q = self.f_avg, self.r_avg
+                f0, f1, f2 = F[0] + a * (f0 - F[0]), F[1] + a * (f1 - F[1]), F[2] + a * (f2 - F[2])
+                r0, r1, r2 = Q[0] + a * (r0 - Q[0]), Q[1] + a * (r1 - Q[1]), Q[2] + a * (r2 - Q[2])
+            self.f_avg, self.r_avg = (f0, f1, f2), (r0, r1, r2)
+            nf = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+            nr = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            if nf > 1e-9 and nr > 1e-9:
+                w = 1.0 - g["accel_weight"] * (1.0 - min(max(1.0 - 2.0 * abs(1.0 - nf / nr), 0.0), 1.0))
+                self.accel_w = w
+                c = w / (nf * nr)
+                # (f × r) x and y components; z dropped (yaw belongs to the yaw reference)
+                ex = (f1 * r2 - f2 * r1) * c
+                ey = (f2 * r0 - f0 * r2) * c
+        self.error_rp = math.hypot(ex, ey)
+        # body frame: Rᵀ e (e has no z part)
+        bx, by, bz = X[0] * ex + Y[0] * ey, X[1] * ex + Y[1] * ey, X[2] * ex + Y[2] * ey
+        # 4. yaw error
+        ez = self._yaw_error(sample, X, Y, Z, dt, spin)
+        self.error_yaw = abs(ez)
+        # 5. PI
+        s = min(max(spin / math.radians(50.0), 1.0), 10.0)
+        kp = g["kp_rp"] * (s if g["spin_gain"] >= 0.5 else 1.0)
+        kpy = g["kp_yaw"] * (s if g["spin_gain_yaw"] >= 0.5 else 1.0)
+        self.omega_P = (kp * bx, kp * by, kp * bz)
+        self.omega_Y = (kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2])
+        self.corr_e = (kp * ex, kp * ey, kpy * ez)
+        if spin < SPIN_RATE_LIMIT:
+            ki, kiy = g["ki_rp"] * dt, g["ki_yaw"] * ez * dt
+            for i, (b, z) in enumerate(((bx, Z[0]), (by, Z[1]), (bz, Z[2]))):
+                self.omega_I[i] = min(max(self.omega_I[i] + ki * b + kiy * z, -OMEGA_I_MAX), OMEGA_I_MAX)
+        return True
+
+    def _yaw_error(self, sample: ImuSample, X, Y, Z, dt: float = 0.0, spin: float = 0.0) -> float:
+        """Heading error about earth down (rad, small-angle sine), or 0 without a usable reference."""
+        mag = sample.mag
+        if mag is not None:
+            mx, my, mz = (float(v) for v in mag)
+            hn = X[0] * mx + X[1] * my + X[2] * mz
+            he = Y[0] * mx + Y[1] * my + Y[2] * mz
+            hd = Z[0] * mx + Z[1] * my + Z[2] * mz
+            h = math.hypot(hn, he)
+            if h > 1e-9:
+                g = self.gains
+                if not self.mag.usable(
+                    math.sqrt(h * h + hd * hd),
+                    math.atan2(hd, h),
+                    dt,
+                    spin,
+                    g["mag_norm_tol"],
+                    g["mag_dip_tol"],
+                    g["mag_relearn"],
+                ):
+                    self.yaw_source = "mag_rejected"
+                    self.mag_rejected += 1
+                    return 0.0
+                self.yaw_source = "mag"
+                dec = self.gains["declination"]
+                return (hn * math.sin(dec) - he * math.cos(dec)) / h
+        course = self.gps.course_at(sample.t, self.gains["gps_speed_min"])
+        if course is not None:
+            self.yaw_source = "gps_course"
+            return X[0] * math.sin(course) - Y[0] * math.cos(course)
+        self.yaw_source = "none"
+        return 0.0
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """R, sensor → NED."""
+        return np.array(self.rows)
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        return matrix_to_quat(np.array(self.rows))
+
+    def health(self) -> dict[str, float | str]:
+        return {
+            **self._common_health(),
+            "valid": self.valid,
+            "accel_norm": self.accel_norm,
+            "renorm_size": self.renorm_size,
+            "renorm_max": self.renorm_max,
+            "error_rp": self.error_rp,
+            "error_yaw": self.error_yaw,
+            "yaw_source": self.yaw_source,
+            "omega_I": tuple(self.omega_I),
+            "accel_weight": self.accel_w,
+            "mag_disturbed": self.mag.disturbed,
+            "mag_rejected": self.mag_rejected,
+        }

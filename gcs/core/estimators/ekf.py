@@ -1,0 +1,396 @@
+"""`ekf`: a multiplicative (error-state) Kalman filter for attitude, velocity and gyro bias.
+
+Sources: F. L. Markley, "Attitude Error Representations for Kalman Filtering", JGCD 26(2), 2003;
+J. Solà, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508, 2017
+(§5 for the inertial model, §7.2 for the global angular error).
+
+State
+    nominal:  q  unit quaternion sensor → NED,  v  NED velocity (m/s),  b  gyro bias (rad/s, sensor)
+    error:    x = [δθ, δv, δb]  (9)   with  q_true = Exp(δθ) ⊗ q,  v_true = v + δv,  b_true = b + δb
+δθ is a small rotation expressed in NED ("global" error, Solà §7.2): gyro noise is isotropic in
+that frame, a velocity residual is a plain NED vector, and heading is simply δθ_D, which is what
+lets the magnetometer correct heading only.
+
+Why a velocity state. The accelerometer measures specific force a = Rᵀ(v̇ − g). Comparing a with
+gravity sample by sample (a first-order filter) lets every linear acceleration tilt the estimate
+in proportion to its size. Integrating it instead, v̇ = R·a + g, turns a tilt error δθ into a
+velocity error that grows without bound (δv̇ = −[R·a]× δθ), while a real linear acceleration only
+changes v by the bounded amount the body actually moved. So a velocity measurement — the GPS
+velocity when there is one, else the pseudo-measurement "the velocity stays near zero" — corrects
+the tilt with a second-order response that averages out back-and-forth motion. With GPS this is the
+integral form of subtracting GPS-derived linear acceleration from the expected specific force
+(AP_AHRS_DCM compares the same Δv over each GPS interval).
+
+Prediction over dt with ω = gyro − b, R = R(q):
+    q ← q ⊗ Exp(ω dt),   v ← v + (R a + g) dt
+    F = I + [[0, 0, −R dt], [−[R a]× dt, 0, 0], [0, 0, 0]],   P ← F P Fᵀ + diag(σ_g², σ_a², σ_b²)·dt
+σ_a (the accel noise density) grows as 1 + (d/acc_gate)² with d = | |a| − g |: while the sensor
+is accelerating hard (impacts, tapping) the velocity, and so the tilt, trusts it less. The default
+gate is wide on purpose: a norm gate is one-sided (it discounts the peaks of |a| more than the
+troughs), which biases the average the velocity state relies on; on BROAD (6D, full rate) a 2 m/s²
+gate doubled the inclination error of the fast combined-motion trial 30 (1.2° → 2.4°).
+
+Measurements (y = residual, H = Jacobian in x, r = variance)
+    velocity  y = v_meas − v,           H = [0, I, 0]  (GPS: N, E with gps_noise², against v at
+                                                         the fix's own time, kept in a short
+                                                         history; otherwise 0 with vel_noise²/dt
+                                                         per sample)
+    rest      y = gyro − b,             H = [0, 0, I]  (zero-rate update, after rest_time still)
+              y = R a + g,              H = [[−g]×, 0, 0]  (gravity alone; not with GPS, where a
+                                                         steady acceleration can look like rest)
+    heading   y = wrap(decl − ψ(R m)),  H = e_3ᵀ       (ψ = azimuth of the field in NED)
+The heading update keeps only its gain on δθ_D, so a disturbed field can never tilt the estimate:
+not directly, and not later through the bias (a field error taken into the bias about the vertical
+becomes a tilt drift once the body turns: 8° in the bent-field case of tests/test_ekf.py). The
+bias is learned at rest and from gravity as the body turns. P is updated with the Joseph form,
+valid for that non-optimal gain.
+The heading noise grows with the departure of |m| and of the dip angle from the values learned at
+initialisation; above mag_reject the update is skipped, and a field rejected for mag_relearn
+seconds becomes the new reference (the vehicle moved, or started beside a magnet).
+
+Units: gyro rad/s, accel m/s², magnetometer any consistent unit (only its direction and ratios to
+the reference are used). Any right-handed sensor frame: at rest the specific force points up.
+
+Implementation (what-if re-runs this over 30,000-sample sessions, so the cost per sample matters;
+numpy's per-call overhead dominates 3- and 9-element arithmetic). q, v, b are tuples of plain
+floats and the kinematics are written out. P stays a 9×9 array: F is a preallocated identity whose
+two off-diagonal blocks are overwritten each step, and F P Fᵀ is two 9×9 products (fewer numpy
+calls than the block products), with Q added to the diagonal only. Each optimal-gain update has
+1 to 3 rows and S = H P Hᵀ + r I, inverted in closed form; the gravity update drops the zero third
+row of [−g]× (its residual component has no gain). The heading gain is non-zero only on δθ_D, so
+its Joseph update P − K pᵀ − p Kᵀ + s K Kᵀ (p = P e_3) touches row and column 3 only. Every step
+equals a plain transcription of these equations to rounding (tests/test_ekf.py checks 1e-12).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import ClassVar
+
+import numpy as np
+
+from gcs.core.estimators.base import COMMON_GAINS, AttitudeEstimator, initial_attitude
+from gcs.core.gains import Gain
+from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times, wrap_pi
+from gcs.core.samples import G0, GpsSample, ImuSample
+
+_TH, _V, _B = slice(0, 3), slice(3, 6), slice(6, 9)  # error-state blocks
+_U = np.array([[0.0, G0, 0.0], [-G0, 0.0, 0.0]])  # the non-zero rows of [−g]×, g = (0, 0, G0)
+
+
+def _inv_sym(S: list[list[float]]) -> list[list[float]]:
+    """Inverse of a symmetric 1×1, 2×2 or 3×3 matrix (adjugate / determinant)."""
+    if len(S) == 1:
+        return [[1.0 / S[0][0]]]
+    if len(S) == 2:
+        (a, b), (_, d) = S
+        det = a * d - b * b
+        return [[d / det, -b / det], [-b / det, a / det]]
+    (a, b, c), (_, d, e), (_, _, f) = S
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    D, E, F = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * A + b * B + c * C
+    return [[A / det, B / det, C / det], [B / det, D / det, E / det], [C / det, E / det, F / det]]
+
+
+def _plus_r(block: np.ndarray, r: float) -> list[list[float]]:
+    """block + r I, as lists (S = H P Hᵀ + r I for the closed-form inverse)."""
+    S = block.tolist()
+    for i, row in enumerate(S):
+        row[i] += r
+    return S
+
+
+class EkfEstimator(AttitudeEstimator):
+    """Error-state (multiplicative) Kalman filter of attitude, velocity and gyro bias.
+
+    GPS velocity, or a bounded-velocity prior without GPS, removes linear acceleration; the
+    magnetometer corrects heading only. Math and sources in the module docstring."""
+
+    name: ClassVar[str] = "ekf"
+    GAINS: ClassVar[tuple[Gain, ...]] = (
+        Gain("gyro_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "gyro noise density, including unmodelled errors in motion"),
+        Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
+        Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
+        Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
+        Gain("acc_gate", 20.0, 0.01, 100.0, "m/s²", "| |a| − g | at which the accel noise has doubled"),
+        Gain("vel_noise", 1.0, 1e-3, 100.0, "m/s·√s", "without GPS: how far the velocity may wander from zero"),
+        Gain("gps_noise", 0.3, 0.01, 10.0, "m/s", "GPS horizontal velocity noise (1 σ)"),
+        Gain("gps_delay", 0.0, 0.0, 1.0, "s", "age of the GPS velocity at its own timestamp"),
+        Gain("gps_timeout", 1.0, 0.05, 10.0, "s", "GPS older than this no longer aids: back to the velocity prior"),
+        Gain("mag_noise", 0.05, 1e-4, 10.0, "rad·√s", "magnetometer heading noise density"),
+        Gain("mag_norm_gate", 0.1, 0.001, 10.0, "ratio", "relative |m| change doubling the mag noise"),
+        Gain("mag_dip_gate", 0.1, 0.001, 3.0, "rad", "dip-angle departure from the reference doubling the mag noise"),
+        Gain("mag_reject", 3.0, 1.0, 1e6, "×", "mag noise inflation above which the heading update is skipped"),
+        Gain("mag_relearn", 20.0, 1.0, 3600.0, "s", "a field rejected this long becomes the new reference"),
+        Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
+        Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
+        Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before zero-rate updates"),
+        Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
+        Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
+    ) + COMMON_GAINS
+    PRESETS: ClassVar[dict[str, dict[str, float]]] = {
+        "default": {},
+        # 25-50 Hz RAW_IMU streams: picking samples makes the gyro integration coarser, and real
+        # airframes vibrate (BROAD at 24 Hz: 6.0° vs 6.2° mean total with the default gains)
+        "telemetry": {"gyro_noise": 0.02, "acc_noise": 0.5},
+    }
+    DEFAULT_PRESET: ClassVar[str] = "default"
+
+    def __init__(self, preset: str | None = None, **gains: float) -> None:
+        super().__init__(preset, **gains)
+        self.q: Quat = (1.0, 0.0, 0.0, 0.0)
+        self.v: Vec3 = (0.0, 0.0, 0.0)
+        self.b: Vec3 = (0.0, 0.0, 0.0)
+        self.P = np.zeros((9, 9))
+        self._F = np.eye(9)  # only F[_TH, _B] and F[_V, _TH] change (see _predict)
+        self._FP = np.empty((9, 9))
+        self.initialised = False
+        # velocity history for delayed GPS: (t, v − corrections so far); see _velocity_at
+        self._v_hist: deque[tuple[float, Vec3]] = deque()
+        self._v_offset: Vec3 = (0.0, 0.0, 0.0)
+        self._gps_t = -math.inf
+        self._rest_since = -math.inf
+        self._rest_acc: list[float] | None = None
+        self.mag_ref_norm = 0.0
+        self.mag_ref_dip = 0.0
+        self._mag_rejected_since: float | None = None
+        self.stats: dict[str, float] = {
+            "accel_norm": 0.0, "acc_inflation": 1.0, "vel_innov": 0.0, "gps_nis": 0.0, "gps_aided": 0,
+            "mag_nis": 0.0, "mag_innov_deg": 0.0, "mag_disturbance": 0.0, "mag_rejected": 0, "mag_relearned": 0,
+            "at_rest": 0, "dropped": 0,
+        }  # fmt: skip
+
+    # -- public API ---------------------------------------------------------------------------
+    @property
+    def quaternion(self) -> np.ndarray:
+        return np.array(self.q)
+
+    def health(self) -> dict[str, float | str]:
+        h: dict[str, float | str] = {**self._common_health(), **self.stats}
+        h.update(bias_x=self.b[0], bias_y=self.b[1], bias_z=self.b[2])
+        h["tilt_sigma_deg"] = math.degrees(math.sqrt(max(self.P[0, 0] + self.P[1, 1], 0.0)))
+        h["heading_sigma_deg"] = math.degrees(math.sqrt(max(self.P[2, 2], 0.0)))
+        return h
+
+    def update_imu(self, sample: ImuSample) -> bool:
+        gyro = np.asarray(sample.gyro, float).tolist()
+        accel = np.asarray(sample.accel, float).tolist()
+        mag = None if sample.mag is None else np.asarray(sample.mag, float).tolist()
+        if mag is not None and not (all(map(math.isfinite, mag)) and any(mag)):
+            mag = None
+        if not all(map(math.isfinite, gyro + accel)):
+            self.stats["dropped"] += 1
+            return self.initialised
+        dt = self._check_time(sample.t)
+        if dt is None or not self.initialised:
+            return self._initialise(sample.t, accel, mag)
+        if dt == 0.0:
+            return True
+        self._predict(gyro, accel, dt, sample.t)
+        aided = sample.t - self._gps_t <= self.gains.values["gps_timeout"]
+        self.stats["gps_aided"] = int(aided)
+        if self._at_rest(sample.t, gyro, accel):
+            self._update_zero_rate(gyro, dt)
+            if not aided:  # with GPS, a steady acceleration is not taken for rest
+                self._update_gravity(accel, dt)
+        self._update_velocity_prior(dt, 1 if aided else 3)
+        if mag is not None:
+            self._update_heading(mag, dt)
+        return True
+
+    def update_gps(self, sample: GpsSample) -> None:
+        """Fuse the horizontal GPS velocity at its own time (GPS_RAW_INT has no vertical speed)."""
+        if sample.fix_type < 3 or sample.vel_ned is None or not self.initialised or sample.t <= self._gps_t:
+            return
+        vel = np.asarray(sample.vel_ned, float).tolist()
+        if self.t is None or self.t - self._gps_t > self.gains["gps_timeout"]:
+            # (re)acquired: the velocity state was only a bounded prior; start it from the fix
+            self._shift_velocity((vel[0] - self.v[0], vel[1] - self.v[1], 0.0))
+            self.P[3:5, :] = 0.0
+            self.P[:, 3:5] = 0.0
+            self.P[3, 3] = self.P[4, 4] = self.gains["gps_noise"] ** 2
+        else:
+            v_then = self._velocity_at(sample.t - self.gains["gps_delay"])
+            y = [vel[0] - v_then[0], vel[1] - v_then[1]]
+            r = self.gains["gps_noise"] ** 2
+            (a, b), (_, d) = self._update(self.P[:, 3:5], _plus_r(self.P[3:5, 3:5], r), y)
+            self.stats["gps_nis"] = a * y[0] * y[0] + 2.0 * b * y[0] * y[1] + d * y[1] * y[1]
+            self.stats["vel_innov"] = math.hypot(y[0], y[1])
+        self._gps_t = sample.t
+
+    # -- filter steps -------------------------------------------------------------------------
+    def _initialise(self, t: float, accel: list[float], mag: list[float] | None) -> bool:
+        """Attitude from this sample (base policy); velocity zero; the bias estimate is kept."""
+        if accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2] < 1e-6:
+            return False
+        R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), self.gains["declination"])
+        self.q = tuple(matrix_to_quat(R).tolist())
+        self.v = (0.0, 0.0, 0.0)
+        self._v_hist.clear()
+        self._v_offset = (0.0, 0.0, 0.0)
+        self._gps_t = -math.inf
+        self.stats["gps_aided"] = 0
+        tilt_var = math.radians(5.0) ** 2
+        heading_var = math.radians(20.0 if mag is not None else 180.0) ** 2
+        vel_var = self.gains["vel_noise"] ** 2
+        bias_var = self.gains["bias_init"] ** 2
+        self.P = np.diag([tilt_var, tilt_var, heading_var] + [vel_var] * 3 + [bias_var] * 3)
+        self.mag_ref_norm = 0.0
+        if mag is not None:
+            self._learn_mag_reference(rows_times(quat_rows(self.q), mag))
+        self.initialised = True
+        return True
+
+    def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float) -> None:
+        """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P."""
+        g = self.gains.values
+        bx, by, bz = self.b
+        self.q = q = quat_unit(
+            quat_mul(self.q, quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt, (gyro[2] - bz) * dt))
+        )
+        R = quat_rows(q)
+        fx, fy, fz = rows_times(R, accel)
+        vx, vy, vz = self.v
+        self.v = v = (vx + fx * dt, vy + fy * dt, vz + (fz + G0) * dt)
+        ox, oy, oz = self._v_offset
+        self._v_hist.append((t, (v[0] - ox, v[1] - oy, v[2] - oz)))
+        while self._v_hist and self._v_hist[0][0] < t - 2.0 * g["gps_timeout"]:
+            self._v_hist.popleft()
+
+        a_norm = math.sqrt(accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2])
+        inflation = 1.0 + ((a_norm - G0) / g["acc_gate"]) ** 2
+        self.stats["accel_norm"] = a_norm
+        self.stats["acc_inflation"] = inflation
+        F = self._F
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+        F[_TH, _B] = (
+            (-r00 * dt, -r01 * dt, -r02 * dt),
+            (-r10 * dt, -r11 * dt, -r12 * dt),
+            (-r20 * dt, -r21 * dt, -r22 * dt),
+        )  # −R dt
+        F[_V, _TH] = ((0.0, fz * dt, -fy * dt), (-fz * dt, 0.0, fx * dt), (fy * dt, -fx * dt, 0.0))  # −[R a]× dt
+        np.matmul(F, self.P, out=self._FP)
+        self.P = self._FP @ F.T
+        sa = g["acc_noise"] * inflation
+        qg, qa, qb = g["gyro_noise"] ** 2 * dt, sa * sa * dt, g["bias_walk"] ** 2 * dt
+        self.P.reshape(-1)[::10] += (qg, qg, qg, qa, qa, qa, qb, qb, qb)  # the diagonal of P
+
+    def _update(self, PHt: np.ndarray, S: list[list[float]], y: list[float]) -> list[list[float]]:
+        """Optimal gain K = P Hᵀ S⁻¹, P ← P − K (P Hᵀ)ᵀ (symmetrised), and injection of K y into
+        the nominal state. Returns S⁻¹."""
+        S_inv = _inv_sym(S)
+        K = PHt @ np.array(S_inv)
+        P = self.P - K @ PHt.T
+        self.P = 0.5 * (P + P.T)
+        self._inject(np.dot(K, y).tolist())
+        return S_inv
+
+    def _inject(self, dx: list[float]) -> None:
+        """Move the error estimate into the nominal state (the error resets to zero)."""
+        self.q = quat_unit(quat_mul(quat_exp(dx[0], dx[1], dx[2]), self.q))
+        self._shift_velocity((dx[3], dx[4], dx[5]))
+        bx, by, bz = self.b
+        self.b = (bx + dx[6], by + dx[7], bz + dx[8])
+
+    def _shift_velocity(self, dv: Vec3) -> None:
+        vx, vy, vz = self.v
+        ox, oy, oz = self._v_offset
+        self.v = (vx + dv[0], vy + dv[1], vz + dv[2])
+        self._v_offset = (ox + dv[0], oy + dv[1], oz + dv[2])
+
+    def _velocity_at(self, t: float) -> Vec3:
+        """Velocity at an earlier time t, with every correction made since applied to it too."""
+        ox, oy, oz = self._v_offset
+        v_then = (self.v[0] - ox, self.v[1] - oy, self.v[2] - oz)
+        for t_i, v_i in reversed(self._v_hist):
+            v_then = v_i
+            if t_i <= t:
+                break
+        return v_then[0] + ox, v_then[1] + oy, v_then[2] + oz
+
+    def _update_velocity_prior(self, dt: float, axes: int) -> None:
+        """Pseudo-measurement v = 0 on the last `axes` NED axes (3: all, 1: down only): motion
+        without GPS is bounded."""
+        idx = slice(6 - axes, 6)
+        r = self.gains.values["vel_noise"] ** 2 / dt
+        y = [-v for v in self.v[3 - axes :]]
+        if axes == 3:
+            self.stats["vel_innov"] = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+        self._update(self.P[:, idx], _plus_r(self.P[idx, idx], r), y)
+
+    def _at_rest(self, t: float, gyro: list[float], accel: list[float]) -> bool:
+        """Still for rest_time: small bias-corrected rate and an accel vector that has not moved."""
+        g = self.gains.values
+        wx, wy, wz = gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]
+        still = wx * wx + wy * wy + wz * wz < g["rest_gyro"] ** 2
+        if still and self._rest_acc is not None:
+            dx, dy, dz = accel[0] - self._rest_acc[0], accel[1] - self._rest_acc[1], accel[2] - self._rest_acc[2]
+            still = dx * dx + dy * dy + dz * dz < g["rest_acc"] ** 2
+        if not still or self._rest_acc is None:
+            self._rest_since, self._rest_acc = t, accel
+            self.stats["at_rest"] = 0
+            return False
+        self.stats["at_rest"] = int(t - self._rest_since >= g["rest_time"])
+        return bool(self.stats["at_rest"])
+
+    def _update_gravity(self, accel: list[float], dt: float) -> None:
+        """At rest the specific force is gravity alone: y = R a + g, H = [[−g]×, 0, 0] (its third
+        row is zero: y_D has no gain and is left out)."""
+        r = self.gains["rest_acc_noise"] ** 2 / dt
+        PHt = self.P[:, _TH] @ _U.T
+        fx, fy, _ = rows_times(quat_rows(self.q), accel)
+        self._update(PHt, _plus_r(_U @ PHt[_TH], r), [fx, fy])
+
+    def _update_zero_rate(self, gyro: list[float], dt: float) -> None:
+        """At rest the true rate is zero, so the gyro reads its bias: y = gyro − b, H = [0, 0, I]."""
+        r = self.gains["rest_noise"] ** 2 / dt
+        y = [gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]]
+        self._update(self.P[:, _B], _plus_r(self.P[_B, _B], r), y)
+
+    def _learn_mag_reference(self, m_n: Vec3) -> None:
+        """|m| and dip angle of the undisturbed field, from a field vector in NED."""
+        self.mag_ref_norm = math.sqrt(m_n[0] * m_n[0] + m_n[1] * m_n[1] + m_n[2] * m_n[2])
+        self.mag_ref_dip = math.atan2(m_n[2], math.hypot(m_n[0], m_n[1]))
+        self._mag_rejected_since = None
+
+    def _update_heading(self, mag: list[float], dt: float) -> None:
+        g = self.gains.values
+        m_n = rows_times(quat_rows(self.q), mag)
+        m_h = math.hypot(m_n[0], m_n[1])
+        m_norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        if m_h < 1e-3 * m_norm:
+            self.stats["mag_rejected"] += 1
+            return
+        dip = math.atan2(m_n[2], m_h)
+        if self.mag_ref_norm == 0.0:  # no field at initialisation
+            self._learn_mag_reference(m_n)
+        norm_dev = (m_norm / self.mag_ref_norm - 1.0) / g["mag_norm_gate"]
+        dip_dev = (dip - self.mag_ref_dip) / g["mag_dip_gate"]
+        inflation = 1.0 + norm_dev * norm_dev + dip_dev * dip_dev
+        self.stats["mag_disturbance"] = inflation - 1.0
+        if inflation > g["mag_reject"]:
+            self.stats["mag_rejected"] += 1
+            if self._mag_rejected_since is None:
+                self._mag_rejected_since = self.t
+            elif self.t - self._mag_rejected_since >= g["mag_relearn"]:
+                self._learn_mag_reference(m_n)
+                self.stats["mag_relearned"] += 1
+            return
+        self._mag_rejected_since = None
+        sigma = g["mag_noise"] * inflation * m_norm / m_h
+        r = sigma * sigma / dt
+        y = wrap_pi(g["declination"] - math.atan2(m_n[1], m_n[0]))
+        # K = k e_3 (heading only, see the module docstring); Joseph form P − K pᵀ − p Kᵀ + s K Kᵀ
+        P = self.P
+        p = P[:, 2].copy()
+        s = float(p[2]) + r
+        k = float(p[2]) / s
+        kp = k * p
+        P[2] -= kp
+        P[:, 2] -= kp
+        P[2, 2] += s * (k * k)
+        self.stats["mag_nis"] = y * y / s
+        self.stats["mag_innov_deg"] = math.degrees(y)
+        self.q = quat_unit(quat_mul(quat_exp(0.0, 0.0, k * y), self.q))

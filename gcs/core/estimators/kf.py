@@ -1,0 +1,430 @@
+"""The linear Kalman attitude filter KF-A of seed 004 (Mendoza Robles 2022, §5.2.2 / §5.3.2),
+fed raw IMU instead of PX4's own attitude."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration
+from gcs.core.estimators.magnetic import MagDisturbance
+from gcs.core.gains import Gain
+from gcs.core.rotation import (
+    euler_quat,
+    euler_to_quat,
+    quat_exp,
+    quat_mul,
+    quat_rows,
+    quat_to_euler,
+    quat_to_matrix,
+    quat_unit,
+    wrap_pi,
+)
+from gcs.core.samples import G0, GpsSample, ImuSample
+
+_ANGLES = ("roll", "pitch", "yaw")
+_RATES = ("p", "q", "r")
+#: Seed 004 Q (5.35; "reference" diagonal, per thesis step) and R (5.37), in state order.
+SEED004_Q = (0.0259, 0.0257, 0.4051, 0.4047, 0.1952, 0.1940)
+SEED004_R = (0.0202, 0.0842, 0.0066, 0.0006, 0.0025, 0.0034)
+_Q_NAMES = tuple(f"q_{s}" for s in _ANGLES + _RATES)
+_R_NAMES = tuple(f"r_{s}" for s in _ANGLES + _RATES)
+_DIAG5, _DIAG6 = np.diag_indices(5), np.diag_indices(6)
+#: Measurement rows without a heading: roll, pitch and the three rates.
+_ROWS5 = [0, 1, 3, 4, 5]
+
+
+def accel_tilt(f, a_ned=(0.0, 0.0, 0.0), yaw: float = 0.0, roll: float = 0.0, pitch: float = 0.0):
+    """Roll and pitch (rad) that make the specific force f (sensor frame) point "up" (-z NED).
+
+    a_ned, the vehicle's acceleration from GPS, is first removed: f_g = f - Rᵀ a_ned with R from
+    the current estimate (roll, pitch, yaw), leaving the gravity-only specific force. Then
+    roll = atan2(-f_y, -f_z), pitch = atan2(f_x, √(f_y² + f_z²)) — valid in any right-handed frame.
+    """
+    fx, fy, fz = (float(v) for v in f)
+    if any(a_ned):
+        R = quat_to_matrix(euler_to_quat(roll, pitch, yaw))
+        ab = R.T @ np.asarray(a_ned, dtype=float)
+        fx, fy, fz = fx - ab[0], fy - ab[1], fz - ab[2]
+    return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
+
+
+def mag_heading(m, roll: float, pitch: float, declination: float) -> float | None:
+    """True heading (rad) from the tilt-compensated field: level it by Ry(pitch)·Rx(roll), then
+    yaw = declination - atan2(m_level_y, m_level_x). None when the horizontal field vanishes."""
+    mx, my, mz = (float(v) for v in m)
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    ly = cr * my - sr * mz
+    lz = sr * my + cr * mz
+    lx = cp * mx + sp * lz
+    if math.hypot(lx, ly) < 1e-9:
+        return None
+    return wrap_pi(declination - math.atan2(ly, lx))
+
+
+def euler_rates(roll: float, pitch: float, gyro, cos_min: float = 1e-6) -> tuple[float, float, float]:
+    """Body rates → Z-Y-X Euler-angle rates, seed 004 eq. (4.9). cos(pitch) is floored at cos_min
+    (keeping its sign), which bounds the map near the Euler singularity at pitch ±90°."""
+    p, q, r = (float(v) for v in gyro)
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp = math.cos(pitch)
+    cp = math.copysign(max(abs(cp), cos_min), cp)
+    tp = math.sin(pitch) / cp
+    return p + (sr * q + cr * r) * tp, cr * q - sr * r, (sr * q + cr * r) / cp
+
+
+class KalmanAttitudeFilter(AttitudeEstimator):
+    """KF-A: linear Kalman filter on Euler angles and their rates (seed 004, §5.2.2).
+
+    State x = [φ θ ψ φ̇ θ̇ ψ̇]ᵀ (5.19; p q r in the thesis code). Model (5.28)-(5.29):
+    x⁻ = Φx + Bu, Φ = [[I, Δt·I], [0, I]], B = [[Δt²/2·I], [Δt·I]], H = I₆. Predict P⁻ = ΦPΦᵀ + Q, update with the
+    filterpy `KalmanFilter` (Joseph form, equivalent to the thesis (I − KH)P for the optimal K).
+
+    Measurements z = [φ_a θ_a ψ_m φ̇_g θ̇_g ψ̇_g]: tilt from the accelerometer (`accel_tilt`, with
+    the GPS acceleration removed as in the DCM), heading from the tilt-compensated magnetometer
+    (`mag_heading`, plus declination; without a magnetometer the GPS course above
+    gps_speed_min, else no heading row), and the gyro mapped to Euler rates by (4.9).
+
+    Deviations from the thesis, and why:
+    * u is the Euler-angle acceleration from successive gyro samples, u = (ω̇ₖ − ω̇ₖ₋₁)/Δt with
+      ω̇ the gyro mapped to Euler rates, and B = [[Δt²/2·I], [Δt·I]] (5.29 with I_x = I_y = I_z = 1):
+      the thesis got the same quantity, τ/I, from commanded PWMs through the motor model, which
+      a ground station fusing RAW_IMU does not have. It makes the angle prediction the
+      trapezoid of two rate samples, not a one-step-late rectangle.
+    * z comes from raw sensors, not PX4's attitude estimate (which the thesis filtered).
+    * The gyro is mapped to Euler rates (4.9) instead of being used as φ̇θ̇ψ̇ (the hover
+      linearisation), so the filter is right at large tilts and while yawing.
+    * Δt is the real interval and Q is rebuilt for it: the thesis Q is per step of
+      dt_ref = 4 ms, so Q(Δt) = k_q·diag(q)·Δt/dt_ref (white process noise); R is per sample.
+    * Angle innovations (roll and yaw) are wrapped into (−π, π]: the measurement is shifted to
+      the branch nearest the state before filterpy forms z − Hx; angles are wrapped after.
+    * x₀ comes from the first sample (tilt, heading, rates) instead of 0; P₀ = unscaled Q (5.35).
+
+    Robustness for raw flight-test data (deviations from the thesis; all off in `seed004`, whose
+    values are given in brackets; on the thesis's PX4-filtered inputs none of them was needed):
+    * exact_predict = 1 [0]: the predicted MEAN of the angles is the attitude turned by the gyro
+      exactly — q⁻ = q(φ,θ,ψ) ⊗ Exp(½(ωₖ₋₁ + ωₖ)Δt + (ωₖ₋₁ × ωₖ)Δt²/12) (trapezoid plus the
+      second-order coning term, Bortz), back to Z-Y-X Euler — and the rates are (4.9) at q⁻.
+      P is still ΦPΦᵀ + Q with the linear Φ above, and the update is the linear filterpy one.
+      At 48 Hz and 800°/s (BROAD trials 07/30) the attitude turns 17° per sample and the
+      Euler-rate linearisation over one step is badly wrong; the rotation also removes the Euler
+      singularity from the prediction.
+    * cos_pitch_min = 0.1 [1e-6]: (4.9) divides by cos θ; it is floored at 0.1 (|θ| ≈ 84°) so the
+      rate states and u stay bounded through pitch ±90°.
+    * gimbal_r = 1 [0]: near pitch ±90° roll and yaw are ill-defined (only their sum or
+      difference is): the accelerometer roll is atan2 of two vanishing components and the
+      heading follows the roll used to level the field, so R of φ, ψ, φ̇ and ψ̇ is scaled by
+      1/max(cos²θ, cos_pitch_min²) — their sensitivity to sensor noise.
+    * accel_tau = 1 s [0]: the tilt is measured from the gravity-only specific force
+      (f − Rᵀk·a_gps) averaged in the earth frame over accel_tau, turned back to the sensor at
+      the predicted attitude; the average is turned with each correction (R⁺R⁻ᵀ) so it filters
+      the measurement without delaying the loop — the DCM's and VQF's scheme (VQF tauAcc 3 s).
+      Linear acceleration with a bounded velocity change averages to Δv/T; centripetal force of
+      a sensor off the rotation axis turns with it and averages out. Without it BROAD trial 30
+      (fast rotation) scores 26° instead of 2.5°.
+    * accel_gate = 1 m/s² [0 = off]: R of φ and θ × (1 + (||f_avg| − g| / accel_gate)²): a
+      sustained acceleration along gravity, which the average keeps, makes the tilt count less
+      (0.1 g of departure doubles its variance).
+    * mag_norm_tol = 0.1, mag_dip_tol = 10°, mag_relearn = 20 s [10, π: off]: the heading row is
+      dropped while the field's norm or dip (earth frame, at the predicted attitude) departs from
+      the reference learned on the first sample — VQF's test (magNormTh, magDipTh, magNewTime),
+      the same as the DCM's (`gcs.core.estimators.magnetic.MagDisturbance`). Heading then rides on the gyro.
+    * mag_time_sigma = 0.05 s [0]: yaw R + (|ω|·σ_t)². The field sample is rarely simultaneous
+      with the gyro's (BROAD's lags it ~14 ms, found by shifting it against the optical truth;
+      RAW_IMU carries whatever compass reading was latest), so the heading is trusted less while
+      turning fast. It biases nothing when the sensors are in step.
+    * mag_delay = 0 s [0]: a KNOWN field-sample delay τ: m is turned forward, m − τ ω × m. Default
+      0 (as PX4's EKF2_MAG_DELAY): a wrong value biases the heading by ω·Δτ while turning. Set per
+      sensor: on BROAD, mag_delay = 0.014 s takes trial 30 at full rate from 7.1° to 2.1° (mean
+      3.4° → 2.5°; at 47.6 Hz 3.0° → 2.9°).
+    The Euler representation is kept (x, P, z in φ θ ψ): roll and yaw innovations are wrapped,
+    and near pitch ±90° the filter relies on the prediction (gimbal_r) rather than diverging.
+
+    Presets: `seed004` — Q diag, k_q = 0.03 and R as printed (Q 5.35, R 5.37), the thesis linear
+    prediction, and none of the robustness terms; `telemetry` — the angle process noises
+    q_roll, q_pitch, q_yaw 10⁴ times smaller, rates unchanged, robustness terms on: the thesis Q
+    let the angles follow PX4's smooth estimate, while raw accelerometer tilt is disturbed by
+    every manoeuvre, so the angles must trust the integrated gyro. Default `telemetry`, the more
+    accurate on the ArduCopter SITL hop (roll/pitch RMS vs SIMSTATE 0.24°/0.21° against
+    1.75°/1.19° for `seed004`, tests/test_kf.py). BROAD, six trials (bench.broad), mean total
+    RMSE: 3.4° at 285.7 Hz and 3.0° at 47.6 Hz (11.2° / 36.5° before the robustness terms).
+    """
+
+    name = "kf"
+    GAINS = (
+        (
+            *(
+                Gain(
+                    f"q_{s}",
+                    v,
+                    0.0,
+                    100.0,
+                    "rad²" if s in _ANGLES else "rad²/s²",
+                    f"process noise of {s} per dt_ref step",
+                )
+                for s, v in zip(_ANGLES + _RATES, SEED004_Q)
+            ),
+            *(
+                Gain(f"r_{s}", v, 1e-8, 100.0, "rad²" if s in _ANGLES else "rad²/s²", f"measurement noise of {s}")
+                for s, v in zip(_ANGLES + _RATES, SEED004_R)
+            ),
+            Gain("k_q", 0.03, 0.0, 1000.0, "", "scale of the process noise Q (thesis k_q)"),
+            Gain("dt_ref", 0.004, 1e-4, 1.0, "s", "the step the q_* values are given per (thesis: 4 ms)"),
+            Gain(
+                "exact_predict", 1.0, 0.0, 1.0, "", "1 = predict the angles by turning the attitude by the gyro exactly"
+            ),
+            Gain("cos_pitch_min", 0.1, 1e-6, 1.0, "", "floor of |cos pitch| in the gyro → Euler-rate map (4.9)"),
+            Gain("gimbal_r", 1.0, 0.0, 1.0, "", "1 = roll, yaw, p, r measurement noise × 1/cos²(pitch)"),
+            Gain("accel_tau", 1.0, 0.0, 10.0, "s", "earth-frame average of the specific force for the tilt"),
+            Gain("accel_gate", 1.0, 0.0, 100.0, "m/s²", "tilt noise × (1 + (||f_avg| − g| / gate)²); 0 = off"),
+            Gain(
+                "mag_norm_tol", 0.1, 0.0, 10.0, "", "field-magnitude departure (of the reference) that rejects the mag"
+            ),
+            Gain("mag_dip_tol", math.radians(10.0), 0.0, math.pi, "rad", "dip-angle departure that rejects the mag"),
+            Gain("mag_relearn", 20.0, 0.0, 600.0, "s", "turning time in a steady new field before it is the reference"),
+            Gain(
+                "mag_delay", 0.0, 0.0, 0.05, "s", "how much older the field sample is than the gyro's (turned forward)"
+            ),
+            Gain(
+                "mag_time_sigma", 0.05, 0.0, 1.0, "s", "timing uncertainty of the field sample: yaw noise + (|ω|·σ_t)²"
+            ),
+        )
+        + GPS_GAINS
+        + COMMON_GAINS
+    )
+    _THESIS = {
+        "exact_predict": 0.0,
+        "cos_pitch_min": 1e-6,
+        "gimbal_r": 0.0,
+        "accel_tau": 0.0,
+        "accel_gate": 0.0,
+        "mag_norm_tol": 10.0,
+        "mag_dip_tol": math.pi,
+        "mag_time_sigma": 0.0,
+    }
+    PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
+    DEFAULT_PRESET = "telemetry"
+
+    def __init__(self, preset: str | None = None, **gains: float) -> None:
+        super().__init__(preset, **gains)
+        self.kf = KalmanFilter(dim_x=6, dim_z=6, dim_u=3)
+        self.rates_prev = (0.0, 0.0, 0.0)
+        self.gyro_prev = (0.0, 0.0, 0.0)
+        self.f_avg: tuple[float, float, float] | None = None
+        self.gps = GpsAcceleration()
+        self.mag = MagDisturbance()
+        self.valid = False
+        self.accel_norm = 0.0
+        self.accel_scale = 1.0
+        self.mag_rejected = 0
+        self.innovation = np.zeros(6)
+        self.heading_source = "none"
+        # filterpy inputs reused every sample (written in place; filterpy keeps none of them)
+        self._F, self._B, self._Q = np.eye(6), np.zeros((6, 3)), np.zeros((6, 6))
+        self._dt: float | None = None
+        self._q_key: tuple | None = None
+        self._u = np.zeros((3, 1))
+        self._H6, self._H5 = np.eye(6), np.eye(6)[_ROWS5]
+        self._R6, self._R5 = np.zeros((6, 6)), np.zeros((5, 5))
+        self._z6, self._z5 = np.zeros((6, 1)), np.zeros((5, 1))
+
+    def _q(self, dt: float) -> np.ndarray:
+        g = self.gains
+        scale = g["k_q"] * dt / g["dt_ref"]
+        return np.diag([g[f"q_{s}"] * scale for s in _ANGLES + _RATES])
+
+    def _r(self) -> np.ndarray:
+        return np.diag([self.gains[f"r_{s}"] for s in _ANGLES + _RATES])
+
+    def update_gps(self, sample: GpsSample) -> None:
+        self.gps.update(sample)
+
+    def _heading(self, sample: ImuSample, roll: float, pitch: float, Rm, dt: float, spin: float) -> float | None:
+        g = self.gains
+        if sample.mag is not None:
+            mx, my, mz = map(float, sample.mag)
+            lag = g["mag_delay"]
+            if lag > 0.0:  # a field fixed in the earth frame turns as ṁ = −ω × m in the sensor
+                wx, wy, wz = self.gyro_prev
+                mx, my, mz = (
+                    mx - lag * (wy * mz - wz * my),
+                    my - lag * (wz * mx - wx * mz),
+                    mz - lag * (wx * my - wy * mx),
+                )
+            hn = Rm[0][0] * mx + Rm[0][1] * my + Rm[0][2] * mz
+            he = Rm[1][0] * mx + Rm[1][1] * my + Rm[1][2] * mz
+            hd = Rm[2][0] * mx + Rm[2][1] * my + Rm[2][2] * mz
+            h = math.hypot(hn, he)
+            psi = mag_heading((mx, my, mz), roll, pitch, g["declination"]) if h > 1e-9 else None
+            if psi is not None:
+                if not self.mag.usable(
+                    math.hypot(h, hd),
+                    math.atan2(hd, h),
+                    dt,
+                    spin,
+                    g["mag_norm_tol"],
+                    g["mag_dip_tol"],
+                    g["mag_relearn"],
+                ):
+                    self.heading_source = "mag_rejected"
+                    self.mag_rejected += 1
+                    return None
+                self.heading_source = "mag"
+                return psi
+        course = self.gps.course_at(sample.t, g["gps_speed_min"])
+        self.heading_source = "gps_course" if course is not None else "none"
+        return course
+
+    def _initialise(self, sample: ImuSample) -> None:
+        g = self.gains
+        roll, pitch = accel_tilt(sample.accel)
+        self.mag = MagDisturbance()
+        yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
+        self.heading_source = "mag" if yaw is not None else "none"
+        self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
+        self.gyro_prev = tuple(float(v) for v in sample.gyro)
+        self.f_avg = None
+        self.kf.x = np.array([[roll], [pitch], [yaw or 0.0], *([v] for v in self.rates_prev)])
+        self.kf.P = np.diag([g[f"q_{s}"] for s in _ANGLES + _RATES])
+        self.valid = True
+
+    def update_imu(self, sample: ImuSample) -> bool:
+        # The per-sample path works on plain floats and reuses preallocated filterpy inputs
+        # (F, B, Q, u, z, R, H): it gives the same numbers as building them anew each sample.
+        fx, fy, fz = map(float, sample.accel)
+        self.accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+        dt = self._check_time(sample.t)
+        if dt is None:
+            if self.accel_norm < 1e-6:  # cannot level on a zero vector: wait for a usable sample
+                self.t = None
+                return self.valid
+            self._initialise(sample)
+            return True
+        if dt == 0.0:
+            return self.valid
+        g = self.gains.values  # the current dict (apply_preset replaces it): plain lookups
+        kf = self.kf
+        if dt != self._dt:  # Φ and B depend on Δt only; written in place
+            F, B = self._F, self._B
+            F[0, 3] = F[1, 4] = F[2, 5] = dt
+            B[0, 0] = B[1, 1] = B[2, 2] = 0.5 * dt * dt
+            B[3, 0] = B[4, 1] = B[5, 2] = dt
+            self._dt = dt
+        kf.F, kf.B = self._F, self._B
+        q_key = (dt, g["k_q"], g["dt_ref"], *(g[k] for k in _Q_NAMES))
+        if q_key != self._q_key:  # Q(Δt) = k_q·diag(q)·Δt/dt_ref, rebuilt only when an input changes
+            scale = q_key[1] * dt / q_key[2]
+            self._Q[_DIAG6] = [v * scale for v in q_key[3:]]
+            self._q_key = q_key
+        kf.Q = self._Q
+        gyro = tuple(map(float, sample.gyro))
+        cmin = g["cos_pitch_min"]
+        exact = g["exact_predict"] >= 0.5
+        x0 = kf.x[:, 0].tolist()
+        if exact:
+            # the mean: the attitude turned by the trapezoid of two gyro samples, exactly
+            # with the rate varying linearly between them, plus the second-order coning term
+            # (ω₀ × ω₁)·dt²/12 (Bortz), which matters at telemetry rates in fast rotation
+            (a0, a1, a2), (b0, b1, b2) = self.gyro_prev, gyro
+            c = dt * dt / 12.0
+            turn = quat_exp(
+                0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
+                0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
+                0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
+            )
+            q = quat_unit(quat_mul(euler_quat(x0[0], x0[1], x0[2]), turn))
+            ang = quat_to_euler(q)
+            rates = euler_rates(ang[0], ang[1], gyro, cmin)
+        else:
+            # Euler rates of this gyro sample at the attitude predicted by the current rates
+            rates = euler_rates(x0[0] + dt * x0[3], x0[1] + dt * x0[4], gyro, cmin)
+        r0 = self.rates_prev
+        u = self._u
+        u[0, 0], u[1, 0], u[2, 0] = (rates[0] - r0[0]) / dt, (rates[1] - r0[1]) / dt, (rates[2] - r0[2]) / dt
+        kf.predict(u=u)  # column u: filterpy broadcasts a 1-D one
+        if exact:  # P as Φ P Φᵀ + Q; the mean from the exact rotation
+            x = [*ang, *rates]
+            kf.x[:, 0] = x
+            kf.x_prior = kf.x.copy()
+        else:
+            x = kf.x[:, 0].tolist()
+            x[0], x[2] = wrap_pi(x[0]), wrap_pi(x[2])
+            kf.x[0, 0], kf.x[2, 0] = x[0], x[2]
+            q = euler_quat(x[0], x[1], x[2])
+        self.gyro_prev = gyro
+        self.rates_prev = rates
+        Rm = quat_rows(q)
+        # tilt: gravity-only specific force in the earth frame, averaged, back in the sensor frame
+        a = self.gps.at(sample.t)
+        k = g["gps_gain"]
+        r = [g[n] for n in _R_NAMES]
+        if self.accel_norm > 1e-6:
+            fe = tuple(Rm[i][0] * fx + Rm[i][1] * fy + Rm[i][2] * fz - k * a[i] for i in range(3))
+            if self.f_avg is not None and g["accel_tau"] > 0.0:
+                c = dt / (g["accel_tau"] + dt)
+                fe = tuple(F + c * (f - F) for F, f in zip(self.f_avg, fe))
+            self.f_avg = fe
+            fb = tuple(Rm[0][i] * fe[0] + Rm[1][i] * fe[1] + Rm[2][i] * fe[2] for i in range(3))
+            roll, pitch = math.atan2(-fb[1], -fb[2]), math.atan2(fb[0], math.hypot(fb[1], fb[2]))
+            gate = g["accel_gate"]
+            dev = abs(math.sqrt(fe[0] * fe[0] + fe[1] * fe[1] + fe[2] * fe[2]) - G0)
+            self.accel_scale = 1.0 + (dev / gate) ** 2 if gate > 0.0 else 1.0
+            r[0] *= self.accel_scale
+            r[1] *= self.accel_scale
+        else:
+            roll, pitch = x[0], x[1]
+        if g["gimbal_r"] >= 0.5:  # near pitch ±90° roll, yaw and their rates are ill-defined
+            s = 1.0 / max(math.cos(x[1]) ** 2, cmin * cmin)
+            r[0] *= s
+            r[2] *= s
+            r[3] *= s
+            r[5] *= s
+        spin = math.sqrt(gyro[0] ** 2 + gyro[1] ** 2 + gyro[2] ** 2)
+        yaw = self._heading(sample, x[0], x[1], Rm, dt, spin)
+        z0 = x[0] + wrap_pi(roll - x[0])
+        if yaw is not None:
+            r[2] += (spin * g["mag_time_sigma"]) ** 2
+            H, R, zc = self._H6, self._R6, self._z6
+            zc[:, 0] = (z0, pitch, x[2] + wrap_pi(yaw - x[2]), *rates)
+            R[_DIAG6] = r
+        else:  # no heading row
+            H, R, zc = self._H5, self._R5, self._z5
+            zc[:, 0] = (z0, pitch, *rates)
+            R[_DIAG5] = (r[0], r[1], r[3], r[4], r[5])
+        # column vector z: filterpy skips its reshape when H is passed (packages-smoke.md §5)
+        kf.update(zc, R=R, H=H)
+        y = kf.y[:, 0].tolist()
+        self.innovation = np.array(y if yaw is not None else (y[0], y[1], 0.0, y[2], y[3], y[4]))
+        x = kf.x[:, 0].tolist()
+        if self.f_avg is not None and g["accel_tau"] > 0.0:
+            # turn the average with the correction (earth frame, R⁺R⁻ᵀ), so it filters the
+            # measurement without delaying the loop (as the DCM and VQF do)
+            Rp = quat_rows(euler_quat(x[0], x[1], x[2]))
+            fs = tuple(Rm[0][i] * self.f_avg[0] + Rm[1][i] * self.f_avg[1] + Rm[2][i] * self.f_avg[2] for i in range(3))
+            self.f_avg = tuple(Rp[i][0] * fs[0] + Rp[i][1] * fs[1] + Rp[i][2] * fs[2] for i in range(3))
+        kf.x[0, 0], kf.x[2, 0] = wrap_pi(x[0]), wrap_pi(x[2])
+        return True
+
+    @property
+    def euler(self) -> tuple[float, float, float]:
+        x = self.kf.x[:3, 0].tolist()
+        return x[0], x[1], x[2]
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        return np.array(euler_quat(*self.euler))
+
+    def health(self) -> dict[str, float | str]:
+        return {
+            **self._common_health(),
+            "valid": self.valid,
+            "accel_norm": self.accel_norm,
+            "heading_source": self.heading_source,
+            **{f"innovation_{s}": float(v) for s, v in zip(_ANGLES + _RATES, self.innovation)},
+            "accel_scale": self.accel_scale,
+            "mag_disturbed": self.mag.disturbed,
+            "mag_rejected": self.mag_rejected,
+            **{f"sigma_{s}": float(math.sqrt(max(self.kf.P[i, i], 0.0))) for i, s in enumerate(_ANGLES + _RATES)},
+        }

@@ -1,1 +1,0 @@
-"""Links to a vehicle: transports, MAVLink framing, link state and counters, forwarding."""

@@ -1,0 +1,29 @@
+"""What every log reader reports besides its samples, and how it fails (`InputError`)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+
+class InputError(ValueError):
+    """Unreadable input; the message says which file, where, which field and what value."""
+
+
+class LogFile:
+    """Base of the log readers: iterate it for samples; afterwards `counts` per record type or
+    topic used, `first_us` / `last_us` (the time span of those records, µs) and `damage` (None,
+    or where and why reading stopped early or skipped data)."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.counts: Counter[str] = Counter()
+        self.first_us: int | None = None
+        self.last_us: int | None = None
+        self.damage: str | None = None
+
+    def _seen(self, kind: str, timestamp_us: int) -> None:
+        """Count one record of `kind` read at timestamp_us (records come in time order)."""
+        self.counts[kind] += 1
+        if self.first_us is None:
+            self.first_us = timestamp_us
+        self.last_us = timestamp_us

@@ -1,0 +1,36 @@
+"""Every log format → one time-ordered stream of samples (`ImuSample`, `GpsSample`,
+`AttitudeSample`) on the vehicle clock: `read_samples(path)` picks the reader by suffix.
+Bad input raises `InputError` naming the file, the line or byte offset, the field and the value.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.logs.csvfile import read_csv
+from gcs.logs.dataflash import DataflashLog
+from gcs.logs.logfile import InputError
+from gcs.logs.tlog import read_tlog
+from gcs.logs.ulog import UlogFile
+
+Sample = ImuSample | GpsSample | AttitudeSample
+
+READERS: dict[str, Callable[[str], Iterable[Sample]]] = {
+    ".csv": read_csv,
+    ".tlog": read_tlog,
+    ".bin": DataflashLog,
+    ".ulg": UlogFile,
+}
+
+
+def read_samples(path: str) -> Iterable[Sample]:
+    """The sample stream of a log file, by suffix; InputError for a missing file or unknown format."""
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: no such file")
+    suffix = os.path.splitext(path)[1].lower()
+    reader = READERS.get(suffix)
+    if reader is None:
+        raise InputError(f"{path}: unknown input format {suffix!r}; known: {', '.join(READERS)}")
+    return reader(path)

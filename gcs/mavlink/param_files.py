@@ -1,0 +1,116 @@
+"""Parameter files in the Mission Planner / MAVProxy `.param` format, and table differences.
+
+One parameter per line, `NAME,VALUE` (Mission Planner) or `NAME VALUE` (MAVProxy, any run of
+spaces or tabs); `#` starts a comment, blank lines are ignored. Files are written sorted by name
+as `NAME,VALUE` with the shortest value text that reads back as the same float32, so a file
+saved from the vehicle and loaded again writes back exactly what was read.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from gcs.mavlink.params import ParamError, check_name, format_value, same_value
+
+_SPLIT = re.compile(r"\s*,\s*|\s+")
+
+
+class ParamFileError(ParamError):
+    """A file that is not a parameter file; the message names the file and line."""
+
+
+def parse(text: str, source: str = "<text>") -> dict[str, float]:
+    """NAME → value of every line of a .param text."""
+    values: dict[str, float] = {}
+    lines: dict[str, int] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = _SPLIT.split(line)
+        where = f"{source}:{number}"
+        if len(parts) != 2:
+            raise ParamFileError(f"{where}: expected NAME,VALUE or NAME VALUE, got {line!r}")
+        name, text_value = parts
+        try:
+            check_name(name)
+            value = float(text_value)
+        except ParamError as exc:
+            raise ParamFileError(f"{where}: {exc}") from None
+        except ValueError:
+            raise ParamFileError(f"{where}: {name}: {text_value!r} is not a number") from None
+        if name in values:
+            raise ParamFileError(f"{where}: {name} already set on line {lines[name]}")
+        values[name], lines[name] = value, number
+    return values
+
+
+def load(path: str | Path) -> dict[str, float]:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise ParamFileError(f"cannot read {path}: {exc.strerror}") from None
+    return parse(text, str(path))
+
+
+def dumps(values: dict[str, float], comment: str | None = None) -> str:
+    head = "".join(f"# {line}\n" for line in comment.splitlines()) if comment else ""
+    return head + "".join(f"{name},{format_value(values[name])}\n" for name in sorted(values))
+
+
+def save(path: str | Path, values: dict[str, float], comment: str | None = None) -> Path:
+    path = Path(path)
+    path.write_text(dumps(values, comment), encoding="utf-8")
+    return path
+
+
+def save_snapshot(directory: str | Path, values: dict[str, float], label: str = "snapshot") -> Path:
+    """The table as it was now, in DIRECTORY/LABEL-YYYYmmdd-HHMMSS.param (a pre-flight record
+    that stays readable by Mission Planner and MAVProxy)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return save(
+        directory / f"{label}-{stamp}.param",
+        values,
+        comment=f"{label} of {len(values)} parameters at {time.strftime('%Y-%m-%d %H:%M:%S %z')}",
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Difference:
+    """One parameter that differs: a value of None means the side does not have it."""
+
+    name: str
+    a: float | None
+    b: float | None
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "a": self.a, "b": self.b}
+
+
+def diff(a: dict[str, float], b: dict[str, float]) -> list[Difference]:
+    """Parameters whose values differ (as float32) or that only one side has, sorted by name."""
+    out = []
+    for name in sorted(set(a) | set(b)):
+        va, vb = a.get(name), b.get(name)
+        if va is None or vb is None or not same_value(va, vb):
+            out.append(Difference(name, va, vb))
+    return out
+
+
+def format_diff(differences: list[Difference], a_label: str = "a", b_label: str = "b") -> str:
+    if not differences:
+        return "no differences"
+    width = max(16, *(len(d.name) for d in differences))
+
+    def show(v: float | None) -> str:
+        return "(missing)" if v is None else format_value(v)
+
+    lines = [f"{'NAME':<{width}}  {a_label:>14}  {b_label:>14}"]
+    lines += [f"{d.name:<{width}}  {show(d.a):>14}  {show(d.b):>14}" for d in differences]
+    return "\n".join(lines)

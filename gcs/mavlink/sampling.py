@@ -1,0 +1,249 @@
+"""One vehicle's MAVLink messages → SI samples on its clock (the one place where a live stream
+and a replayed .tlog become samples, so live and offline numbers come from identical input)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from gcs.core.estimation import EstimationInput, GainChange
+from gcs.core.samples import (
+    AttitudeSample,
+    BaroSample,
+    GpsSample,
+    ImuSample,
+    cdeg_to_rad,
+    cdegc_to_degc,
+    cm_to_m,
+    degE7_to_deg,
+    hpa_to_pa,
+    mg_to_mps2,
+    mgauss_to_gauss,
+    mm_to_m,
+    mrad_to_rads,
+    ms_to_s,
+    usec_to_s,
+)
+from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.params import param_name
+
+#: MAVLink's "unknown" marker for GPS_RAW_INT vel / cog (UINT16_MAX).
+UINT16_UNKNOWN = 65535
+
+
+def _imu_from_scaled(msg, t: float) -> ImuSample:
+    """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled)."""
+    gyro = np.array([mrad_to_rads(msg.xgyro), mrad_to_rads(msg.ygyro), mrad_to_rads(msg.zgyro)])
+    accel = np.array([mg_to_mps2(msg.xacc), mg_to_mps2(msg.yacc), mg_to_mps2(msg.zacc)])
+    mag = np.array([mgauss_to_gauss(msg.xmag), mgauss_to_gauss(msg.ymag), mgauss_to_gauss(msg.zmag)])
+    if not mag.any():
+        mag = None  # an all-zero field means "no compass", not a zero field
+    return ImuSample(t, gyro, accel, mag, msg.get_type())
+
+
+def imu_from_raw_imu(msg) -> ImuSample:
+    """RAW_IMU: time_usec since boot; accel mG, gyro mrad/s, mag mgauss (ArduPilot's scaled values)."""
+    return _imu_from_scaled(msg, usec_to_s(msg.time_usec))
+
+
+def imu_from_scaled_imu(msg) -> ImuSample:
+    """SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: time_boot_ms; same units as RAW_IMU."""
+    return _imu_from_scaled(msg, ms_to_s(msg.time_boot_ms))
+
+
+def imu_from_highres_imu(msg) -> ImuSample:
+    """HIGHRES_IMU (PX4): already SI — m/s², rad/s, gauss; time_usec since boot."""
+    return ImuSample(
+        usec_to_s(msg.time_usec),
+        np.array([msg.xgyro, msg.ygyro, msg.zgyro], dtype=float),
+        np.array([msg.xacc, msg.yacc, msg.zacc], dtype=float),
+        np.array([msg.xmag, msg.ymag, msg.zmag], dtype=float),
+        "HIGHRES_IMU",
+    )
+
+
+def gps_from_gps_raw_int(msg) -> GpsSample:
+    """GPS_RAW_INT: lat/lon degE7, alt mm, vel cm/s, cog cdeg (65535 = unknown), time_usec.
+
+    The NED velocity is built from ground speed and course (GPS_RAW_INT has no vertical speed,
+    so vd = 0); it is None when either is unknown.
+    """
+    speed = math.nan if msg.vel == UINT16_UNKNOWN else cm_to_m(msg.vel)
+    course = math.nan if msg.cog == UINT16_UNKNOWN else cdeg_to_rad(msg.cog)
+    vel_ned = None
+    if math.isfinite(speed) and math.isfinite(course):
+        vel_ned = np.array([speed * math.cos(course), speed * math.sin(course), 0.0])
+    return GpsSample(
+        usec_to_s(msg.time_usec),
+        degE7_to_deg(msg.lat),
+        degE7_to_deg(msg.lon),
+        mm_to_m(msg.alt),
+        speed,
+        course,
+        vel_ned,
+        int(msg.fix_type),
+        "GPS_RAW_INT",
+    )
+
+
+def baro_from_scaled_pressure(msg) -> BaroSample:
+    """SCALED_PRESSURE*: press_abs hPa, temperature cdegC, time_boot_ms."""
+    return BaroSample(
+        ms_to_s(msg.time_boot_ms), hpa_to_pa(msg.press_abs), cdegc_to_degc(msg.temperature), msg.get_type()
+    )
+
+
+#: MAVLink message type → converter.
+CONVERTERS = {
+    "RAW_IMU": imu_from_raw_imu,
+    "SCALED_IMU": imu_from_scaled_imu,
+    "SCALED_IMU2": imu_from_scaled_imu,
+    "SCALED_IMU3": imu_from_scaled_imu,
+    "HIGHRES_IMU": imu_from_highres_imu,
+    "GPS_RAW_INT": gps_from_gps_raw_int,
+    "SCALED_PRESSURE": baro_from_scaled_pressure,
+    "SCALED_PRESSURE2": baro_from_scaled_pressure,
+    "SCALED_PRESSURE3": baro_from_scaled_pressure,
+}
+
+
+def sample_from_message(msg) -> ImuSample | GpsSample | BaroSample | None:
+    """The sample a pymavlink message carries, or None for message types that carry no sensor data."""
+    convert = CONVERTERS.get(msg.get_type())
+    return convert(msg) if convert else None
+
+
+#: MAVLink attitude message → reference name.
+REFERENCE_MESSAGES = {"ATTITUDE": "onboard", "AHRS2": "ahrs2", "SIMSTATE": "truth"}
+
+#: Messages whose time_usec is microseconds since boot (others may carry UNIX or GPS time).
+_BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
+
+
+class VehicleClock:
+    """The latest vehicle time (s since boot) seen from each system, for messages without one.
+
+    Timestamped messages are those with `time_boot_ms`, plus RAW_IMU / HIGHRES_IMU `time_usec`.
+    A message without a timestamp (AHRS2, SIMSTATE) is given the vehicle time of the most recent
+    timestamped message from the same system that arrived before it; see gcs.core.comparison.
+    """
+
+    def __init__(self) -> None:
+        self.latest: dict[int, float] = {}
+
+    def observe(self, msg) -> float | None:
+        """Update from msg and return the vehicle time to assign to it (None: nothing seen yet)."""
+        system = msg.get_srcSystem()
+        if hasattr(msg, "time_boot_ms"):
+            self.latest[system] = ms_to_s(msg.time_boot_ms)
+        elif msg.get_type() in _BOOT_USEC_MESSAGES:
+            self.latest[system] = usec_to_s(msg.time_usec)
+        return self.latest.get(system)
+
+
+def attitude_from_message(msg, t: float) -> AttitudeSample | None:
+    """ATTITUDE / AHRS2 / SIMSTATE (roll, pitch, yaw in rad) at vehicle time t, else None."""
+    source = REFERENCE_MESSAGES.get(msg.get_type())
+    if source is None:
+        return None
+    return AttitudeSample(t, float(msg.roll), float(msg.pitch), float(msg.yaw), source)
+
+
+# --- one vehicle's message stream → samples ------------------------------------------------------
+
+#: IMU message types in order of preference: RAW_IMU (ArduPilot's first IMU) and HIGHRES_IMU
+#: (PX4) are primary; SCALED_IMU* are used only when no primary one arrives.
+IMU_TYPES = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+_PRIMARY_IMU = frozenset(IMU_TYPES[:2])
+#: Seconds of vehicle time a secondary IMU type must stream alone before it is chosen.
+SECONDARY_IMU_WAIT = 2.0
+#: A GPS time further than this from the vehicle clock is not boot time (UNIX/GPS epoch).
+GPS_CLOCK_TOLERANCE = 5.0
+
+
+class MessageSampler:
+    """One vehicle's MAVLink messages, in arrival order → samples on its clock.
+
+    The one place where a live stream and a replayed .tlog become `ImuSample`, `GpsSample` and
+    reference `AttitudeSample`s, so live and offline numbers are computed from identical input.
+    The vehicle is `system` (None: the first that sends IMU data); the IMU stream is
+    `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
+    streamed alone for SECONDARY_IMU_WAIT s). GPS_RAW_INT time_usec is used when it is boot
+    time; otherwise (UNIX time on ArduPilot) the fix gets the vehicle time at its arrival.
+    """
+
+    def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
+        self.imu_type = imu_type
+        self.system = system
+        self.clock = VehicleClock()
+        self._secondary_since: dict[str, float] = {}
+
+    def feed(self, msg) -> ImuSample | GpsSample | AttitudeSample | None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA" or kind.startswith("UNKNOWN"):
+            return None
+        system = msg.get_srcSystem()
+        if self.system is None:
+            if kind not in IMU_TYPES:
+                return None
+            self.system = system
+        if system != self.system:
+            return None
+        now = self.clock.observe(msg)
+        if now is None:
+            return None
+        if kind in IMU_TYPES:
+            return sample_from_message(msg) if self._is_imu_stream(kind, now) else None
+        if kind == "GPS_RAW_INT":
+            gps = gps_from_gps_raw_int(msg)
+            if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:
+                gps = dataclasses.replace(gps, t=now)
+            return gps
+        return attitude_from_message(msg, now)
+
+    def _is_imu_stream(self, kind: str, now: float) -> bool:
+        if self.imu_type is None:
+            if kind in _PRIMARY_IMU:
+                self.imu_type = kind
+            else:
+                since = self._secondary_since.setdefault(kind, now)
+                if now - since >= SECONDARY_IMU_WAIT:
+                    self.imu_type = kind
+        return kind == self.imu_type
+
+
+#: Vehicle parameters holding the magnetic declination, and their unit → rad conversion.
+DECLINATION_PARAMS: dict[str, Callable[[float], float]] = {
+    "COMPASS_DEC": float,  # ArduPilot: radians
+    "EKF2_MAG_DECL": math.radians,  # PX4: degrees
+}
+
+#: Every message type that can become an estimation input.
+INPUT_TYPES = frozenset({*IMU_TYPES, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTATE", "PARAM_VALUE"})
+
+
+class MessageInputs:
+    """One vehicle's messages → estimation inputs: its samples (`MessageSampler`) and a
+    `GainChange` of every estimator's declination when the vehicle reports a new one."""
+
+    def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
+        self.sampler = MessageSampler(imu_type, system)
+        self.declination: float | None = None
+
+    def feed(self, msg: MAVLinkMessage) -> EstimationInput | None:
+        if msg.get_type() == "PARAM_VALUE":
+            return self._declination(msg)
+        return self.sampler.feed(msg)
+
+    def _declination(self, msg: MAVLinkMessage) -> GainChange | None:
+        to_rad = DECLINATION_PARAMS.get(param_name(msg))
+        if to_rad is None:
+            return None
+        value = to_rad(msg.param_value)
+        if not -math.pi <= value <= math.pi or value == self.declination:
+            return None
+        self.declination = value
+        return GainChange(None, "declination", value)

@@ -1,0 +1,144 @@
+"""The message bus: every decoded message, stamped, fanned out to subscribers.
+
+The link publishes from its receive callback and must never wait, so each subscriber has
+its own bounded queue; when a slow subscriber's queue is full the OLDEST message is dropped
+and counted for that subscriber alone. Publishing costs one append per interested subscriber.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from gcs.mavlink.dialect import MAVLinkMessage
+
+#: Vehicle time fields above this many µs are UNIX-epoch times (e.g. GPS_RAW_INT.time_usec on
+#: ArduPilot), not time since boot.
+_EPOCH_US = 10**15
+
+
+@dataclass(slots=True)
+class Message:
+    """A decoded MAVLink message as it arrived.
+
+    host_time: the host's monotonic clock at arrival, s (for latency and rates).
+    wall_time: the host's UNIX time at arrival, s (for .tlog records).
+    vehicle_time: the sender's time since boot in s, from time_usec or time_boot_ms when the
+    message has one (None otherwise: AHRS2, SIMSTATE, HEARTBEAT, ...).
+    """
+
+    msg: MAVLinkMessage
+    type: str
+    host_time: float
+    wall_time: float
+    vehicle_time: float | None
+    sysid: int
+    compid: int
+    link: str = ""
+
+    @property
+    def raw(self) -> bytes:
+        return bytes(self.msg.get_msgbuf())
+
+
+def vehicle_time_of(msg: MAVLinkMessage) -> float | None:
+    """Time since boot in seconds from the message's own time field, if it has one."""
+    usec = getattr(msg, "time_usec", None)
+    if usec is not None:
+        return usec / 1e6 if 0 < usec < _EPOCH_US else None
+    ms = getattr(msg, "time_boot_ms", None)
+    if ms is not None:
+        return ms / 1e3
+    return None
+
+
+class Subscription:
+    """One subscriber's bounded queue. Iterate it with `async for`, or call `get()`."""
+
+    def __init__(self, bus: MessageBus, name: str, types: frozenset[str] | None, maxlen: int) -> None:
+        self.bus = bus
+        self.name = name
+        self.types = types
+        self.queue: deque[Message] = deque(maxlen=maxlen)
+        self.delivered = 0
+        self.dropped = 0
+        self._ready = asyncio.Event()
+
+    def _offer(self, item: Message) -> None:
+        if len(self.queue) == self.queue.maxlen:
+            self.dropped += 1  # deque(maxlen) discards the oldest on append
+        self.queue.append(item)
+        self.delivered += 1
+        self._ready.set()
+
+    async def get(self, timeout: float | None = None) -> Message | None:
+        """The oldest queued message, waiting for one; None if `timeout` s pass first.
+
+        Uses `asyncio.timeout`, not `wait_for`: on Python 3.11 `wait_for` can swallow a
+        cancellation that arrives as the message does, and a stopping station would hang.
+        """
+        try:
+            async with asyncio.timeout(timeout):
+                while not self.queue:
+                    self._ready.clear()
+                    await self._ready.wait()
+        except TimeoutError:
+            return None
+        return self.queue.popleft()
+
+    def drain(self) -> list[Message]:
+        """Everything queued now, without waiting."""
+        items = list(self.queue)
+        self.queue.clear()
+        return items
+
+    def __aiter__(self):
+        return self
+
+    async def __anext__(self) -> Message:
+        return await self.get()
+
+    def close(self) -> None:
+        self.bus.unsubscribe(self)
+
+
+class MessageBus:
+    def __init__(self) -> None:
+        self._all: list[Subscription] = []
+        self._by_type: dict[str, list[Subscription]] = {}
+        self.published = 0
+
+    def subscribe(self, name: str, types: Iterable[str] | None = None, maxlen: int = 10_000) -> Subscription:
+        """A new subscriber for the given message types (None: every message)."""
+        sub = Subscription(self, name, frozenset(types) if types is not None else None, maxlen)
+        if sub.types is None:
+            self._all.append(sub)
+        else:
+            for t in sub.types:
+                self._by_type.setdefault(t, []).append(sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscription) -> None:
+        if sub.types is None:
+            if sub in self._all:
+                self._all.remove(sub)
+        else:
+            for t in sub.types:
+                subs = self._by_type.get(t, [])
+                if sub in subs:
+                    subs.remove(sub)
+
+    def publish(self, item: Message) -> None:
+        self.published += 1
+        for sub in self._all:
+            sub._offer(item)
+        for sub in self._by_type.get(item.type, ()):
+            sub._offer(item)
+
+    def subscriptions(self) -> list[Subscription]:
+        seen: dict[int, Subscription] = {id(s): s for s in self._all}
+        for subs in self._by_type.values():
+            seen.update((id(s), s) for s in subs)
+        return list(seen.values())

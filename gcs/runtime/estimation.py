@@ -1,0 +1,49 @@
+"""Live estimation: the estimation pipeline on a live link's message bus."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from gcs.core.estimation import AttitudePoint, EstimationPipeline
+from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.runtime.link import Link
+
+
+class LiveEstimation:
+    """Runs an EstimationPipeline on a live link's bus and hands every AttitudePoint to the
+    listeners (dashboard streams, the session recorder).
+
+    `messages_fed` counts the input messages taken from the bus: the input position at which a
+    gain change is recorded, so that a replay re-applies it exactly where it was applied live.
+    """
+
+    def __init__(self, link: Link, pipeline: EstimationPipeline | None = None) -> None:
+        self.link = link
+        self.pipeline = pipeline or EstimationPipeline()
+        self.inputs = MessageInputs()
+        self.messages_fed = 0
+        self._listeners: list[Callable[[list[AttitudePoint]], None]] = []
+
+    def add_listener(self, callback: Callable[[list[AttitudePoint]], None]) -> None:
+        self._listeners.append(callback)
+
+    @property
+    def imu_type(self) -> str | None:
+        return self.inputs.sampler.imu_type
+
+    async def run(self) -> None:
+        sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        try:
+            while True:
+                items = [await sub.get(), *sub.drain()]
+                points: list[AttitudePoint] = []
+                for item in items:
+                    self.messages_fed += 1
+                    estimation_input = self.inputs.feed(item.msg)
+                    if estimation_input is not None:
+                        points += self.pipeline.feed(estimation_input)
+                if points:
+                    for callback in self._listeners:
+                        callback(points)
+        finally:
+            sub.close()

@@ -1,0 +1,287 @@
+"""The link to one vehicle: a transport kept open, MAVLink decoded, counted and published,
+the ground station's own heartbeat sent, and the link state followed.
+
+State: waiting → connected (first autopilot heartbeat) → lost (no heartbeat for
+`heartbeat_timeout` s) → connected again, automatically. A serial port that vanishes is
+reopened when it comes back, a TCP peer that drops is redialled with backoff, UDP resumes
+when packets return: never a restart.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+
+from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
+from gcs.mavlink.framing import MavlinkDecoder
+from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
+from gcs.runtime.link_stats import LinkStats
+from gcs.transport.address import Address, parse_address
+from gcs.transport.pipes import Transport, make_transport
+
+#: Baud rates tried by `baud="auto"`, most likely first (telemetry radio, then USB/companion).
+AUTO_BAUDS = (57600, 115200, 921600, 500000, 230400, 38400, 19200, 9600)
+
+GCS_SYSID = 255
+GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190, as ground stations use
+
+
+class LinkState(StrEnum):
+    WAITING = "waiting"
+    CONNECTED = "connected"
+    LOST = "lost"
+
+
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """Something that happened to the link, for the status page and the session log."""
+
+    host_time: float
+    wall_time: float
+    kind: str  # "state", "transport", "baud", "error"
+    detail: str
+
+
+async def keep_open(
+    make: Callable[[], Transport],
+    on_data: Callable[[bytes], None],
+    on_event: Callable[[str, str], None],
+    on_open: Callable[[Transport | None], None],
+    first_backoff: float = 0.5,
+    max_backoff: float = 5.0,
+) -> None:
+    """Open a transport and reopen it whenever it closes, with exponential backoff.
+    Returns when a transport that cannot be reopened (a replayed file) has ended."""
+    backoff = first_backoff
+    failing = False
+    while True:
+        transport = make()
+        try:
+            await transport.open(on_data)
+        except OSError as exc:
+            if not failing:
+                on_event("transport", f"cannot open {transport.address}: {exc}; retrying")
+            failing = True
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2, max_backoff)
+            continue
+        failing = False
+        backoff = first_backoff
+        on_open(transport)
+        on_event("transport", f"opened {transport.address}")
+        try:
+            await transport.wait_closed()
+        finally:
+            transport.close()
+            on_open(None)
+        on_event("transport", f"closed {transport.address}")
+        if not transport.reconnectable:
+            return
+        await asyncio.sleep(backoff)
+
+
+class Link:
+    """One vehicle link. Create it, then `await link.run()` (until cancelled or replay ends)."""
+
+    def __init__(
+        self,
+        address: str | Address,
+        *,
+        bus: MessageBus | None = None,
+        baud: int | str = 57600,
+        speed: float = 1.0,
+        heartbeat_timeout: float = 3.0,
+        heartbeat_rate: float = 1.0,
+        name: str = "vehicle",
+    ) -> None:
+        self.address = parse_address(address) if isinstance(address, str) else address
+        self.bus = bus or MessageBus()
+        self.baud = baud
+        self.speed = speed
+        self.heartbeat_timeout = heartbeat_timeout
+        self.heartbeat_rate = heartbeat_rate
+        self.name = name
+        self.state = LinkState.WAITING
+        self.events: deque[LinkEvent] = deque(maxlen=1000)
+        self.stats = LinkStats()
+        self.decoder = MavlinkDecoder()
+        self.stats.framing = self.decoder.counters
+        self.outputs: list = []  # gcs.runtime.forward.Output
+        self.target_system: int | None = None
+        self.target_component: int | None = None
+        self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
+        self.last_heartbeat: float | None = None  # host monotonic s
+        self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
+        self._transport: Transport | None = None
+        self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
+        self._state_listeners: list[Callable[[LinkState, LinkState], None]] = []
+        self._send_listeners: list[Callable[[bytes], None]] = []
+        self._connected = asyncio.Event()
+
+    # ---- public API -------------------------------------------------------------------
+    async def run(self) -> None:
+        tasks = [asyncio.create_task(self._heartbeat_loop()), asyncio.create_task(self._watchdog_loop())]
+        try:
+            if self.address.kind == "serial" and self.baud == "auto":
+                await self._detect_baud()
+            await keep_open(self._make_transport, self._on_data, self._event, self._set_transport)
+        finally:
+            for t in tasks:
+                t.cancel()
+
+    def add_state_listener(self, callback: Callable[[LinkState, LinkState], None]) -> None:
+        """callback(old, new) on every state change, in the event loop."""
+        self._state_listeners.append(callback)
+
+    def add_send_listener(self, callback: Callable[[bytes], None]) -> None:
+        """callback(packet) for every packet sent to the vehicle (ours and forwarded ones),
+        so a recording holds both directions."""
+        self._send_listeners.append(callback)
+
+    async def wait_connected(self, timeout: float | None = None) -> bool:
+        try:
+            async with asyncio.timeout(timeout):
+                await self._connected.wait()
+            return True
+        except TimeoutError:
+            return False
+
+    @property
+    def is_open(self) -> bool:
+        return self._transport is not None
+
+    def send(self, msg: MAVLinkMessage) -> None:
+        """Send a message from the ground station, in the protocol version the vehicle speaks."""
+        self.send_raw(self._encoder.encode(msg))
+
+    def send_raw(self, packet: bytes) -> None:
+        if self._transport is None:
+            return
+        self._transport.write(packet)
+        self.stats.bytes_out += len(packet)
+        self.stats.packets_out += 1
+        for callback in self._send_listeners:
+            callback(packet)
+
+    def status(self) -> dict:
+        now = time.monotonic()
+        return {
+            "name": self.name,
+            "address": str(self.address),
+            "state": str(self.state),
+            "transport_open": self.is_open,
+            "baud": self.baud if self.address.kind == "serial" else None,
+            "target_system": self.target_system,
+            "target_component": self.target_component,
+            "mavlink_version": self.vehicle_mavlink,
+            "heartbeat_age_s": None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
+            "stats": self.stats.as_dict(),
+            "events": [{"wall_time": e.wall_time, "kind": e.kind, "detail": e.detail} for e in list(self.events)[-50:]],
+        }
+
+    # ---- receive path -----------------------------------------------------------------
+    def _on_data(self, data: bytes) -> None:
+        now = time.monotonic()
+        wall = time.time()
+        self.stats.bytes_in += len(data)
+        for msg in self.decoder.feed(data, final=self._datagram):
+            msg_type = msg.get_type()
+            self.stats.count(msg_type)
+            if self.outputs:
+                raw = msg.get_msgbuf()
+                for out in self.outputs:
+                    out.write(raw)
+            header = getattr(msg, "_header", None)
+            sysid = header.srcSystem if header else 0
+            compid = header.srcComponent if header else 0
+            if msg_type == "HEARTBEAT":
+                self._on_heartbeat(msg, sysid, compid, now)
+            self.bus.publish(Message(msg, msg_type, now, wall, vehicle_time_of(msg), sysid, compid, self.name))
+
+    def _on_heartbeat(self, msg, sysid: int, compid: int, now: float) -> None:
+        if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID or msg.type == mavlink.MAV_TYPE_GCS:
+            return  # another ground station, a gimbal, a companion: not the vehicle
+        if self.target_system is None:
+            self.target_system, self.target_component = sysid, compid
+        elif (sysid, compid) != (self.target_system, self.target_component):
+            return
+        version = 2 if msg.get_msgbuf()[0] == MARKER_V2 else 1
+        if version != self.vehicle_mavlink:
+            self.vehicle_mavlink = version
+            self._encoder.mavlink1 = version == 1
+        self.last_heartbeat = now
+        if self.state != LinkState.CONNECTED:
+            self._set_state(LinkState.CONNECTED)
+
+    # ---- periodic work ----------------------------------------------------------------
+    async def _heartbeat_loop(self) -> None:
+        msg = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )
+        period = 1.0 / self.heartbeat_rate
+        while True:
+            self.send(msg)
+            await asyncio.sleep(period)
+
+    async def _watchdog_loop(self) -> None:
+        next_sample = 0.0
+        while True:
+            now = time.monotonic()
+            if now >= next_sample:
+                self.stats.sample(now)
+                next_sample = now + 1.0
+            if (
+                self.state == LinkState.CONNECTED
+                and self.last_heartbeat is not None
+                and now - self.last_heartbeat > self.heartbeat_timeout
+            ):
+                self._set_state(LinkState.LOST)
+            await asyncio.sleep(0.1)
+
+    # ---- helpers ----------------------------------------------------------------------
+    def _make_transport(self) -> Transport:
+        baud = self.baud if isinstance(self.baud, int) else AUTO_BAUDS[0]
+        return make_transport(self.address, baud=baud, speed=self.speed)
+
+    def _set_transport(self, transport: Transport | None) -> None:
+        self._transport = transport
+
+    def _set_state(self, new: LinkState) -> None:
+        old, self.state = self.state, new
+        if new == LinkState.CONNECTED:
+            self._connected.set()
+        else:
+            self._connected.clear()
+        self._event("state", f"{old} -> {new}")
+        for callback in self._state_listeners:
+            callback(old, new)
+
+    def _event(self, kind: str, detail: str) -> None:
+        self.events.append(LinkEvent(time.monotonic(), time.time(), kind, detail))
+
+    async def _detect_baud(self, listen: float = 1.5) -> None:
+        """Try the usual baud rates until one yields a valid MAVLink packet; keep that one."""
+        while True:
+            for baud in AUTO_BAUDS:
+                decoder = MavlinkDecoder()
+                transport = make_transport(self.address, baud=baud)
+                try:
+                    await transport.open(decoder.feed)
+                except OSError as exc:
+                    self._event("transport", f"baud detection: cannot open {self.address}: {exc}")
+                    break
+                try:
+                    deadline = time.monotonic() + listen
+                    while time.monotonic() < deadline and decoder.counters.packets == 0:
+                        await asyncio.sleep(0.05)
+                finally:
+                    transport.close()
+                if decoder.counters.packets:
+                    self.baud = baud
+                    self._event("baud", f"detected {baud} baud on {self.address}")
+                    return
+            await asyncio.sleep(1.0)

@@ -1,0 +1,325 @@
+"""Records a ground station's session to disk from its first byte.
+
+A `SessionRecorder` belongs to one `GroundStation`. `start()` (synchronous, before the link
+runs) first closes sessions a crash left open, then opens a new session folder and hooks in:
+- a bus subscription for every received packet → `telemetry.tlog` with the arrival wall time
+  (low 2 bits 0), and the link's send listener for every packet sent (low 2 bits 3, as MAVProxy
+  marks its own packets);
+- the estimation listener → the `attitude` table; a comparison snapshot every second → the
+  `comparison` table;
+- the station's event log → `events.jsonl` (gain changes also carry `input_index`, the number
+  of estimation input messages the live pipeline had consumed when the gain was applied, which
+  is where a replay applies it again);
+- vehicle, parameters and estimator configuration → `meta.json`.
+The event loop only appends to buffers; a `SessionWriter` thread writes them every 0.25 s.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+
+from gcs import __version__
+from gcs.mavlink.params import param_name
+from gcs.mavlink.tlog import tlog_record
+from gcs.sessions import columnar, layout
+from gcs.sessions.recovery import close_session, recover_sessions, release_lock, take_lock
+from gcs.sessions.writer import SessionWriter
+
+log = logging.getLogger(__name__)
+
+#: Seconds between flushes to the OS: a kill -9 loses at most about this much.
+FLUSH_INTERVAL = 0.25
+#: Seconds between comparison snapshots and meta.json refreshes.
+SNAPSHOT_INTERVAL = 1.0
+#: Link bits of a tlog timestamp (MAVProxy convention): 0 received, 3 sent by the ground station.
+RECEIVED, SENT = 0, 3
+#: VehicleState fields kept in meta.json (the ones that describe the vehicle, not its moment).
+VEHICLE_FIELDS = ("sysid", "compid", "autopilot", "vehicle_type", "mavlink_version", "firmware")
+
+
+def tlog_usec(wall_time: float, link_bits: int) -> int:
+    """µs UNIX timestamp with the low 2 bits replaced by the link bits."""
+    return (int(wall_time * 1e6) & ~3) | link_bits
+
+
+class Session:
+    """One session folder being recorded: its writer thread, lock, encoders and meta."""
+
+    def __init__(self, folder: Path, meta: dict, on_error) -> None:
+        self.meta = meta
+        self.encoders = {table: columnar.StreamEncoder(schema) for table, schema in columnar.SCHEMAS.items()}
+        self.rows: dict[str, list[tuple]] = {table: [] for table in columnar.SCHEMAS}
+        self._rows_lock = threading.Lock()
+        layout.write_meta(folder, meta)  # at once: the folder is a session (listed, recoverable) from now on
+        self.lock_fd = take_lock(folder)
+        self.writer = SessionWriter(folder, FLUSH_INTERVAL, on_error, sources=[self._encode_tables])
+        self.writer.start()
+
+    @property
+    def folder(self) -> Path:
+        return self.writer.folder
+
+    def add_rows(self, table: str, rows: list[tuple]) -> None:
+        if self.writer.failed is None:
+            with self._rows_lock:
+                self.rows[table].extend(rows)
+
+    def _encode_tables(self) -> dict[str, bytes]:
+        out = {}
+        for table, encoder in self.encoders.items():
+            with self._rows_lock:
+                rows, self.rows[table] = self.rows[table], []
+            out[layout.stream_path(Path(""), table).name] = encoder.encode(rows)
+        return out
+
+    def close(self, end: float) -> dict:
+        """Last flush, Parquet conversion, end time in meta; the lock is released."""
+        self.writer.close()
+        self.meta["end"] = end
+        try:
+            if self.writer.failed is None:
+                self.meta = close_session(self.folder, self.meta, recovered=False)
+            else:
+                layout.write_meta(self.folder, dict(self.meta, error=str(self.writer.failed)))
+        finally:
+            release_lock(self.lock_fd)
+        return self.meta
+
+
+class SessionRecorder:
+    def __init__(self, station, root: str | os.PathLike) -> None:
+        self.station = station
+        self.root = Path(root)
+        self.session: Session | None = None
+        self.state = "off"  # off | recording | failed | stopped
+        self.error: str | None = None
+        self.recovered: list[dict] = []
+        self.packets = {"received": 0, "sent": 0}
+        self.params: dict[str, float] = {}
+        self._sub = None
+        self._meta_dirty = False
+        self._loop: asyncio.AbstractEventLoop | None = None
+        station.link.add_send_listener(self._on_send)
+        station.events.add_listener(self._on_event)
+        if station.estimation is not None:
+            station.estimation.add_listener(self._on_points)
+
+    # ---- lifecycle ---------------------------------------------------------------------
+    def start(self) -> None:
+        """Recover abandoned sessions, then open a new one. Errors are reported, not raised."""
+        try:
+            self._loop = asyncio.get_running_loop()
+        except RuntimeError:
+            self._loop = None
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            self.recovered = recover_sessions(self.root)
+        except OSError as exc:
+            self.report_error(f"cannot use recording folder {self.root}: {exc.strerror or exc}")
+            return
+        for report in self.recovered:
+            self.station.events.record("recording", "recorder", event="recovered", **report)
+        self.start_recording()
+
+    def start_recording(self) -> None:
+        """Open a new session folder now (the dashboard's "start recording")."""
+        if self.state == "recording":
+            return
+        self.stop_recording()  # a session stopped by an error is closed before the next one opens
+        start = time.time()
+        folder = layout.unique_folder(self.root, layout.folder_name(start, self._vehicle_label() or "unknown"))
+        try:
+            folder.mkdir(parents=True)
+            self.session = Session(folder, self._initial_meta(start), self._on_writer_error)
+        except OSError as exc:
+            self.report_error(f"cannot create session folder {folder}: {exc.strerror or exc}")
+            return
+        self.state, self.error = "recording", None
+        self.packets = {"received": 0, "sent": 0}
+        if self._sub is None:
+            self._sub = self.station.bus.subscribe("recorder", maxlen=200_000)
+        self.station.events.record("recording", "recorder", event="start", folder=str(folder))
+
+    def stop_recording(self, client: str = "recorder") -> dict | None:
+        """Stop and close the current session now (blocking: the station's shutdown); returns its meta."""
+        session = self.detach(client)
+        if session is None:
+            return None
+        try:
+            return self.finish(session)
+        except OSError as exc:
+            self.report_error(f"cannot close session {session.folder}: {exc.strerror or exc}")
+            return None
+
+    def detach(self, client: str = "recorder") -> Session | None:
+        """Stop feeding the current session (in the event loop); close it with `finish`."""
+        session = self.session
+        if session is None:
+            return None
+        self.station.events.record("recording", client, event="stop", folder=str(session.folder))
+        self._drain()
+        self.session = None
+        self.state = "stopped" if self.state == "recording" else self.state
+        return session
+
+    @staticmethod
+    def finish(session: Session) -> dict:
+        """Close a detached session: last flush, Parquet, end time. Blocking disk work, so a request
+        handler runs it in a worker thread. OSError if the folder cannot be written."""
+        return session.close(time.time())
+
+    async def run(self) -> None:
+        """Move received packets from the bus to the writer; refresh meta and snapshots."""
+        next_snapshot = time.monotonic() + SNAPSHOT_INTERVAL
+        while True:
+            await asyncio.sleep(FLUSH_INTERVAL / 2)
+            self._drain()
+            if time.monotonic() >= next_snapshot:
+                next_snapshot += SNAPSHOT_INTERVAL
+                self._snapshot()
+
+    def close(self) -> None:
+        """Stop recording and unhook from the bus (GroundStation.stop calls this)."""
+        self.stop_recording()
+        if self._sub is not None:
+            self._sub.close()
+            self._sub = None
+
+    def status(self) -> dict:
+        """What the dashboard shows: state, folder, size, counts, and the error if any."""
+        session = self.session
+        writer = session.writer if session else None
+        return {
+            "state": self.state,
+            "folder": str(session.folder) if session else None,
+            "root": str(self.root),
+            "bytes_written": writer.bytes_written if writer else 0,
+            "last_flush_age_s": (
+                round(time.monotonic() - writer.last_flush, 3) if writer and writer.last_flush is not None else None
+            ),
+            "packets": dict(self.packets),
+            "dropped": self._sub.dropped if self._sub else 0,
+            "error": self.error,
+            "recovered": self.recovered,
+        }
+
+    def note(self, text: str, client: str) -> None:
+        """A user's note, kept in the session's event log."""
+        self.station.events.record("note", client, text=text)
+
+    # ---- producers (event loop) --------------------------------------------------------
+    def _drain(self) -> None:
+        if self._sub is None:
+            return
+        items = self._sub.drain()
+        session = self.session
+        if session is None or not items:
+            return
+        parts = []
+        for item in items:
+            parts.append(tlog_record(tlog_usec(item.wall_time, RECEIVED), item.raw))
+            if item.type == "PARAM_VALUE":
+                self._on_param(item.msg)
+        session.writer.append(layout.TLOG, b"".join(parts))
+        self.packets["received"] += len(items)
+
+    def _on_send(self, packet: bytes) -> None:
+        if self.session is not None:
+            self.session.writer.append(layout.TLOG, tlog_record(tlog_usec(time.time(), SENT), packet))
+            self.packets["sent"] += 1
+
+    def _on_points(self, points) -> None:
+        if self.session is not None:
+            self.session.add_rows("attitude", columnar.attitude_rows(points, time.time()))
+
+    def _on_event(self, event) -> None:
+        if self.session is None:
+            return
+        line = event.as_dict()
+        if event.kind == "gain" and self.station.estimation is not None:
+            line["input_index"] = self.station.estimation.messages_fed
+        self.session.writer.append(layout.EVENTS, (json.dumps(line, default=str) + "\n").encode())
+
+    def _on_param(self, msg) -> None:
+        name = param_name(msg)
+        if name not in self.params:
+            self.params[name] = float(msg.param_value)
+            self._meta_dirty = True
+
+    def _snapshot(self) -> None:
+        session = self.session
+        if session is None:
+            return
+        estimation = self.station.estimation
+        if estimation is not None:
+            summary = estimation.pipeline.summary()
+            session.add_rows("comparison", columnar.comparison_rows(summary, time.time()))
+            session.meta["estimation"]["detected_imu_type"] = estimation.imu_type
+        vehicle = self._vehicle()
+        if vehicle != session.meta["vehicle"] or self._meta_dirty:
+            session.meta["vehicle"] = vehicle
+            session.meta["params"] = dict(self.params)
+            self._meta_dirty = False
+            session.writer.set_meta(dict(session.meta))
+            label = vehicle.get("label")
+            if label and session.folder.name.endswith("_unknown"):
+                session.writer.rename_folder(
+                    layout.unique_folder(self.root, session.folder.name[: -len("unknown")] + layout.safe_label(label))
+                )
+
+    # ---- helpers -----------------------------------------------------------------------
+    def _vehicle_label(self) -> str | None:
+        v = self.station.vehicle
+        if not v.heartbeats:
+            return None
+        return f"{v.autopilot}-{(v.vehicle_type or '').removeprefix('MAV_TYPE_')}-{self.station.link.target_system}"
+
+    def _vehicle(self) -> dict:
+        state = self.station.vehicle.as_dict()
+        return {"label": self._vehicle_label(), **{k: state[k] for k in VEHICLE_FIELDS}}
+
+    def _initial_meta(self, start: float) -> dict:
+        link = self.station.link
+        estimation = self.station.estimation
+        pipeline = estimation.pipeline if estimation else None
+        return {
+            "format": "gcs-session/1",
+            "start": start,
+            "end": None,
+            "pid": os.getpid(),
+            "gcs_version": __version__,
+            "link": {"address": str(link.address), "baud": link.baud},
+            "vehicle": self._vehicle(),
+            "estimation": None
+            if pipeline is None
+            else {
+                "imu_type": estimation.inputs.sampler.imu_type,
+                "system": estimation.inputs.sampler.system,
+                "detected_imu_type": None,
+                "estimators": {
+                    name: {"preset": est.preset, "gains": dict(est.gains.values)}
+                    for name, est in pipeline.estimators.items()
+                },
+            },
+            "params": dict(self.params),
+            "recovered": False,
+        }
+
+    def _on_writer_error(self, exc: OSError, name: str) -> None:
+        """From the writer thread: report in the loop (events, status), once."""
+        message = f"recording stopped: cannot write {name}: {exc.strerror or exc}; what was written is kept"
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.call_soon_threadsafe(self.report_error, message)
+        else:
+            self.report_error(message)
+
+    def report_error(self, message: str) -> None:
+        self.state, self.error = "failed", message
+        log.error("%s", message)
+        self.station.events.record("recording", "recorder", event="error", error=message)

@@ -1,0 +1,115 @@
+"""Run the dashboard next to a GroundStation in the current event loop: uvicorn serving the
+FastAPI app, viser (its own thread and port, same host) with the pose view and gain panel, and
+the 30 Hz pose update. `gcs serve`, `gcs demo`, the tests and the benchmarks all use this."""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import secrets
+import socket
+
+import uvicorn
+
+from gcs.runtime.station import GroundStation
+from gcs.server.app import create_app
+from gcs.server.live import LiveHub
+
+#: Pose view refresh, Hz (the eye does not need the 200 Hz the plots get).
+POSE_HZ = 30.0
+
+
+def is_loopback(host: str) -> bool:
+    """True when only this machine can reach host ("localhost", 127.x, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class DashboardServer:
+    """Start with `await start()`, stop with `await stop()`. port=0 picks a free port; the ports
+    actually bound are `port` and `viser_port` after start (viser silently moves to the next
+    free port when its own is taken, so it is always read back)."""
+
+    def __init__(
+        self,
+        station: GroundStation,
+        host: str = "127.0.0.1",
+        port: int = 8000,
+        *,
+        viser_port: int | None = None,
+        viser: bool = True,
+        hub: LiveHub | None = None,
+        send_buffer: int = 256 * 1024,
+    ) -> None:
+        self.station = station
+        self.host = host
+        self.port = port
+        self.viser_port = viser_port
+        self.use_viser = viser
+        self.hub = hub or LiveHub()
+        self.send_buffer = send_buffer
+        self.token = None if is_loopback(host) else secrets.token_urlsafe(16)
+        self.viser = None
+        self._server: uvicorn.Server | None = None
+        self._tasks: list[asyncio.Task] = []
+
+    @property
+    def url(self) -> str:
+        base = f"http://{self.host}:{self.port}/"
+        return f"{base}?token={self.token}" if self.token else base
+
+    async def start(self) -> None:
+        sock = socket.socket(socket.AF_INET6 if ":" in self.host else socket.AF_INET)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        # Inherited by every accepted connection: caps the kernel memory a viewer that stops
+        # reading can hold, and makes its back-pressure reach its queue (and drop counter) in
+        # seconds instead of minutes of send-buffer autotuning.
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
+        sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
+        self.port = sock.getsockname()[1]
+        app = create_app(self.station, self.hub, token=self.token)
+        if self.use_viser:
+            self._start_viser(app.state.gains)
+            app.state.viser_port = self.viser_port
+        self._server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_ping_interval=None))
+        self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
+        while not self._server.started:
+            if self._tasks[0].done():
+                self._tasks[0].result()  # raises why uvicorn did not start
+            await asyncio.sleep(0.01)
+        if self.viser is not None:
+            self._tasks.append(asyncio.create_task(self._pose_loop()))
+
+    def _start_viser(self, gains) -> None:
+        import viser  # noqa: PLC0415 - heavy (three.js server); not imported when the 3-D view is off
+
+        from gcs.server.scene import GainPanel, PoseView  # noqa: PLC0415 - imports viser
+
+        self.viser = viser.ViserServer(
+            host=self.host, port=self.viser_port or self.port + 1, verbose=False, label="gcs pose"
+        )
+        self.viser_port = self.viser.get_port()
+        self.pose = PoseView(self.viser, list(self.station.estimation.pipeline.estimators))
+        panel = GainPanel(self.viser, gains, asyncio.get_running_loop(), editable=self.token is None)
+        self.station.events.add_listener(panel.reflect)
+
+    async def _pose_loop(self) -> None:
+        pipeline = self.station.estimation.pipeline
+        while True:
+            self.pose.update(pipeline.latest, {name: est.quaternion for name, est in pipeline.estimators.items()})
+            await asyncio.sleep(1.0 / POSE_HZ)
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            self._server.should_exit = True
+        for task in self._tasks[1:]:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        if self.viser is not None:
+            self.viser.stop()
+            self.viser = None

@@ -1,0 +1,64 @@
+"""Connection strings as MAVProxy and pymavlink users type them.
+
+udpin:0.0.0.0:14550     listen for UDP; replies go to the last sender
+udpout:HOST:PORT        send UDP to HOST:PORT; replies come back on the same socket
+tcp:HOST:PORT           dial a TCP server (SITL, a telemetry bridge)
+tcpin:0.0.0.0:5760      listen for one TCP client
+/dev/ttyUSB0            a serial device (baud rate given separately)
+flight.tlog             a telemetry log replayed as if it were live
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class AddressError(ValueError):
+    """A connection string that cannot be understood."""
+
+
+@dataclass(frozen=True, slots=True)
+class Address:
+    kind: str  # "udpin" | "udpout" | "tcp" | "tcpin" | "serial" | "tlog" | "pty"
+    host: str = ""
+    port: int = 0
+    path: str = ""
+
+    def __str__(self) -> str:
+        if self.kind in ("serial", "tlog"):
+            return self.path
+        if self.kind == "pty":
+            return f"pty:{self.path}"
+        return f"{self.kind}:{self.host}:{self.port}"
+
+
+_NETWORK_KINDS = ("udpin", "udpout", "udp", "tcp", "tcpin")
+
+
+def parse_address(text: str) -> Address:
+    """Parse a connection string; raises AddressError naming what is wrong."""
+    text = text.strip()
+    if not text:
+        raise AddressError("empty connection string")
+    scheme, sep, rest = text.partition(":")
+    if sep and scheme in _NETWORK_KINDS:
+        host, sep2, port_text = rest.rpartition(":")
+        if not sep2 or not host:
+            raise AddressError(f"{text!r}: expected {scheme}:HOST:PORT")
+        try:
+            port = int(port_text)
+        except ValueError:
+            raise AddressError(f"{text!r}: port {port_text!r} is not a number") from None
+        if not 0 <= port <= 65535:
+            raise AddressError(f"{text!r}: port {port} is outside 0-65535")
+        kind = "udpin" if scheme == "udp" else scheme  # pymavlink's "udp:" means listen
+        return Address(kind, host.strip("[]"), port)
+    if sep and scheme == "pty":
+        return Address("pty", path=rest)
+    if text.lower().endswith(".tlog"):
+        return Address("tlog", path=text)
+    if sep and scheme not in ("COM",) and not text.startswith("/"):
+        raise AddressError(
+            f"{text!r}: unknown scheme {scheme!r}; use udpin:, udpout:, tcp:, tcpin:, a serial device or a .tlog"
+        )
+    return Address("serial", path=text)

@@ -1,0 +1,357 @@
+"""Byte pipes to a vehicle or a peer: UDP, TCP, serial and a replayed .tlog.
+
+Every transport has the same small surface, so the link (and the simulator, which is the
+other end of the same pipes in tests) never cares which one it has:
+
+    await t.open(on_data)   # start delivering received bytes to on_data; OSError if not now
+    t.write(data)           # never blocks: what cannot be sent now is dropped and counted
+    await t.wait_closed()   # returns when the pipe is gone (peer hung up, device vanished)
+    t.close()
+
+Received bytes are handed over in the event loop's own callback, without a queue: the link's
+work per chunk is small and bounded, and nothing downstream can make the reader wait.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import socket
+import struct
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+import serial  # pyserial
+
+from gcs.mavlink.tlog import read_tlog_records
+from gcs.transport.address import Address, parse_address
+
+DataCallback = Callable[[bytes], None]
+
+#: Bytes a TCP peer may leave unread before further writes to it are dropped.
+TCP_WRITE_LIMIT = 1 << 20
+#: UDP receive buffer asked of the kernel: at 400 Hz of telemetry the default ~208 KB fills in
+#: a fraction of a second if the event loop is starved (a busy laptop), and packets are lost.
+UDP_RECEIVE_BUFFER = 4 << 20
+
+
+class Transport(ABC):
+    """One byte pipe. `reconnectable` says whether reopening after close makes sense."""
+
+    reconnectable = True
+
+    def __init__(self, address: Address) -> None:
+        self.address = address
+        self.dropped_writes = 0
+        self._closed: asyncio.Future[None] | None = None
+
+    @abstractmethod
+    async def open(self, on_data: DataCallback) -> None: ...
+
+    @abstractmethod
+    def write(self, data: bytes) -> None: ...
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+    async def wait_closed(self) -> None:
+        assert self._closed is not None, "open() first"
+        await asyncio.shield(self._closed)
+
+    def _new_closed_future(self) -> None:
+        self._closed = asyncio.get_running_loop().create_future()
+
+    def _mark_closed(self) -> None:
+        if self._closed is not None and not self._closed.done():
+            self._closed.set_result(None)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.address})"
+
+
+class _DatagramProtocol(asyncio.DatagramProtocol):
+    def __init__(self, owner: UdpTransport) -> None:
+        self.owner = owner
+
+    def datagram_received(self, data: bytes, addr) -> None:
+        self.owner._received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP "port unreachable" while the peer is not listening yet: not a reason to close.
+        pass
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.owner._mark_closed()
+
+
+class UdpTransport(Transport):
+    """`udpin` binds and answers whoever sent last; `udpout` sends to a fixed peer.
+
+    A UDP pipe never "closes" when the peer goes away: the link notices silence by the
+    missing heartbeats and resumes as soon as packets return.
+    """
+
+    def __init__(self, address: Address) -> None:
+        super().__init__(address)
+        self.peer: tuple | None = None if address.kind == "udpin" else (address.host, address.port)
+        self._transport: asyncio.DatagramTransport | None = None
+        self._on_data: DataCallback | None = None
+
+    async def open(self, on_data: DataCallback) -> None:
+        loop = asyncio.get_running_loop()
+        self._on_data = on_data
+        self._new_closed_future()
+        if self.address.kind == "udpin":
+            kwargs = {"local_addr": (self.address.host, self.address.port)}
+        else:
+            family = socket.AF_INET6 if ":" in self.address.host else socket.AF_INET
+            kwargs = {"family": family}
+        self._transport, _ = await loop.create_datagram_endpoint(lambda: _DatagramProtocol(self), **kwargs)
+        sock = self._transport.get_extra_info("socket")
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER)  # capped by rmem_max
+
+    @property
+    def local_port(self) -> int:
+        assert self._transport is not None
+        return self._transport.get_extra_info("sockname")[1]
+
+    def _received(self, data: bytes, addr) -> None:
+        if self.address.kind == "udpin":
+            self.peer = addr
+        self._on_data(data)
+
+    def write(self, data: bytes) -> None:
+        if self._transport is None or self.peer is None or self._transport.is_closing():
+            self.dropped_writes += 1
+            return
+        self._transport.sendto(data, self.peer)
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+        self._mark_closed()
+
+
+class _StreamProtocol(asyncio.Protocol):
+    def __init__(self, on_data: DataCallback, on_lost: Callable[[_StreamProtocol], None]) -> None:
+        self.on_data = on_data
+        self.on_lost = on_lost
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def data_received(self, data: bytes) -> None:
+        self.on_data(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.on_lost(self)
+
+    def write(self, data: bytes) -> bool:
+        t = self.transport
+        if t is None or t.is_closing() or t.get_write_buffer_size() > TCP_WRITE_LIMIT:
+            return False
+        t.write(data)
+        return True
+
+
+class TcpClientTransport(Transport):
+    """`tcp:HOST:PORT`: dial a server. Closes when the peer hangs up; the link redials."""
+
+    def __init__(self, address: Address) -> None:
+        super().__init__(address)
+        self._protocol: _StreamProtocol | None = None
+
+    async def open(self, on_data: DataCallback) -> None:
+        loop = asyncio.get_running_loop()
+        self._new_closed_future()
+        _, self._protocol = await loop.create_connection(
+            lambda: _StreamProtocol(on_data, lambda _p: self._mark_closed()), self.address.host, self.address.port
+        )
+
+    def write(self, data: bytes) -> None:
+        if self._protocol is None or not self._protocol.write(data):
+            self.dropped_writes += 1
+
+    def close(self) -> None:
+        if self._protocol is not None and self._protocol.transport is not None:
+            self._protocol.transport.close()
+        self._mark_closed()
+
+
+class TcpServerTransport(Transport):
+    """`tcpin:HOST:PORT`: listen; every connected client receives what is written and may send.
+
+    The listener stays open while clients come and go, so it only closes when told to.
+    """
+
+    def __init__(self, address: Address) -> None:
+        super().__init__(address)
+        self._server: asyncio.base_events.Server | None = None
+        self.clients: list[_StreamProtocol] = []
+
+    async def open(self, on_data: DataCallback) -> None:
+        loop = asyncio.get_running_loop()
+        self._new_closed_future()
+
+        def new_client() -> _StreamProtocol:
+            p = _StreamProtocol(on_data, self.clients.remove)
+            self.clients.append(p)
+            return p
+
+        self._server = await loop.create_server(new_client, self.address.host, self.address.port, reuse_address=True)
+
+    @property
+    def local_port(self) -> int:
+        assert self._server is not None
+        return self._server.sockets[0].getsockname()[1]
+
+    def write(self, data: bytes) -> None:
+        if not self.clients:
+            self.dropped_writes += 1
+        for client in self.clients:
+            if not client.write(data):
+                self.dropped_writes += 1
+
+    def close(self) -> None:
+        for client in list(self.clients):
+            if client.transport is not None:
+                client.transport.close()
+        if self._server is not None:
+            self._server.close()
+        self._mark_closed()
+
+
+class SerialTransport(Transport):
+    """A serial device (USB CDC, FTDI + telemetry radio, a pseudo-terminal).
+
+    Read through the event loop's reader callback on the non-blocking descriptor. A device
+    that vanishes (unplugged USB, closed pty master) shows up as EIO or end-of-file: the
+    transport closes and the link reopens the same path when it is back.
+    """
+
+    def __init__(self, address: Address, baud: int = 57600) -> None:
+        super().__init__(address)
+        self.baud = baud
+        self._port = None
+        self._fd: int | None = None
+
+    async def open(self, on_data: DataCallback) -> None:
+
+        self._new_closed_future()
+        try:
+            self._port = serial.Serial(self.address.path, self.baud, timeout=0, exclusive=False)
+        except serial.SerialException as exc:
+            raise OSError(errno.ENODEV, f"cannot open serial port {self.address.path}: {exc}") from None
+        self._fd = self._port.fileno()
+        os.set_blocking(self._fd, False)
+        self._on_data = on_data
+        asyncio.get_running_loop().add_reader(self._fd, self._readable)
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.close()
+            return
+        self._on_data(data)
+
+    def write(self, data: bytes) -> None:
+        if self._fd is None:
+            self.dropped_writes += 1
+            return
+        try:
+            os.write(self._fd, data)
+        except (BlockingIOError, OSError):
+            self.dropped_writes += 1
+
+    def close(self) -> None:
+        if self._fd is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._fd)
+            except RuntimeError:
+                pass
+            self._fd = None
+        if self._port is not None:
+            try:
+                self._port.close()
+            except OSError:
+                pass
+            self._port = None
+        self._mark_closed()
+
+
+TLOG_TIMESTAMP = struct.Struct(">Q")
+
+
+class TlogTransport(Transport):
+    """A .tlog (8-byte big-endian µs timestamp + one MAVLink packet, repeated) played back
+    as if it were a live link, at its recorded pace divided by `speed` (0 = as fast as possible).
+
+    What is written to it is discarded. It closes at the end of the file and does not reopen.
+    """
+
+    reconnectable = False
+
+    def __init__(self, address: Address, speed: float = 1.0) -> None:
+        super().__init__(address)
+        self.speed = speed
+        self._task: asyncio.Task | None = None
+
+    async def open(self, on_data: DataCallback) -> None:
+
+        self._new_closed_future()
+        self._records = read_tlog_records(self.address.path)  # OSError if the file is missing
+        self._task = asyncio.get_running_loop().create_task(self._play(on_data))
+
+    async def _play(self, on_data: DataCallback) -> None:
+        loop = asyncio.get_running_loop()
+        start_wall = loop.time()
+        first_us = None
+        try:
+            for i, (usec, packet) in enumerate(self._records):
+                if first_us is None:
+                    first_us = usec
+                if self.speed > 0:
+                    due = start_wall + (usec - first_us) / 1e6 / self.speed
+                    delay = due - loop.time()
+                    if delay > 0.001:
+                        await asyncio.sleep(delay)
+                elif i % 256 == 0:
+                    await asyncio.sleep(0)
+                on_data(packet)
+        finally:
+            self._mark_closed()
+
+    def write(self, data: bytes) -> None:
+        self.dropped_writes += 1
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+        self._mark_closed()
+
+
+def make_transport(address: Address | str, baud: int = 57600, speed: float = 1.0) -> Transport:
+    """The transport for a connection string or parsed Address."""
+    if isinstance(address, str):
+        address = parse_address(address)
+    if address.kind in ("udpin", "udpout"):
+        return UdpTransport(address)
+    if address.kind == "tcp":
+        return TcpClientTransport(address)
+    if address.kind == "tcpin":
+        return TcpServerTransport(address)
+    if address.kind in ("serial", "pty"):
+        return SerialTransport(Address("serial", path=address.path), baud)
+    if address.kind == "tlog":
+        return TlogTransport(address, speed)
+    raise ValueError(f"no transport for {address}")
