@@ -13,6 +13,7 @@ BENCHMARKS = {
     "replay": "bench.replay",
     "ws_latency": "bench.ws_latency",
     "soak": "bench.soak",
+    "status": "bench.status",
 }
 
 

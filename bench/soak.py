@@ -17,20 +17,18 @@ import time
 
 import psutil
 
-from bench.ws_latency import free_udp_port
-from gcs.runtime.station import GroundStation, StationConfig
+from gcs.runtime.station import Station, StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.server.dashboard import DashboardServer
+from gcs.transport.address import free_port
 
 ALLOWED_GROWTH_MB = 50.0
 WARMUP_S = 10.0  # wall seconds before the memory baseline
 
 
 async def soak(vehicle_seconds: float, speed: float, clients: int) -> dict:
-    port = free_udp_port()
-    station = GroundStation(
-        StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=400, attitude_hz=50))
-    )
+    port = free_port()
+    station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=400, attitude_hz=50)))
     server = DashboardServer(station, port=0, viser=False)
     await station.start()
     await server.start()

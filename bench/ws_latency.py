@@ -14,27 +14,18 @@ import sys
 
 import numpy as np
 
-from gcs.runtime.station import GroundStation, StationConfig
+from gcs.runtime.station import Station, StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.server.dashboard import DashboardServer
 from gcs.sim import SimVehicle
+from gcs.transport.address import free_port
 
 MISSION_PLANNER_PERIOD_MS = 200.0
 
 
-def free_udp_port() -> int:
-    import socket
-
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 async def measure(clients: int, seconds: float) -> dict:
-    port = free_udp_port()
-    station = GroundStation(
-        StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200))
-    )
+    port = free_port()
+    station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200)))
     server = DashboardServer(station, port=0, viser=False)
     sim = SimVehicle(profile="pixhawk", script="quad")
     await station.start()

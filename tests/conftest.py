@@ -7,17 +7,13 @@ from pathlib import Path
 
 import pytest
 
+from gcs.transport.address import free_port
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 DATA = SHARED / "data"
 LOGS = DATA / "logs"
 ARTIFACTS = ROOT / "test-artifacts"
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture

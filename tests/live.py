@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 import time
 
-from gcs.runtime.station import GroundStation, StationConfig
+from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
 
 
@@ -23,7 +23,7 @@ async def running_sim(address: str, profile: str = "apm25", **kwargs):
 
 @contextlib.asynccontextmanager
 async def running_station(connect: str, **kwargs):
-    station = GroundStation(StationConfig(connect=connect, **kwargs))
+    station = Station(StationConfig(connect=connect, **kwargs))
     await station.start()
     try:
         yield station

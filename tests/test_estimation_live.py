@@ -45,7 +45,7 @@ def test_live_estimators_converge_and_match_offline_recomputation(profile, tmp_p
 
     async def fly():
         async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)) as station:
-            station.estimation.add_listener(points.extend)
+            station.estimation.points.connect(points.extend)
             async with running_sim(f"udpout:127.0.0.1:{port}", profile=profile, script="quad", speed=2.0):
                 await wait_for(lambda: points and points[-1].t > 16.0, 30, "16 s of vehicle time")
             await asyncio.sleep(0.5)  # the vehicle is gone: let the live pipeline finish what it received

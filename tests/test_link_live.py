@@ -4,6 +4,7 @@ clean decoding, requested rates achieved, and recovery without restarting gcs.""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 
 import pytest
 from live import running_sim, running_station, wait_for
@@ -40,7 +41,7 @@ def test_profile_over_transport_decodes_cleanly_at_requested_rates(profile, kind
             assert await link.wait_connected(10), f"no heartbeat over {kind}"
             await wait_for(lambda: station.streams.requested, 10, "stream requests")
             await asyncio.sleep(link.stats.window + 1.5)  # a full rate window after the request
-            return station.status()
+            return dataclasses.asdict(station.publish())
 
     status = asyncio.run(scenario())
     stats = status["link"]["stats"]

@@ -44,7 +44,7 @@ def test_mavsdk_sees_values_gcs_tunes(udp_port, profile, gain, new):
                     seen_after,
                     autostart,
                     sim.params[gain],
-                    station.outputs[0].status(),
+                    station.outputs[0].snapshot(),
                     table,
                     sim.params.as_dict(),
                 )
@@ -59,4 +59,4 @@ def test_mavsdk_sees_values_gcs_tunes(udp_port, profile, gain, new):
     assert after == pytest.approx(new) and stored == pytest.approx(new)
     if profile == "px4":
         assert autostart == 4001  # MAVSDK decodes the bytewise INT32 the same way gcs does
-    assert out["packets_in"] > 0
+    assert out.packets_in > 0

@@ -11,7 +11,6 @@ from live import running_sim, running_station, wait_for
 
 from gcs.core.estimation import GainChange
 from gcs.runtime.replay import ReplaySession
-from gcs.server.gains import GainControl
 from gcs.sessions import columnar
 from gcs.sessions.sources import open_source
 
@@ -27,13 +26,14 @@ def test_replay_of_recorded_session_equals_live(tmp_path):
     async def record():
         async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)) as station:
             async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0):
-                station.estimation.add_listener(live.extend)
+                station.estimation.points.connect(live.extend)
                 pipeline = station.estimation.pipeline
                 await wait_for(lambda: pipeline.imu_samples > 200, 20, "IMU samples")
-                gains = GainControl(station)
-                gains.set("dcm", "kp_rp", 0.8, "test")  # changed mid-flight: replay must apply it at the same point
+                station.set_gain(
+                    "dcm", "kp_rp", 0.8, "test"
+                )  # changed mid-flight: replay must apply it at the same point
                 await wait_for(lambda: pipeline.imu_samples > 400, 20, "more IMU samples")
-                gains.set("ekf", "gyro_noise", 2 * pipeline.estimators["ekf"].gains["gyro_noise"], "test")
+                station.set_gain("ekf", "gyro_noise", 2 * pipeline.estimators["ekf"].gains["gyro_noise"], "test")
                 await wait_for(lambda: pipeline.imu_samples > 600, 20, "more IMU samples")
             await asyncio.sleep(0.5)  # the vehicle is gone: let the live pipeline finish what it received
             return station.recorder.session.folder

@@ -28,7 +28,14 @@ async def api_scenario(udp_port: int) -> None:
                     15,
                     "every source",
                 )
-                await asyncio.sleep(1.5)
+                await wait_for(  # the status is the station's snapshot, published once a second
+                    lambda: (
+                        station.snapshot.streams.messages["ATTITUDE"].achieved_hz > 30
+                        and all(e.errors for e in station.snapshot.estimation.estimators.values())
+                    ),
+                    15,
+                    "a snapshot with rates and errors",
+                )
                 await check_status_and_estimates(api)
                 await check_gains(api, station)
                 assert (await api.get("/openapi.json")).json()["paths"]["/api/estimators/{name}/gains/{gain}"]["put"]

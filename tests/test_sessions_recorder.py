@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import resource
 import signal
@@ -82,7 +83,7 @@ def test_kill9_loses_under_a_second_and_session_is_recovered(tmp_path):
 
     async def restart() -> dict:
         async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(root)) as station:
-            return station.status()["recording"]
+            return dataclasses.asdict(station.recorder.snapshot())
 
     status = asyncio.run(restart())
     assert [r["session"] for r in status["recovered"]] == [folder.name]
@@ -134,7 +135,12 @@ def test_full_disk_gives_clear_error_and_keeps_valid_files(tmp_path):
                 imu_at_failure = station.estimation.pipeline.imu_samples
                 await asyncio.sleep(1.0)
                 events = [e.as_dict() for e in station.events.recent if e.kind == "recording"]
-                return station.status()["recording"], imu_at_failure, station.estimation.pipeline.imu_samples, events
+                return (
+                    dataclasses.asdict(station.recorder.snapshot()),
+                    imu_at_failure,
+                    station.estimation.pipeline.imu_samples,
+                    events,
+                )
 
     with _small_disk(disk) as how:
         status, imu_at_failure, imu_later, events = asyncio.run(record())
@@ -163,7 +169,7 @@ def test_unwritable_folder_is_reported_not_raised(tmp_path):
     async def run() -> dict:
         async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(blocked / "sessions")) as st:
             await asyncio.sleep(0.2)
-            return st.status()["recording"]
+            return dataclasses.asdict(st.recorder.snapshot())
 
     status = asyncio.run(run())
     assert status["state"] == "failed"

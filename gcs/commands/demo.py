@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import socket
 
 from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard
-from gcs.runtime.station import GroundStation, StationConfig
+from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
+from gcs.transport.address import free_port
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,18 +51,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 async def _demo(args: argparse.Namespace) -> None:
 
-    port = _free_udp_port()
-    station = GroundStation(
-        StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args))
-    )
+    port = free_port()
+    station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args)))
     sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
     print(
         f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
@@ -87,7 +79,7 @@ async def _demo(args: argparse.Namespace) -> None:
         await asyncio.gather(sim_task, return_exceptions=True)
 
 
-def _status_line(station) -> str:
+def _status_line(station: Station) -> str:
     """Link state and rates, then each source's roll/pitch/yaw, and each estimator's RMS
     error against the truth (or the onboard attitude when there is no truth)."""
     rates = station.link.stats.rates()
@@ -99,13 +91,15 @@ def _status_line(station) -> str:
             if rates.get(name)
         ),
     ]
-    summary = station.estimation.pipeline.summary()
-    for source, p in summary["latest"].items():
-        text = f"{source} {p['roll_deg']:6.1f} {p['pitch_deg']:6.1f} {p['yaw_deg']:6.1f}"
-        comparison = summary["estimators"].get(source, {}).get("comparison", {}).get("references", {})
+    estimation = station.snapshot.estimation
+    if estimation is None:
+        return " | ".join(p for p in parts if p)
+    for source, a in estimation.latest.items():
+        text = f"{source} {a.roll_deg:6.1f} {a.pitch_deg:6.1f} {a.yaw_deg:6.1f}"
+        errors = estimation.estimators[source].errors if source in estimation.estimators else {}
         for reference in ("truth", "onboard"):
-            if reference in comparison:
-                rms = comparison[reference]["window"]["rms"]
+            rms = errors[reference].window_rms_deg if reference in errors else None
+            if rms and None not in rms:
                 text += f" (rms vs {reference} {rms[0]:.1f}/{rms[1]:.1f}/{rms[2]:.1f})"
                 break
         parts.append(text)

@@ -18,7 +18,8 @@ from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import GpsSample, ImuSample
-from gcs.logs.readers import InputError, read_samples
+from gcs.logs.logfile import InputError
+from gcs.logs.readers import read_samples
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
 
@@ -56,13 +57,16 @@ def list_estimators() -> str:
     return "\n".join(lines)
 
 
-def _parse_gains(items: list[str]) -> dict[str, str]:
+def _parse_gains(items: list[str]) -> dict[str, float]:
     gains = {}
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise ValueError(f"--gain {item!r}: expected NAME=VALUE")
-        gains[name.strip()] = value.strip()
+        try:
+            gains[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--gain {item!r}: {value.strip()!r} is not a number") from None
     return gains
 
 

@@ -15,7 +15,7 @@ import sys
 from gcs.commands.options import add_link_arguments, station_config
 from gcs.mavlink import param_files
 from gcs.mavlink.params import ParamError, format_value, type_name
-from gcs.runtime.station import GroundStation
+from gcs.runtime.station import Station
 from gcs.runtime.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
 
 CLIENT = "cli"
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
 
 async def _with_station(config, args, profile) -> int:
 
-    station = GroundStation(config)
+    station = Station(config)
     await station.start()
     try:
         if not await station.link.wait_connected(15.0):
@@ -131,6 +131,8 @@ async def _load(params, args, profile) -> int:
         return 0
     failed = []
     for i, change in enumerate(changes):
+        if change.a is None:  # not in the file (never: only the file's names are compared)
+            continue
         try:
             if session is not None:
                 if i:

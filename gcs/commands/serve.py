@@ -8,7 +8,7 @@ import asyncio
 import sys
 
 from gcs.commands.options import add_link_arguments, station_config_or_report
-from gcs.runtime.station import GroundStation
+from gcs.runtime.station import Station
 from gcs.server.dashboard import DashboardServer
 from gcs.server.live import LiveHub
 
@@ -57,7 +57,7 @@ def dashboard(station, args: argparse.Namespace):
 
 async def _serve(config, args: argparse.Namespace) -> None:
 
-    station = GroundStation(config)
+    station = Station(config)
     server = dashboard(station, args)
     await station.start()
     try:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from typing import Any
 
 from gcs.sim.sensors import SensorFaults
 from gcs.sim.vehicle import SimVehicle
@@ -68,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def parse_faults(items: list[str]):
     """--fault NAME=VALUE items → (SensorFaults, param_drop, param_clamp); ValueError names the bad one."""
 
-    sensor: dict[str, object] = {}
+    sensor: dict[str, Any] = {}  # float or (x, y, z) per SensorFaults field
     perfect, drop, clamp = False, 0.0, {}
     for item in items:
         name, sep, text = item.partition("=")

@@ -98,7 +98,14 @@ class Subscription:
         return self
 
     async def __anext__(self) -> Message:
-        return await self.get()
+        return await self.next()
+
+    async def next(self) -> Message:
+        """The oldest queued message, waiting as long as it takes."""
+        while not self.queue:
+            self._ready.clear()
+            await self._ready.wait()
+        return self.queue.popleft()
 
     def close(self) -> None:
         self.bus.unsubscribe(self)

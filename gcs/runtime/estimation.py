@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
+from gcs.runtime.signal import Signal
 
 
 class LiveEstimation:
@@ -22,10 +22,8 @@ class LiveEstimation:
         self.pipeline = pipeline or EstimationPipeline()
         self.inputs = MessageInputs()
         self.messages_fed = 0
-        self._listeners: list[Callable[[list[AttitudePoint]], None]] = []
-
-    def add_listener(self, callback: Callable[[list[AttitudePoint]], None]) -> None:
-        self._listeners.append(callback)
+        #: the attitudes each drained batch of messages produced
+        self.points: Signal[[list[AttitudePoint]]] = Signal()
 
     @property
     def imu_type(self) -> str | None:
@@ -35,15 +33,19 @@ class LiveEstimation:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
         try:
             while True:
-                items = [await sub.get(), *sub.drain()]
-                points: list[AttitudePoint] = []
-                for item in items:
-                    self.messages_fed += 1
-                    estimation_input = self.inputs.feed(item.msg)
-                    if estimation_input is not None:
-                        points += self.pipeline.feed(estimation_input)
-                if points:
-                    for callback in self._listeners:
-                        callback(points)
+                self._feed([await sub.next(), *sub.drain()])
         finally:
+            # Stopping: what the link delivered is estimated too, so that a recording and the
+            # live outputs hold the same inputs (the station stops the link first).
+            self._feed(sub.drain())
             sub.close()
+
+    def _feed(self, items: list[Message]) -> None:
+        points: list[AttitudePoint] = []
+        for item in items:
+            self.messages_fed += 1
+            estimation_input = self.inputs.feed(item.msg)
+            if estimation_input is not None:
+                points += self.pipeline.feed(estimation_input)
+        if points:
+            self.points.emit(points)

@@ -1,7 +1,7 @@
 """The session's event log in memory: every change a person or the link made (gain changes
 with old and new value and which client, parameter writes, link state changes, notes).
 
-Producers call `record`; consumers (the session recorder, the dashboard) register listeners.
+Producers call `record`; consumers (the session recorder, the dashboard) connect to `recorded`.
 The recent events are kept for the status page; the recorder keeps them all on disk.
 """
 
@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+from gcs.runtime.signal import Signal
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,14 +36,10 @@ class Event:
 class EventLog:
     def __init__(self, keep: int = 1000) -> None:
         self.recent: deque[Event] = deque(maxlen=keep)
-        self._listeners: list[Callable[[Event], None]] = []
-
-    def add_listener(self, callback: Callable[[Event], None]) -> None:
-        self._listeners.append(callback)
+        self.recorded: Signal[[Event]] = Signal()
 
     def record(self, kind: str, client: str, **data: Any) -> Event:
         event = Event(time.time(), time.monotonic(), kind, client, data)
         self.recent.append(event)
-        for callback in self._listeners:
-            callback(event)
+        self.recorded.emit(event)
         return event

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.link import Link, keep_open
+from gcs.runtime.snapshots import OutputSnapshot
 from gcs.transport.address import Address, parse_address
 from gcs.transport.pipes import Transport, make_transport
 
@@ -47,10 +48,5 @@ class Output:
     def _set_transport(self, transport: Transport | None) -> None:
         self._transport = transport
 
-    def status(self) -> dict:
-        return {
-            "address": str(self.address),
-            "open": self._transport is not None,
-            "packets_out": self.packets_out,
-            "packets_in": self.packets_in,
-        }
+    def snapshot(self) -> OutputSnapshot:
+        return OutputSnapshot(str(self.address), self._transport is not None, self.packets_out, self.packets_in)

@@ -20,6 +20,8 @@ from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.link_stats import LinkStats
+from gcs.runtime.signal import Signal
+from gcs.runtime.snapshots import LinkNote, LinkSnapshot
 from gcs.transport.address import Address, parse_address
 from gcs.transport.pipes import Transport, make_transport
 
@@ -118,8 +120,10 @@ class Link:
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         self._transport: Transport | None = None
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
-        self._state_listeners: list[Callable[[LinkState, LinkState], None]] = []
-        self._send_listeners: list[Callable[[bytes], None]] = []
+        #: (old, new) on every state change, in the event loop.
+        self.state_changed: Signal[[LinkState, LinkState]] = Signal()
+        #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
+        self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
 
     # ---- public API -------------------------------------------------------------------
@@ -132,15 +136,6 @@ class Link:
         finally:
             for t in tasks:
                 t.cancel()
-
-    def add_state_listener(self, callback: Callable[[LinkState, LinkState], None]) -> None:
-        """callback(old, new) on every state change, in the event loop."""
-        self._state_listeners.append(callback)
-
-    def add_send_listener(self, callback: Callable[[bytes], None]) -> None:
-        """callback(packet) for every packet sent to the vehicle (ours and forwarded ones),
-        so a recording holds both directions."""
-        self._send_listeners.append(callback)
 
     async def wait_connected(self, timeout: float | None = None) -> bool:
         try:
@@ -164,24 +159,23 @@ class Link:
         self._transport.write(packet)
         self.stats.bytes_out += len(packet)
         self.stats.packets_out += 1
-        for callback in self._send_listeners:
-            callback(packet)
+        self.packet_sent.emit(packet)
 
-    def status(self) -> dict:
+    def snapshot(self) -> LinkSnapshot:
         now = time.monotonic()
-        return {
-            "name": self.name,
-            "address": str(self.address),
-            "state": str(self.state),
-            "transport_open": self.is_open,
-            "baud": self.baud if self.address.kind == "serial" else None,
-            "target_system": self.target_system,
-            "target_component": self.target_component,
-            "mavlink_version": self.vehicle_mavlink,
-            "heartbeat_age_s": None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
-            "stats": self.stats.as_dict(),
-            "events": [{"wall_time": e.wall_time, "kind": e.kind, "detail": e.detail} for e in list(self.events)[-50:]],
-        }
+        return LinkSnapshot(
+            name=self.name,
+            address=str(self.address),
+            state=str(self.state),
+            transport_open=self.is_open,
+            baud=self.baud if self.address.kind == "serial" else None,
+            target_system=self.target_system,
+            target_component=self.target_component,
+            mavlink_version=self.vehicle_mavlink,
+            heartbeat_age_s=None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
+            stats=self.stats.snapshot(),
+            events=[LinkNote(e.wall_time, e.kind, e.detail) for e in list(self.events)[-50:]],
+        )
 
     # ---- receive path -----------------------------------------------------------------
     def _on_data(self, data: bytes) -> None:
@@ -257,8 +251,7 @@ class Link:
         else:
             self._connected.clear()
         self._event("state", f"{old} -> {new}")
-        for callback in self._state_listeners:
-            callback(old, new)
+        self.state_changed.emit(old, new)
 
     def _event(self, kind: str, detail: str) -> None:
         self.events.append(LinkEvent(time.monotonic(), time.time(), kind, detail))
@@ -269,8 +262,12 @@ class Link:
             for baud in AUTO_BAUDS:
                 decoder = MavlinkDecoder()
                 transport = make_transport(self.address, baud=baud)
+
+                def deliver(data: bytes, decoder: MavlinkDecoder = decoder) -> None:
+                    decoder.feed(data)
+
                 try:
-                    await transport.open(decoder.feed)
+                    await transport.open(deliver)
                 except OSError as exc:
                     self._event("transport", f"baud detection: cannot open {self.address}: {exc}")
                     break

@@ -7,6 +7,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from gcs.mavlink.framing import FramingCounters
+from gcs.runtime.snapshots import LinkCounters
 
 
 @dataclass
@@ -54,23 +55,23 @@ class LinkStats:
         total = self.framing.packets + lost
         return lost / total if total else 0.0
 
-    def as_dict(self) -> dict:
+    def snapshot(self) -> LinkCounters:
         f = self.framing
-        return {
-            "packets": f.packets,
-            "bytes_in": self.bytes_in,
-            "bytes_out": self.bytes_out,
-            "packets_out": self.packets_out,
-            "bytes_per_s": round(self.bytes_per_second(), 1),
-            "rates_hz": {k: round(v, 2) for k, v in self.rates().items()},
-            "counts": dict(sorted(self.counts.items())),
-            "crc_errors": f.crc_errors,
-            "malformed": f.malformed,
-            "bytes_skipped": f.bytes_skipped,
-            "unknown_messages": f.unknown,
-            "packets_lost": self.packets_lost(),
-            "loss_fraction": round(self.loss_fraction(), 5),
-            "lost_by_source": {f"{s}/{c}": n for (s, c), n in sorted(f.lost.items())},
-            "mavlink1_packets": f.mavlink1,
-            "mavlink2_packets": f.mavlink2,
-        }
+        return LinkCounters(
+            packets=f.packets,
+            bytes_in=self.bytes_in,
+            bytes_out=self.bytes_out,
+            packets_out=self.packets_out,
+            bytes_per_s=round(self.bytes_per_second(), 1),
+            rates_hz={k: round(v, 2) for k, v in self.rates().items()},
+            counts=dict(sorted(self.counts.items())),
+            crc_errors=f.crc_errors,
+            malformed=f.malformed,
+            bytes_skipped=f.bytes_skipped,
+            unknown_messages=f.unknown,
+            packets_lost=self.packets_lost(),
+            loss_fraction=round(self.loss_fraction(), 5),
+            lost_by_source={f"{s}/{c}": n for (s, c), n in sorted(f.lost.items())},
+            mavlink1_packets=f.mavlink1,
+            mavlink2_packets=f.mavlink2,
+        )

@@ -80,7 +80,7 @@ class Param:
 class ParamClient:
     """The parameter table of the link's vehicle and the protocol to read and write it.
 
-    Run `run()` as a task (GroundStation does); then `download()`, `read()`, `set()`.
+    Run `run()` as a task (Station does); then `download()`, `read()`, `set()`.
     `events`: where every write is recorded (kind "param": name, old, new, asked, verified).
     """
 
@@ -203,7 +203,7 @@ class ParamClient:
     async def _ready(self) -> None:
         """Connected, and the encoding known (AUTOPILOT_VERSION asked for once)."""
         if not self._running:
-            raise ParamError("the parameter client is not running (start GroundStation first)")
+            raise ParamError("the parameter client is not running (start Station first)")
         if not await self.link.wait_connected(10.0):
             raise ParamTimeout(f"no heartbeat from a vehicle on {self.link.address} within 10 s")
         if self.capabilities is None and not self._version_asked:
@@ -348,7 +348,7 @@ class ParamClient:
             raise ParamTimeout(
                 f"no PARAM_VALUE after {self.list_attempts} PARAM_REQUEST_LIST × {2 * self.reply_timeout} s"
             )
-        while self._missing() and (self.count - 1) not in self._received:
+        while self._missing() and ((self.count or 0) - 1) not in self._received:
             gap = min(self.list_gap, deadline - time.monotonic())
             if await self._expect(lambda p: True, gap) is None:
                 return

@@ -1,12 +1,12 @@
 """Records a ground station's session to disk from its first byte.
 
-A `SessionRecorder` belongs to one `GroundStation`. `start()` (synchronous, before the link
+A `SessionRecorder` belongs to one `Station`. `start()` (synchronous, before the link
 runs) first closes sessions a crash left open, then opens a new session folder and hooks in:
 - a bus subscription for every received packet → `telemetry.tlog` with the arrival wall time
   (low 2 bits 0), and the link's send listener for every packet sent (low 2 bits 3, as MAVProxy
   marks its own packets);
-- the estimation listener → the `attitude` table; a comparison snapshot every second → the
-  `comparison` table;
+- the estimation's points → the `attitude` table; the station's published snapshots (every
+  second) → the `comparison` table;
 - the station's event log → `events.jsonl` (gain changes also carry `input_index`, the number
   of estimation input messages the live pipeline had consumed when the gain was applied, which
   is where a replay applies it again);
@@ -17,8 +17,10 @@ The event loop only appends to buffers; a `SessionWriter` thread writes them eve
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -27,6 +29,7 @@ from pathlib import Path
 from gcs import __version__
 from gcs.mavlink.params import param_name
 from gcs.mavlink.tlog import tlog_record
+from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
 from gcs.sessions import columnar, layout
 from gcs.sessions.recovery import close_session, recover_sessions, release_lock, take_lock
 from gcs.sessions.writer import SessionWriter
@@ -41,6 +44,10 @@ SNAPSHOT_INTERVAL = 1.0
 RECEIVED, SENT = 0, 3
 #: VehicleState fields kept in meta.json (the ones that describe the vehicle, not its moment).
 VEHICLE_FIELDS = ("sysid", "compid", "autopilot", "vehicle_type", "mavlink_version", "firmware")
+
+
+def _nan(x: float | None) -> float:
+    return math.nan if x is None else x
 
 
 def tlog_usec(wall_time: float, link_bits: int) -> int:
@@ -105,10 +112,11 @@ class SessionRecorder:
         self._sub = None
         self._meta_dirty = False
         self._loop: asyncio.AbstractEventLoop | None = None
-        station.link.add_send_listener(self._on_send)
-        station.events.add_listener(self._on_event)
+        station.link.packet_sent.connect(self._on_send)
+        station.events.recorded.connect(self._on_event)
         if station.estimation is not None:
-            station.estimation.add_listener(self._on_points)
+            station.estimation.points.connect(self._on_points)
+        station.published.connect(self._on_published)
 
     # ---- lifecycle ---------------------------------------------------------------------
     def start(self) -> None:
@@ -185,29 +193,30 @@ class SessionRecorder:
                 self._snapshot()
 
     def close(self) -> None:
-        """Stop recording and unhook from the bus (GroundStation.stop calls this)."""
+        """Stop recording and unhook from the bus (Station.stop calls this)."""
         self.stop_recording()
         if self._sub is not None:
             self._sub.close()
             self._sub = None
 
-    def status(self) -> dict:
+    def snapshot(self) -> RecordingSnapshot:
         """What the dashboard shows: state, folder, size, counts, and the error if any."""
         session = self.session
         writer = session.writer if session else None
-        return {
-            "state": self.state,
-            "folder": str(session.folder) if session else None,
-            "root": str(self.root),
-            "bytes_written": writer.bytes_written if writer else 0,
-            "last_flush_age_s": (
+        return RecordingSnapshot(
+            state=self.state,
+            folder=str(session.folder) if session else None,
+            root=str(self.root),
+            bytes_written=writer.bytes_written if writer else 0,
+            last_flush_age_s=(
                 round(time.monotonic() - writer.last_flush, 3) if writer and writer.last_flush is not None else None
             ),
-            "packets": dict(self.packets),
-            "dropped": self._sub.dropped if self._sub else 0,
-            "error": self.error,
-            "recovered": self.recovered,
-        }
+            packets_received=self.packets["received"],
+            packets_sent=self.packets["sent"],
+            dropped=self._sub.dropped if self._sub else 0,
+            error=self.error,
+            recovered=list(self.recovered),
+        )
 
     def note(self, text: str, client: str) -> None:
         """A user's note, kept in the session's event log."""
@@ -228,6 +237,26 @@ class SessionRecorder:
                 self._on_param(item.msg)
         session.writer.append(layout.TLOG, b"".join(parts))
         self.packets["received"] += len(items)
+
+    def _on_published(self, snapshot: StationSnapshot) -> None:
+        """Session error statistics of every estimator, one row per reference, per snapshot."""
+        if self.session is None or snapshot.estimation is None:
+            return
+        rows = [
+            (
+                snapshot.published,
+                name,
+                ref,
+                s.n,
+                *map(_nan, s.session_rms_deg),
+                *map(_nan, s.session_max_deg),
+                _nan(est.lag_s),
+                est.imu_rate_hz,
+            )
+            for name, est in snapshot.estimation.estimators.items()
+            for ref, s in est.errors.items()
+        ]
+        self.session.add_rows("comparison", rows)
 
     def _on_send(self, packet: bytes) -> None:
         if self.session is not None:
@@ -258,8 +287,6 @@ class SessionRecorder:
             return
         estimation = self.station.estimation
         if estimation is not None:
-            summary = estimation.pipeline.summary()
-            session.add_rows("comparison", columnar.comparison_rows(summary, time.time()))
             session.meta["estimation"]["detected_imu_type"] = estimation.imu_type
         vehicle = self._vehicle()
         if vehicle != session.meta["vehicle"] or self._meta_dirty:
@@ -281,7 +308,7 @@ class SessionRecorder:
         return f"{v.autopilot}-{(v.vehicle_type or '').removeprefix('MAV_TYPE_')}-{self.station.link.target_system}"
 
     def _vehicle(self) -> dict:
-        state = self.station.vehicle.as_dict()
+        state = dataclasses.asdict(self.station.vehicle.snapshot())
         return {"label": self._vehicle_label(), **{k: state[k] for k in VEHICLE_FIELDS}}
 
     def _initial_meta(self, start: float) -> dict:

@@ -1,12 +1,30 @@
-"""The ground station's live core for one vehicle: link, forwarding outputs, vehicle state
-and stream requests, run together in one event loop. `gcs status`, `gcs demo` and the
-server all start one of these."""
+"""The Station: one vehicle's live core and the one way in for the server and the CLI.
+
+It owns every piece of loop-side state (link, vehicle, streams, parameters, forwarding outputs,
+estimation, recording, tuning, replay) and runs each part under a `Supervisor`. Readers get typed
+`StationSnapshot`s published at a fixed rate; writers call its commands, which must run on the
+event loop thread (a route handler is `async def`; anything else hops in with
+`loop.call_soon_threadsafe`). Heavy work (what-if, export) runs in a worker process.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import math
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ParamSpec, TypeVar
 
+import numpy as np
+
+from gcs.core.estimation import AttitudePoint, EstimationPipeline
+from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.gains import GainSet
 from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
@@ -15,8 +33,30 @@ from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
 from gcs.runtime.params import ParamClient
 from gcs.runtime.recorder import SessionRecorder
+from gcs.runtime.replay import ReplaySession
+from gcs.runtime.signal import Signal
+from gcs.runtime.snapshots import (
+    ErrorStats,
+    EstimationSnapshot,
+    EstimatorSnapshot,
+    RecordingSnapshot,
+    SourceAttitude,
+    StationSnapshot,
+    finite,
+)
 from gcs.runtime.streams import StreamPlan, StreamRequester
+from gcs.runtime.supervisor import PartStatus, Supervisor
+from gcs.runtime.tuning import TuningSession, open_session
 from gcs.runtime.vehicle import VehicleState
+from gcs.sessions.sources import cached_source
+
+#: Seconds between published snapshots (and comparison rows in a recording).
+SNAPSHOT_INTERVAL = 1.0
+
+NOT_RECORDING = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 @dataclass
@@ -32,11 +72,16 @@ class StationConfig:
     record_dir: str | None = None  # where sessions are recorded; None: no recording
 
 
-class GroundStation:
+class StationError(Exception):
+    """A command that cannot be carried out as asked; the message says why."""
+
+
+class Station:
     def __init__(self, config: StationConfig, bus: MessageBus | None = None) -> None:
         self.config = config
         self.bus = bus or MessageBus()
         self.events = EventLog()
+        self.supervisor = Supervisor(self.events)
         self.link = Link(
             config.connect,
             bus=self.bus,
@@ -46,50 +91,271 @@ class GroundStation:
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
-        self.vehicle.add_reboot_listener(self.streams.request_again)
+        self.vehicle.rebooted.connect(self.streams.request_again)
         self.params = ParamClient(self.link, self.vehicle, self.events)
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link) if config.estimate else None
-        self.link.add_state_listener(lambda old, new: self.events.record("link", "link", old=old, new=new))
+        self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle
-            self.link.add_state_listener(
-                lambda old, new: new == "connected" and self.params.request(DECLINATION_PARAMS)
-            )
+            self.link.state_changed.connect(self._ask_declination)
+        #: every snapshot as it is published
+        self.published: Signal[[StationSnapshot]] = Signal()
         replaying = self.link.address.kind == "tlog"  # a replayed log is not a new session
         self.recorder = SessionRecorder(self, config.record_dir) if config.record_dir and not replaying else None
-        self._tasks: list[asyncio.Task] = []
+        self.replay: ReplaySession | None = None
+        self.replay_loaded: Signal[[ReplaySession]] = Signal()
+        self._replay_task: asyncio.Task[None] | None = None
+        self._tuning: TuningSession | None = None
+        self._tuning_lock: asyncio.Lock | None = None
+        self._download: asyncio.Task[Any] | None = None
+        self._snapshot: StationSnapshot | None = None
+        self._loop_thread: int | None = None
+        self._workers: ProcessPoolExecutor | None = None
+        self.supervisor.changed.connect(self._part_changed)
 
+    # ---- lifecycle ---------------------------------------------------------------------
     async def start(self) -> None:
-        """Start every part as a task of the running loop (the recorder first, so it has the first byte)."""
+        """Start every part under the supervisor (the recorder first, so it has the first byte)."""
+        self._loop_thread = threading.get_ident()
         if self.recorder is not None:
             self.recorder.start()
-        parts = [self.link.run(), self.vehicle.run(), self.params.run(), *(o.run() for o in self.outputs)]
+        run = self.supervisor.start
+        run("link", self.link.run())
+        run("vehicle", self.vehicle.run())
+        run("params", self.params.run())
+        for i, output in enumerate(self.outputs):
+            run(f"output {i + 1}", output.run())
         if self.config.request_streams:
-            parts.append(self.streams.run())
+            run("streams", self.streams.run())
         if self.estimation is not None:
-            parts.append(self.estimation.run())
+            run("estimation", self.estimation.run())
         if self.recorder is not None:
-            parts.append(self.recorder.run())
-        self._tasks = [asyncio.create_task(p) for p in parts]
+            run("recorder", self.recorder.run())
+        run("snapshots", self._publish_loop())
 
     async def stop(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-        self._tasks = []
+        await self.unload_replay()
+        await self.supervisor.stop(first="link")  # nothing arrives while the others finish
         if self.recorder is not None:
             self.recorder.close()
+        if self._workers is not None:
+            self._workers.shutdown(wait=False, cancel_futures=True)
+            self._workers = None
 
     async def link_finished(self) -> None:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
-        await self._tasks[0]
+        await self.supervisor.task("link")
 
-    def status(self) -> dict:
-        return {
-            "link": self.link.status(),
-            "vehicle": self.vehicle.as_dict(),
-            "streams": self.streams.report(),
-            "outputs": [o.status() for o in self.outputs],
-            "estimation": self.estimation.pipeline.summary() if self.estimation else None,
-            "recording": self.recorder.status() if self.recorder else {"state": "off"},
+    # ---- snapshots ---------------------------------------------------------------------
+    @property
+    def snapshot(self) -> StationSnapshot:
+        """The latest published snapshot (published now if there is none yet)."""
+        return self._snapshot if self._snapshot is not None else self.publish()
+
+    def publish(self) -> StationSnapshot:
+        """Take a snapshot of every part now and hand it to the listeners."""
+        self._snapshot = StationSnapshot(
+            published=time.time(),
+            link=self.link.snapshot(),
+            vehicle=self.vehicle.snapshot(),
+            streams=self.streams.snapshot(),
+            outputs=[o.snapshot() for o in self.outputs],
+            estimation=None if self.estimation is None else estimation_snapshot(self.estimation),
+            recording=self.recorder.snapshot() if self.recorder else NOT_RECORDING,
+            parts=self.supervisor.statuses(),
+        )
+        self.published.emit(self._snapshot)
+        return self._snapshot
+
+    async def _publish_loop(self) -> None:
+        while True:
+            await asyncio.sleep(SNAPSHOT_INTERVAL)
+            self.publish()
+
+    def _part_changed(self, status: PartStatus) -> None:
+        if self._snapshot is not None:  # a failure shows at once, not at the next tick
+            self._snapshot = dataclasses.replace(self._snapshot, parts=self.supervisor.statuses())
+
+    def latest_attitudes(self) -> tuple[dict[str, AttitudePoint], dict[str, np.ndarray]]:
+        """Latest attitude per source and the estimators' quaternions, for the pose view."""
+        self._on_loop()
+        if self.estimation is None:
+            return {}, {}
+        pipeline = self.estimation.pipeline
+        return dict(pipeline.latest), {name: est.quaternion.copy() for name, est in pipeline.estimators.items()}
+
+    # ---- commands: estimator gains -------------------------------------------------------
+    def estimator(self, name: str) -> AttitudeEstimator:
+        """The running estimator `name`; KeyError names the running ones."""
+        pipeline = self._pipeline()
+        if name not in pipeline.estimators:
+            raise KeyError(f"unknown estimator {name!r}; running: {', '.join(pipeline.estimators)}")
+        return pipeline.estimators[name]
+
+    def estimator_names(self) -> list[str]:
+        return [] if self.estimation is None else list(self.estimation.pipeline.estimators)
+
+    def set_gain(self, estimator: str, gain: str, value: float, client: str) -> tuple[float, float]:
+        """Apply one gain now and record the change (old, new, client); GainError for a bad
+        value or name, KeyError for an unknown estimator."""
+        self._on_loop()
+        old, new = self._pipeline().set_gain(estimator, gain, value)
+        if new != old:
+            self.events.record("gain", client, estimator=estimator, gain=gain, old=old, new=new)
+        return old, new
+
+    def reset_gains(self, estimator: str, preset: str | None, client: str) -> dict[str, tuple[float, float]]:
+        """Every gain to the preset's value (default: the estimator's own preset), except a
+        declination the vehicle reported. Returns the changes {gain: (old, new)}."""
+        est = self.estimator(estimator)
+        preset = preset or est.DEFAULT_PRESET
+        target = GainSet(est.gains.declarations.values(), est.gains.presets)
+        target.apply_preset(preset)  # GainError names the known presets
+        changes = {}
+        for name, value in target.values.items():
+            if name == "declination" and self._pipeline().declination is not None:
+                continue
+            old, new = self.set_gain(estimator, name, value, client)
+            if new != old:
+                changes[name] = (old, new)
+        est.preset = preset
+        return changes
+
+    # ---- commands: recording -------------------------------------------------------------
+    def recording(self) -> SessionRecorder:
+        if self.recorder is None:
+            raise StationError("this station runs without recording (--no-record)")
+        return self.recorder
+
+    def start_recording(self) -> RecordingSnapshot:
+        self._on_loop()
+        recorder = self.recording()
+        recorder.start_recording()
+        return recorder.snapshot()
+
+    async def stop_recording(self, client: str) -> RecordingSnapshot:
+        """Detach the session on the loop, then close it (flush, Parquet) in a worker thread:
+        disk work that must not hold the loop, on a session no live part touches any more."""
+        self._on_loop()
+        recorder = self.recording()
+        session = recorder.detach(client)
+        if session is not None:
+            try:
+                await asyncio.to_thread(recorder.finish, session)
+            except OSError as exc:
+                recorder.report_error(f"cannot close session {session.folder}: {exc.strerror or exc}")
+        return recorder.snapshot()
+
+    def add_note(self, text: str, client: str) -> None:
+        self._on_loop()
+        self.recording().note(text, client)
+
+    # ---- commands: vehicle parameters and tuning ---------------------------------------------
+    def start_param_download(self) -> bool:
+        """Start a full parameter download unless one runs; True if this call started it."""
+        self._on_loop()
+        if self._download is not None and not self._download.done():
+            return False
+        self._download = asyncio.get_running_loop().create_task(self.params.download())
+        self._download.add_done_callback(lambda t: t.cancelled() or t.exception())  # the error stays in progress()
+        return True
+
+    async def tuning(self) -> TuningSession:
+        """The tuning session (opened on first use: profile detected, pre-flight values snapshotted)."""
+        self._on_loop()
+        if self._tuning_lock is None:
+            self._tuning_lock = asyncio.Lock()
+        async with self._tuning_lock:
+            if self._tuning is None:
+                self._tuning = await open_session(self.params)
+        return self._tuning
+
+    # ---- commands: replay ------------------------------------------------------------------
+    async def load_replay(
+        self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]
+    ) -> ReplaySession:
+        """Decode a source (in a worker thread: file reading), then play it on the loop,
+        replacing any replay already loaded. InputError/KeyError/GainError as the source says."""
+        self._on_loop()
+        source = await asyncio.to_thread(cached_source, path)
+        replay = ReplaySession(source, speed, estimators, gains)
+        await self.unload_replay()
+        self.replay = replay
+        self._replay_task = asyncio.create_task(replay.run(), name="gcs:replay")
+        self.replay_loaded.emit(replay)
+        return replay
+
+    async def unload_replay(self) -> None:
+        task, self._replay_task, self.replay = self._replay_task, None, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    # ---- heavy work ------------------------------------------------------------------------
+    async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R:
+        """Run function(*args) in the station's worker process: CPU-heavy work (what-if, export)
+        on its own copy of the data, so the live loop never waits on it. The worker keeps its
+        decode caches between calls."""
+        if self._workers is None:
+            self._workers = ProcessPoolExecutor(max_workers=1)
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self._workers, _call, function, args, kwargs)
+
+    # ---- helpers -----------------------------------------------------------------------------
+    def _ask_declination(self, old: str, new: str) -> None:
+        if new == "connected":
+            self.params.request(DECLINATION_PARAMS)
+
+    def _pipeline(self) -> EstimationPipeline:
+        if self.estimation is None:
+            raise StationError("the station runs without estimation: no estimators")
+        return self.estimation.pipeline
+
+    def _on_loop(self) -> None:
+        """Commands touch live state: only the event loop's thread may call them."""
+        if self._loop_thread is not None and threading.get_ident() != self._loop_thread:
+            raise RuntimeError("Station commands run on the event loop thread (use loop.call_soon_threadsafe)")
+
+
+def _call(function: Callable[..., R], args: tuple[Any, ...], kwargs: dict[str, Any]) -> R:
+    return function(*args, **kwargs)
+
+
+def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
+    pipeline = estimation.pipeline
+    estimators = {}
+    for name, est in pipeline.estimators.items():
+        summary = pipeline.comparisons[name].summary()
+        errors = {
+            ref: ErrorStats(
+                n=s["n"],
+                window_rms_deg=[finite(v) for v in s["window"]["rms"]],
+                window_max_deg=[finite(v) for v in s["window"]["max"]],
+                session_rms_deg=[finite(v) for v in s["session"]["rms"]],
+                session_max_deg=[finite(v) for v in s["session"]["max"]],
+            )
+            for ref, s in summary["references"].items()
         }
+        estimators[name] = EstimatorSnapshot(
+            preset=est.preset,
+            gains=dict(est.gains.values),
+            health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
+            reliable=summary["reliable"],
+            reason=summary["reason"],
+            imu_rate_hz=round(summary["imu_rate"], 2),
+            lag_s=summary["lag"],
+            dropped=summary["dropped"],
+            errors=errors,
+        )
+    latest = {
+        source: SourceAttitude(
+            source,
+            "estimator" if source in pipeline.estimators else "reference",
+            p.t,
+            math.degrees(p.roll),
+            math.degrees(p.pitch),
+            math.degrees(p.yaw),
+        )
+        for source, p in pipeline.latest.items()
+    }
+    return EstimationSnapshot(estimation.imu_type, pipeline.imu_samples, pipeline.declination, estimators, latest)

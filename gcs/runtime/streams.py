@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
 from gcs.runtime.link import Link, LinkState
+from gcs.runtime.snapshots import StreamRate, StreamsSnapshot
 
 #: REQUEST_DATA_STREAM group of each message, as ArduPilot assigns them.
 STREAM_GROUPS = {
@@ -88,12 +89,16 @@ class StreamRequester:
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
 
+    def _on_link_state(self, old: LinkState, new: LinkState) -> None:
+        if new == LinkState.CONNECTED:
+            self.request_again()
+
     def request_again(self) -> None:
         """Re-request everything soon (after a reconnect or a reboot)."""
         self._wake.set()
 
     async def run(self) -> None:
-        self.link.add_state_listener(lambda old, new: new == LinkState.CONNECTED and self.request_again())
+        self.link.state_changed.connect(self._on_link_state)
         acks = self.link.bus.subscribe("stream-acks", types=["COMMAND_ACK", "HEARTBEAT"], maxlen=200)
         try:
             while True:
@@ -211,19 +216,14 @@ class StreamRequester:
             else:
                 self._request_streams(starved)
 
-    def report(self) -> dict:
+    def snapshot(self) -> StreamsSnapshot:
         """Requested vs achieved rates per message, as a field engineer reads them."""
         achieved = self.link.stats.rates()
         rows = {}
         for name, hz in self.requested.items():
             got = achieved.get(name, 0.0)
-            rows[name] = {
-                "requested_hz": hz,
-                "achieved_hz": round(got, 2),
-                "ratio": round(got / hz, 3) if hz else None,
-                "ack": self.acks.get(name),
-            }
-        return {"method": self.method, "requests_sent": self.requests_sent, "messages": rows}
+            rows[name] = StreamRate(hz, round(got, 2), round(got / hz, 3) if hz else None, self.acks.get(name))
+        return StreamsSnapshot(self.method, self.requests_sent, rows)
 
 
 def _family(autopilot: int) -> str | None:

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import asyncio
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
 from gcs.runtime.link import Link
+from gcs.runtime.signal import Signal
+from gcs.runtime.snapshots import VehicleSnapshot
 
 #: The vehicle clock going back by more than this (s) is a reboot, not jitter or reordering.
 REBOOT_JUMP = 1.0
@@ -40,10 +40,8 @@ class VehicleState:
     reboots: int = 0
     heartbeats: int = 0
     _last_boot_time: float | None = None
-    _reboot_listeners: list[Callable[[], None]] = field(default_factory=list)
-
-    def add_reboot_listener(self, callback: Callable[[], None]) -> None:
-        self._reboot_listeners.append(callback)
+    #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
+    rebooted: Signal[[]] = field(default_factory=Signal)
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("vehicle-state", maxlen=2000)
@@ -75,22 +73,20 @@ class VehicleState:
             if last is not None and item.vehicle_time < last - REBOOT_JUMP:
                 self.reboots += 1
                 self.link._event("state", f"vehicle rebooted (clock {last:.1f} s -> {item.vehicle_time:.1f} s)")
-                for callback in self._reboot_listeners:
-                    asyncio.get_running_loop().call_soon(callback)
+                asyncio.get_running_loop().call_soon(self.rebooted.emit)
             self._last_boot_time = item.vehicle_time
 
-    def as_dict(self) -> dict:
-        return {
-            "sysid": self.link.target_system,
-            "compid": self.link.target_component,
-            "autopilot": self.autopilot,
-            "vehicle_type": self.vehicle_type,
-            "mavlink_version": self.link.vehicle_mavlink,
-            "armed": self.armed,
-            "custom_mode": self.custom_mode,
-            "system_status": self.system_status,
-            "firmware": self.firmware,
-            "reboots": self.reboots,
-            "heartbeats": self.heartbeats,
-            "time": time.time(),
-        }
+    def snapshot(self) -> VehicleSnapshot:
+        return VehicleSnapshot(
+            sysid=self.link.target_system,
+            compid=self.link.target_component,
+            autopilot=self.autopilot,
+            vehicle_type=self.vehicle_type,
+            mavlink_version=self.link.vehicle_mavlink,
+            armed=self.armed,
+            custom_mode=self.custom_mode,
+            system_status=self.system_status,
+            firmware=self.firmware,
+            reboots=self.reboots,
+            heartbeats=self.heartbeats,
+        )

@@ -12,8 +12,8 @@ from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
 from gcs.runtime.events import Event
-from gcs.runtime.station import GroundStation
-from gcs.server.gains import GainControl
+from gcs.runtime.replay import ReplaySession
+from gcs.runtime.station import Station
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
 
@@ -22,10 +22,10 @@ UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 
 
 def create_app(
-    station: GroundStation, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
+    station: Station, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
 ) -> FastAPI:
     """The app for one running station. `token`: required on state-changing requests (None when
-    only this machine can connect). The hub is attached to the station's estimation here."""
+    only this machine can connect). The hub follows the station's estimation, replays and events."""
     if not (UPLOT_DIR / "uPlot.iife.min.js").is_file():
         raise FileNotFoundError(f"uPlot missing in {UPLOT_DIR}: run `npm ci` in {WEB_DIR} (bash .ci/setup does)")
     hub = hub or LiveHub()
@@ -36,16 +36,22 @@ def create_app(
     )
     app.state.station = station
     app.state.hub = hub
-    app.state.gains = GainControl(station)
     app.state.token = token
     app.state.viser_port = viser_port
-    station.estimation.add_listener(hub.on_points)
-    station.events.add_listener(lambda event: forward_gain_event(hub, event))
+    if station.estimation is not None:
+        station.estimation.points.connect(hub.on_points)
+    station.replay_loaded.connect(lambda replay: follow_replay(hub, replay))
+    station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
     for module in ROUTERS:
         app.include_router(importlib.import_module(module).router)
     app.mount("/vendor/uplot", StaticFiles(directory=UPLOT_DIR), name="uplot")
     app.mount("/", StaticFiles(directory=WEB_DIR / "public", html=True), name="page")
     return app
+
+
+def follow_replay(hub: LiveHub, replay: ReplaySession) -> None:
+    """The dashboard plots replayed points as it plots live ones."""
+    replay.add_listener(hub.on_points)
 
 
 def forward_gain_event(hub: LiveHub, event: Event) -> None:

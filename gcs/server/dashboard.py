@@ -1,4 +1,4 @@
-"""Run the dashboard next to a GroundStation in the current event loop: uvicorn serving the
+"""Run the dashboard next to a Station in the current event loop: uvicorn serving the
 FastAPI app, viser (its own thread and port, same host) with the pose view and gain panel, and
 the 30 Hz pose update. `gcs serve`, `gcs demo`, the tests and the benchmarks all use this."""
 
@@ -8,12 +8,18 @@ import asyncio
 import ipaddress
 import secrets
 import socket
+from typing import TYPE_CHECKING
 
 import uvicorn
 
-from gcs.runtime.station import GroundStation
+from gcs.runtime.station import Station
 from gcs.server.app import create_app
 from gcs.server.live import LiveHub
+
+if TYPE_CHECKING:
+    from viser import ViserServer
+
+    from gcs.server.scene import PoseView
 
 #: Pose view refresh, Hz (the eye does not need the 200 Hz the plots get).
 POSE_HZ = 30.0
@@ -36,7 +42,7 @@ class DashboardServer:
 
     def __init__(
         self,
-        station: GroundStation,
+        station: Station,
         host: str = "127.0.0.1",
         port: int = 8000,
         *,
@@ -53,7 +59,7 @@ class DashboardServer:
         self.hub = hub or LiveHub()
         self.send_buffer = send_buffer
         self.token = None if is_loopback(host) else secrets.token_urlsafe(16)
-        self.viser = None
+        self.viser: ViserServer | None = None
         self._server: uvicorn.Server | None = None
         self._tasks: list[asyncio.Task] = []
 
@@ -73,7 +79,7 @@ class DashboardServer:
         self.port = sock.getsockname()[1]
         app = create_app(self.station, self.hub, token=self.token)
         if self.use_viser:
-            self._start_viser(app.state.gains)
+            self._start_viser()
             app.state.viser_port = self.viser_port
         self._server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_ping_interval=None))
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
@@ -84,23 +90,23 @@ class DashboardServer:
         if self.viser is not None:
             self._tasks.append(asyncio.create_task(self._pose_loop()))
 
-    def _start_viser(self, gains) -> None:
+    def _start_viser(self) -> None:
         import viser  # noqa: PLC0415 - heavy (three.js server); not imported when the 3-D view is off
 
         from gcs.server.scene import GainPanel, PoseView  # noqa: PLC0415 - imports viser
 
-        self.viser = viser.ViserServer(
+        server = viser.ViserServer(
             host=self.host, port=self.viser_port or self.port + 1, verbose=False, label="gcs pose"
         )
-        self.viser_port = self.viser.get_port()
-        self.pose = PoseView(self.viser, list(self.station.estimation.pipeline.estimators))
-        panel = GainPanel(self.viser, gains, asyncio.get_running_loop(), editable=self.token is None)
-        self.station.events.add_listener(panel.reflect)
+        self.viser = server
+        self.viser_port = server.get_port()
+        self.pose: PoseView = PoseView(server, self.station.estimator_names())
+        panel = GainPanel(server, self.station, asyncio.get_running_loop(), editable=self.token is None)
+        self.station.events.recorded.connect(panel.reflect)
 
     async def _pose_loop(self) -> None:
-        pipeline = self.station.estimation.pipeline
         while True:
-            self.pose.update(pipeline.latest, {name: est.quaternion for name, est in pipeline.estimators.items()})
+            self.pose.update(*self.station.latest_attitudes())
             await asyncio.sleep(1.0 / POSE_HZ)
 
     async def stop(self) -> None:

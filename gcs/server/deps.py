@@ -1,32 +1,38 @@
-"""FastAPI dependencies shared by every router: the running GroundStation (dependency
-injection, so routers never import a global) and the token check for state-changing requests.
+"""What every router is given: the running Station, the live hub, and the token check.
 
-Routers use them as `from gcs.server.deps import get_station, require_token`:
+Every dependency and every route is `async def`, so all of them run on the event loop thread,
+where the Station's state lives (a plain `def` would run in Starlette's thread pool).
 
-    @router.put("/thing", dependencies=[Depends(require_token)])
-    def change(station: GroundStation = Depends(get_station)): ...
-
-`create_app` stores the station and the token on `app.state`. The token is None when the server
-is bound to a loopback address (only this machine can reach it); otherwise every state-changing
-request must carry it, as the `X-GCS-Token` header, an `Authorization: Bearer` header or a
-`token` query parameter (the start-up URL `http://HOST:PORT/?token=...` gives it to the page).
+The token is None when the server is bound to a loopback address (only this machine can reach
+it); otherwise every state-changing request must carry it, as the `X-GCS-Token` header, an
+`Authorization: Bearer` header or a `token` query parameter (the start-up URL
+`http://HOST:PORT/?token=...` gives it to the page).
 """
 
 from __future__ import annotations
 
 import secrets
+from typing import Annotated
 
-from fastapi import HTTPException, Request, status
+from fastapi import Depends, HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
-from gcs.runtime.station import GroundStation
+from gcs.runtime.station import Station
+from gcs.server.live import LiveHub
 
 TOKEN_HEADER = "X-GCS-Token"
 
 
-def get_station(conn: HTTPConnection) -> GroundStation:
-    """The running GroundStation (for HTTP routes and WebSockets alike)."""
-    return conn.app.state.station
+async def get_station(conn: HTTPConnection) -> Station:
+    """The running Station (for HTTP routes and WebSockets alike)."""
+    station: Station = conn.app.state.station
+    return station
+
+
+async def get_hub(conn: HTTPConnection) -> LiveHub:
+    """The live store and WebSocket fan-out of this app."""
+    hub: LiveHub = conn.app.state.hub
+    return hub
 
 
 def presented_token(request: Request) -> str | None:
@@ -40,7 +46,7 @@ def presented_token(request: Request) -> str | None:
     return request.query_params.get("token")
 
 
-def require_token(request: Request) -> None:
+async def require_token(request: Request) -> None:
     """Reject a state-changing request without the start-up token when one is required."""
     expected: str | None = request.app.state.token
     if expected is None:
@@ -54,16 +60,13 @@ def require_token(request: Request) -> None:
         )
 
 
-def client_name(request: Request) -> str:
+async def get_client(request: Request) -> str:
     """Who made a request, as recorded in the event log ("api:ADDRESS")."""
     return f"api:{request.client.host if request.client else '?'}"
 
 
-def get_hub(conn: HTTPConnection):
-    """The LiveHub (live store and WebSocket fan-out) of this app."""
-    return conn.app.state.hub
-
-
-def get_gains(conn: HTTPConnection):
-    """The GainControl every gain change goes through."""
-    return conn.app.state.gains
+StationDep = Annotated[Station, Depends(get_station)]
+HubDep = Annotated[LiveHub, Depends(get_hub)]
+ClientDep = Annotated[str, Depends(get_client)]
+#: For the `dependencies=[...]` of every route that changes state.
+TOKEN = Depends(require_token)

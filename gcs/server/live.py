@@ -63,6 +63,20 @@ class SeriesRing:
         return t[keep], rpy[keep]
 
 
+@dataclass(frozen=True, slots=True)
+class ClientSnapshot:
+    """One viewer's counters, as the status bar shows them."""
+
+    id: int
+    address: str
+    sent_points: int
+    sent_messages: int
+    dropped_points: int
+    dropped_frames: int
+    queued_frames: int
+    connected_s: float
+
+
 @dataclass
 class ClientFeed:
     """One WebSocket client's bounded queue of encoded frames and its counters."""
@@ -110,17 +124,17 @@ class ClientFeed:
         self.sent_points += points
         self.sent_messages += 1
 
-    def as_dict(self) -> dict:
-        return {
-            "id": self.id,
-            "address": self.address,
-            "sent_points": self.sent_points,
-            "sent_messages": self.sent_messages,
-            "dropped_points": self.dropped_points,
-            "dropped_frames": self.dropped_frames,
-            "queued_frames": len(self.frames),
-            "connected_s": round(time.monotonic() - self.connected_at, 1),
-        }
+    def snapshot(self) -> ClientSnapshot:
+        return ClientSnapshot(
+            id=self.id,
+            address=self.address,
+            sent_points=self.sent_points,
+            sent_messages=self.sent_messages,
+            dropped_points=self.dropped_points,
+            dropped_frames=self.dropped_frames,
+            queued_frames=len(self.frames),
+            connected_s=round(time.monotonic() - self.connected_at, 1),
+        )
 
 
 class LiveHub:

@@ -6,6 +6,10 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from gcs.runtime.snapshots import ErrorStats, StreamRate, VehicleSnapshot
+from gcs.runtime.supervisor import PartStatus
+from gcs.server.live import ClientSnapshot
+
 
 class Angles(BaseModel):
     """One source's latest attitude, degrees, Z-Y-X, at its vehicle time."""
@@ -14,16 +18,6 @@ class Angles(BaseModel):
     roll_deg: float
     pitch_deg: float
     yaw_deg: float
-
-
-class ErrorStats(BaseModel):
-    """RMS and max |error| (estimator − reference) per axis, roll/pitch/yaw in degrees;
-    None where nothing was scored yet."""
-
-    n: int
-    window_rms_deg: list[float | None]
-    session_rms_deg: list[float | None]
-    session_max_deg: list[float | None]
 
 
 class SourceEstimate(Angles):
@@ -36,13 +30,6 @@ class SourceEstimate(Angles):
 
 class EstimatesResponse(BaseModel):
     sources: dict[str, SourceEstimate]
-
-
-class StreamRate(BaseModel):
-    requested_hz: float
-    achieved_hz: float
-    ratio: float | None
-    ack: str | None
 
 
 class LinkStatus(BaseModel):
@@ -69,24 +56,14 @@ class EstimatorStatus(BaseModel):
     health: dict[str, Any]
 
 
-class ClientStatus(BaseModel):
-    id: int
-    address: str
-    sent_points: int
-    sent_messages: int
-    dropped_points: int
-    dropped_frames: int
-    queued_frames: int
-    connected_s: float
-
-
 class StatusResponse(BaseModel):
     link: LinkStatus
-    vehicle: dict[str, Any]
+    vehicle: VehicleSnapshot
     data_age_ms: float | None = Field(description="how old the newest attitude sample is at the server")
     imu_type: str | None
     estimators: dict[str, EstimatorStatus]
-    clients: list[ClientStatus]
+    parts: list[PartStatus] = Field(description="the station's supervised parts; a failed one carries its error")
+    clients: list[ClientSnapshot]
     viser_port: int | None
     token_required: bool
 

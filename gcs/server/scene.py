@@ -29,7 +29,8 @@ import viser
 from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import euler_to_quat
 from gcs.runtime.events import Event
-from gcs.server.gains import GainControl, slider_spec
+from gcs.runtime.station import Station
+from gcs.server.sliders import slider_spec
 
 #: Ghost colours per estimator (falls back to grey); the page uses the same ones.
 COLORS = {
@@ -99,24 +100,28 @@ class PoseView:
 
 
 class GainPanel:
-    """viser sliders for every declared gain, driving GainControl on the event loop."""
+    """viser sliders for every declared gain, driving the Station's gain commands on the event
+    loop. Read-only (no handlers at all, since viser does not enforce `disabled`) when the server
+    needs a token."""
 
     def __init__(
-        self, server: viser.ViserServer, gains: GainControl, loop: asyncio.AbstractEventLoop, editable: bool
+        self, server: viser.ViserServer, station: Station, loop: asyncio.AbstractEventLoop, editable: bool
     ) -> None:
-        self.gains = gains
+        self.station = station
         self.loop = loop
-        self.sliders: dict[tuple[str, str], tuple[viser.GuiInputHandle, str]] = {}
+        self.sliders: dict[tuple[str, str], tuple[viser.GuiSliderHandle[float], str]] = {}
         self._reflecting = False
         with server.gui.add_folder("Estimator gains"):
             if not editable:
                 server.gui.add_markdown("Read-only here: this server needs a token, change gains on the page.")
-            for name, est in gains.pipeline.estimators.items():
+            for name in station.estimator_names():
+                est = station.estimator(name)
                 with server.gui.add_folder(name, expand_by_default=False):
                     for gain in est.gains.declarations.values():
                         self._add_slider(server, name, gain, est, editable)
                     reset = server.gui.add_button(f"reset {name} to {est.DEFAULT_PRESET}", disabled=not editable)
-                    reset.on_click(self._on_reset(name))
+                    if editable:
+                        reset.on_click(self._on_reset(name))
 
     def _add_slider(self, server, estimator: str, gain, est, editable: bool) -> None:
         spec = slider_spec(gain, est.gains.presets)
@@ -137,7 +142,8 @@ class GainPanel:
             disabled=not editable,
         )
         self.sliders[(estimator, gain.name)] = (slider, spec.scale)
-        slider.on_update(self._on_slider(estimator, gain.name, slider, spec.scale))
+        if editable:
+            slider.on_update(self._on_slider(estimator, gain.name, slider, spec.scale))
 
     @staticmethod
     def _position(scale: str, lo: float, hi: float, value: float) -> float:
@@ -157,15 +163,15 @@ class GainPanel:
     def _apply(self, estimator: str, gain: str, value: float) -> None:
         """Apply a slider position (clamped: 10**log10(max) may round past max), unless it only
         echoes the current value."""
-        gains = self.gains.estimator(estimator).gains
+        gains = self.station.estimator(estimator).gains
         declared = gains.declarations[gain]
         value = min(declared.max, max(declared.min, value))
         if not math.isclose(gains[gain], value, rel_tol=1e-9, abs_tol=1e-15):
-            self.gains.set(estimator, gain, value, "viser")
+            self.station.set_gain(estimator, gain, value, "viser")
 
     def _on_reset(self, estimator: str) -> Callable:
         def clicked(_event) -> None:
-            self.loop.call_soon_threadsafe(self.gains.reset, estimator, None, "viser")
+            self.loop.call_soon_threadsafe(self.station.reset_gains, estimator, None, "viser")
 
         return clicked
 
@@ -179,6 +185,7 @@ class GainPanel:
         slider, scale = entry
         self._reflecting = True
         try:
-            slider.value = self._position(scale, slider.min, slider.max, event.data["new"])
+            position = self._position(scale, slider.min, slider.max, event.data["new"])
+            slider.value = position  # type: ignore[misc]  # viser's stub marks it read-only; the handle sets it
         finally:
             self._reflecting = False

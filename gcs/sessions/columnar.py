@@ -9,7 +9,6 @@ complete batch. At close (or recovery) it is converted to Parquet, which is what
 from __future__ import annotations
 
 import io
-import math
 from pathlib import Path
 
 import pyarrow as pa
@@ -52,20 +51,6 @@ SCHEMAS = {"attitude": ATTITUDE_SCHEMA, "comparison": COMPARISON_SCHEMA}
 def attitude_rows(points, wall_time: float) -> list[tuple]:
     """AttitudePoints (gcs.core.estimation) → attitude table rows."""
     return [(wall_time, p.t, p.source, p.roll, p.pitch, p.yaw) for p in points]
-
-
-def comparison_rows(summary: dict, wall_time: float) -> list[tuple]:
-    """EstimationPipeline.summary() → comparison table rows (session statistics)."""
-    rows = []
-    for name, est in summary["estimators"].items():
-        comp = est["comparison"]
-        lag = comp.get("lag")
-        for ref, stats in comp["references"].items():
-            s = stats["session"]
-            rows.append(
-                (wall_time, name, ref, s["n"], *s["rms"], *s["max"], math.nan if lag is None else lag, comp["imu_rate"])
-            )
-    return rows
 
 
 class StreamEncoder:

@@ -50,3 +50,10 @@ def write_table(table: pa.Table, fmt: str, out: str | os.PathLike) -> None:
         pcsv.write_csv(table, out)
     else:
         pq.write_table(table, out)
+
+
+def export_file(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> int:
+    """Write the attitude table of `path` to `out` in `fmt`; returns the number of rows."""
+    table = attitude_table(path)
+    write_table(table, fmt, out)
+    return table.num_rows

@@ -125,3 +125,8 @@ def what_if(source: ReplaySource | str | os.PathLike, estimator: str, gains: dic
     started = time.perf_counter()
     new = cached_run(source, estimator, dict(gains))
     return WhatIf(estimator, dict(gains), old, new, time.perf_counter() - started)
+
+
+def what_if_json(source: str | os.PathLike, estimator: str, gains: dict[str, float]) -> dict:
+    """`what_if(...).as_dict()`: what a worker process hands back (small and picklable)."""
+    return what_if(source, estimator, gains).as_dict()

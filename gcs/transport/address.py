@@ -10,6 +10,7 @@ flight.tlog             a telemetry log replayed as if it were live
 
 from __future__ import annotations
 
+import socket
 from dataclasses import dataclass
 
 
@@ -62,3 +63,11 @@ def parse_address(text: str) -> Address:
             f"{text!r}: unknown scheme {scheme!r}; use udpin:, udpout:, tcp:, tcpin:, a serial device or a .tlog"
         )
     return Address("serial", path=text)
+
+
+def free_port(kind: socket.SocketKind = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
+    """A port nobody is bound to on `host` now (UDP by default), for a link the caller sets up next."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind((host, 0))
+        port: int = s.getsockname()[1]
+        return port

@@ -66,6 +66,7 @@ function showStatus(s) {
     + s.clients.filter((c) => c.dropped_points).map((c) => ` · viewer ${c.id} dropped ${c.dropped_points}`).join("");
   const warn = Object.entries(s.estimators).filter(([, e]) => !e.reliable).map(([n, e]) => `${n}: ${e.reason}`);
   if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
+  for (const p of s.parts.filter((x) => x.state === "failed")) warn.unshift(`station part ${p.name} failed: ${p.error}`);
   $("warnings").innerHTML = warn.map((w) => `<div>⚠ ${escapeHtml(w)}</div>`).join("");
   const rows = Object.entries(l.streams).map(([name, r]) =>
     `<tr><td>${name}</td><td>${fmt(r.requested_hz)}</td><td class="${r.ratio != null && r.ratio < 0.9 ? "low" : ""}">${fmt(r.achieved_hz)}</td></tr>`);

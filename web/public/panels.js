@@ -195,7 +195,7 @@ async function refreshRecording() {
   $("rec-status").innerHTML = `<span class="pill rec-${html(s.state)}">${html(s.state)}</span> `
     + (s.state === "off" ? "this station runs without recording (--no-record)"
       : `${html(s.folder || `(no session open) in ${s.root}`)} · ${bytes(s.bytes_written)}${flush}`
-        + (s.packets ? ` · ${s.packets.received ?? 0} packets received, ${s.packets.sent ?? 0} sent` : "")
+        + ` · ${s.packets_received} packets received, ${s.packets_sent} sent`
         + (s.dropped ? ` · <span class="low">${s.dropped} dropped</span>` : "")
         + (s.recovered && s.recovered.length ? ` · recovered after a crash: ${html(s.recovered.join(", "))}` : ""));
   const err = $("rec-error");

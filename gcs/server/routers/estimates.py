@@ -1,16 +1,13 @@
 """GET /api/estimates: for scripts, each source's latest attitude in degrees at its vehicle time,
-and for each estimator its running RMS error against the onboard attitude and the truth."""
+and for each estimator its error statistics against the onboard attitude and the truth
+(from the station's last published snapshot)."""
 
 from __future__ import annotations
 
-import math
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Depends
-
-from gcs.runtime.station import GroundStation
-from gcs.server.deps import get_station
-from gcs.server.models import ErrorStats, EstimatesResponse, SourceEstimate
-from gcs.server.routers.status import finite
+from gcs.server.deps import StationDep
+from gcs.server.models import EstimatesResponse, SourceEstimate
 
 router = APIRouter(prefix="/api", tags=["estimates"])
 
@@ -19,31 +16,21 @@ ERROR_REFERENCES = ("onboard", "truth")
 
 
 @router.get("/estimates", response_model=EstimatesResponse)
-def get_estimates(station: GroundStation = Depends(get_station)) -> EstimatesResponse:
-    if station.estimation is None:
+async def get_estimates(station: StationDep) -> EstimatesResponse:
+    estimation = station.snapshot.estimation
+    if estimation is None:
         return EstimatesResponse(sources={})
-    pipeline = station.estimation.pipeline
     sources = {}
-    for source, p in list(pipeline.latest.items()):
-        is_estimator = source in pipeline.estimators
-        errors = {}
-        if is_estimator:
-            for ref, stats in pipeline.comparisons[source].stats.items():
-                if ref in ERROR_REFERENCES:
-                    s = stats.summary()
-                    errors[ref] = ErrorStats(
-                        n=s["n"],
-                        window_rms_deg=[finite(v) for v in s["window"]["rms"]],
-                        session_rms_deg=[finite(v) for v in s["session"]["rms"]],
-                        session_max_deg=[finite(v) for v in s["session"]["max"]],
-                    )
-        sources[source] = SourceEstimate(
-            source=source,
-            kind="estimator" if is_estimator else "reference",
-            t=p.t,
-            roll_deg=math.degrees(p.roll),
-            pitch_deg=math.degrees(p.pitch),
-            yaw_deg=math.degrees(p.yaw),
+    for name, a in estimation.latest.items():
+        est = estimation.estimators.get(name)
+        errors = {ref: s for ref, s in est.errors.items() if ref in ERROR_REFERENCES} if est else {}
+        sources[name] = SourceEstimate(
+            source=name,
+            kind=a.kind,
+            t=a.t,
+            roll_deg=a.roll_deg,
+            pitch_deg=a.pitch_deg,
+            yaw_deg=a.yaw_deg,
             errors=errors,
         )
     return EstimatesResponse(sources=sources)

@@ -1,20 +1,21 @@
 """Estimator gains over REST: list the declarations with current values and slider shapes,
-change one gain, reset an estimator to a preset. Changes need the token when one is required
-and are recorded in the station's event log by GainControl."""
+change one gain, reset an estimator to a preset. Changes need the token when one is required;
+the Station records each one in its event log."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, status
 
+from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainError
-from gcs.server.deps import client_name, get_gains, require_token
-from gcs.server.gains import GainControl, slider_spec
+from gcs.server.deps import TOKEN, ClientDep, StationDep
 from gcs.server.models import EstimatorGains, GainChange, GainInfo, GainUpdate, PresetRequest, PresetResult
+from gcs.server.sliders import slider_spec
 
 router = APIRouter(prefix="/api/estimators", tags=["gains"])
 
 
-def describe(name: str, est) -> EstimatorGains:
+def describe(name: str, est: AttitudeEstimator) -> EstimatorGains:
     presets = est.gains.presets
     infos = []
     for g in est.gains.declarations.values():
@@ -39,55 +40,51 @@ def describe(name: str, est) -> EstimatorGains:
     )
 
 
-def known_estimator(name: str, gains: GainControl):
+def known_estimator(station: StationDep, name: str) -> AttitudeEstimator:
     try:
-        return gains.estimator(name)
+        return station.estimator(name)
     except KeyError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=exc.args[0]) from None
 
 
 @router.get("", response_model=list[EstimatorGains])
-def list_estimators(gains: GainControl = Depends(get_gains)) -> list[EstimatorGains]:
-    return [describe(name, est) for name, est in gains.pipeline.estimators.items()]
+async def list_estimators(station: StationDep) -> list[EstimatorGains]:
+    return [describe(name, station.estimator(name)) for name in station.estimator_names()]
 
 
 @router.get("/{name}", response_model=EstimatorGains)
-def get_estimator(name: str, gains: GainControl = Depends(get_gains)) -> EstimatorGains:
-    return describe(name, known_estimator(name, gains))
+async def get_estimator(name: str, station: StationDep) -> EstimatorGains:
+    return describe(name, known_estimator(station, name))
 
 
 @router.put(
     "/{name}/gains/{gain}",
     response_model=GainChange,
-    dependencies=[Depends(require_token)],
+    dependencies=[TOKEN],
     responses={
         404: {"description": "unknown estimator or gain"},
         422: {"description": "value outside the gain's declared bounds"},
     },
 )
-def put_gain(
-    name: str, gain: str, body: GainUpdate, request: Request, gains: GainControl = Depends(get_gains)
-) -> GainChange:
-    est = known_estimator(name, gains)
+async def put_gain(name: str, gain: str, body: GainUpdate, station: StationDep, client: ClientDep) -> GainChange:
+    est = known_estimator(station, name)
     if gain not in est.gains.declarations:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND,
             detail=f"estimator {name} has no gain {gain!r}; known: {', '.join(est.gains.declarations)}",
         )
     try:
-        old, new = gains.set(name, gain, body.value, client_name(request))
+        old, new = station.set_gain(name, gain, body.value, client)
     except GainError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, detail=str(exc)) from None
     return GainChange(estimator=name, gain=gain, old=old, new=new)
 
 
-@router.post("/{name}/preset", response_model=PresetResult, dependencies=[Depends(require_token)])
-def reset_preset(
-    name: str, body: PresetRequest, request: Request, gains: GainControl = Depends(get_gains)
-) -> PresetResult:
-    est = known_estimator(name, gains)
+@router.post("/{name}/preset", response_model=PresetResult, dependencies=[TOKEN])
+async def reset_preset(name: str, body: PresetRequest, station: StationDep, client: ClientDep) -> PresetResult:
+    est = known_estimator(station, name)
     try:
-        changes = gains.reset(name, body.preset, client_name(request))
+        changes = station.reset_gains(name, body.preset, client)
     except GainError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, detail=str(exc)) from None
     return PresetResult(

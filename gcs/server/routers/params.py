@@ -7,22 +7,21 @@ PUT  /api/tuning/{name}     write one gain, checked against the profile and veri
 POST /api/tuning/revert     put back every pre-flight value, verified (token)
 
 The tuning session (pre-flight snapshot, profile detected from the table) is opened by the
-first tuning request and kept on app.state for the life of the server, so the snapshot always
-predates every write made through the panel.
+first tuning request and kept by the Station for its life, so the snapshot always predates every
+write made through the panel.
 """
 
 from __future__ import annotations
 
-import asyncio
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi import APIRouter, Depends, HTTPException, status
 from pydantic import BaseModel
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
-from gcs.runtime.station import GroundStation
-from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, open_session
-from gcs.server.deps import client_name, get_station, require_token
+from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession
+from gcs.server.deps import TOKEN, ClientDep, StationDep
 
 router = APIRouter(tags=["params"])
 
@@ -49,21 +48,18 @@ def http_error(exc: Exception) -> HTTPException:
     return HTTPException(code, detail=str(exc))
 
 
-async def tuning_session(request: Request, station: GroundStation = Depends(get_station)) -> TuningSession:
-    state = request.app.state
-    if getattr(state, "tuning_lock", None) is None:
-        state.tuning_lock = asyncio.Lock()
-    async with state.tuning_lock:
-        if getattr(state, "tuning", None) is None:
-            try:
-                state.tuning = await open_session(station.params)
-            except (ParamError, ProfileError) as exc:
-                raise http_error(exc) from None
-    return state.tuning
+async def tuning_session(station: StationDep) -> TuningSession:
+    try:
+        return await station.tuning()
+    except (ParamError, ProfileError) as exc:
+        raise http_error(exc) from None
+
+
+TuningDep = Annotated[TuningSession, Depends(tuning_session)]
 
 
 @router.get("/api/params")
-async def get_params(station: GroundStation = Depends(get_station)) -> dict:
+async def get_params(station: StationDep) -> dict:
     params = station.params
     return {
         "progress": params.progress(),
@@ -73,25 +69,20 @@ async def get_params(station: GroundStation = Depends(get_station)) -> dict:
     }
 
 
-@router.post("/api/params/download", status_code=status.HTTP_202_ACCEPTED, dependencies=[Depends(require_token)])
-async def start_download(request: Request, station: GroundStation = Depends(get_station)) -> dict:
-    task = getattr(request.app.state, "param_download", None)
-    running = task is not None and not task.done()
-    if not running:
-        task = asyncio.get_running_loop().create_task(station.params.download())
-        task.add_done_callback(lambda t: t.cancelled() or t.exception())  # the error stays in progress()
-        request.app.state.param_download = task
-    return {"download": "already running" if running else "started", "progress": station.params.progress()}
+@router.post("/api/params/download", status_code=status.HTTP_202_ACCEPTED, dependencies=[TOKEN])
+async def start_download(station: StationDep) -> dict:
+    started = station.start_param_download()
+    return {"download": "started" if started else "already running", "progress": station.params.progress()}
 
 
 @router.get("/api/tuning")
-async def get_tuning(session: TuningSession = Depends(tuning_session)) -> dict:
+async def get_tuning(session: TuningDep) -> dict:
     return session.as_dict()
 
 
 @router.put(
     "/api/tuning/{name}",
-    dependencies=[Depends(require_token)],
+    dependencies=[TOKEN],
     responses={
         404: {"description": "unknown parameter"},
         409: {"description": "the vehicle stored another value"},
@@ -100,21 +91,19 @@ async def get_tuning(session: TuningSession = Depends(tuning_session)) -> dict:
         504: {"description": "the vehicle did not answer"},
     },
 )
-async def put_tuned(
-    name: str, body: TunedValue, request: Request, session: TuningSession = Depends(tuning_session)
-) -> dict:
+async def put_tuned(name: str, body: TunedValue, session: TuningDep, client: ClientDep) -> dict:
     old = session.params.table[name].value if name in session.params.table else None
     try:
-        stored = await session.set(name, body.value, client_name(request))
+        stored = await session.set(name, body.value, client)
     except ParamError as exc:
         raise http_error(exc) from None
     return {"name": name, "old": old, "new": stored.value, "verified": True, "preflight": session.preflight.get(name)}
 
 
-@router.post("/api/tuning/revert", dependencies=[Depends(require_token)])
-async def revert(request: Request, session: TuningSession = Depends(tuning_session)) -> dict:
+@router.post("/api/tuning/revert", dependencies=[TOKEN])
+async def revert(session: TuningDep, client: ClientDep) -> dict:
     try:
-        restored = await session.revert(client_name(request))
+        restored = await session.revert(client)
     except ParamError as exc:
         raise http_error(exc) from None
     return {"restored": [p.as_dict() for p in restored], "params": session.rows()}

@@ -3,30 +3,31 @@ add a note, list log files beside the sessions, drive a replay (play, pause, see
 
 Sources are named, never given as paths: a session folder name or a log file name inside the
 recording folder, so a remote page cannot read arbitrary files. State-changing requests need the
-token when one is required. Decoding and estimator re-runs happen in a worker thread, so the
-link reader and the live view never wait on them.
+token when one is required. Exports and what-if run in the station's worker process, so the link
+reader and the live view never wait on them.
 """
 
 from __future__ import annotations
 
-import asyncio
 import tempfile
 from pathlib import Path
+from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from starlette.background import BackgroundTask
 
 from gcs.core.gains import GainError
-from gcs.logs.readers import InputError
+from gcs.logs.logfile import InputError
 from gcs.runtime.replay import ReplaySession
-from gcs.runtime.station import GroundStation
-from gcs.server.deps import client_name, get_station, require_token
+from gcs.runtime.snapshots import RecordingSnapshot
+from gcs.runtime.station import Station, StationError
+from gcs.server.deps import TOKEN, ClientDep, StationDep
 from gcs.sessions import layout
-from gcs.sessions.export import FORMATS, attitude_table, write_table
-from gcs.sessions.sources import KINDS, cached_source
-from gcs.sessions.whatif import what_if
+from gcs.sessions.export import FORMATS, export_file
+from gcs.sessions.sources import KINDS
+from gcs.sessions.whatif import what_if_json
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -56,11 +57,11 @@ class WhatIfRequest(BaseModel):
     gains: dict[str, float]
 
 
-def recording_root(station: GroundStation) -> Path:
+def recording_root(station: Station) -> Path:
     return station.recorder.root if station.recorder is not None else Path("sessions")
 
 
-def named_source(station: GroundStation, name: str) -> Path:
+def named_source(station: Station, name: str) -> Path:
     """The session or log called `name` in the recording folder; 404 otherwise."""
     root = recording_root(station).resolve()
     path = (root / name).resolve()
@@ -69,26 +70,23 @@ def named_source(station: GroundStation, name: str) -> Path:
     return path
 
 
-def recorder_of(station: GroundStation):
-    if station.recorder is None:
-        raise HTTPException(status.HTTP_409_CONFLICT, detail="this station runs without recording (--no-record)")
-    return station.recorder
-
-
-def replay_of(request: Request) -> ReplaySession:
-    replay = getattr(request.app.state, "replay", None)
-    if replay is None:
+def loaded_replay(station: Station) -> ReplaySession:
+    if station.replay is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail="no replay loaded: POST /api/replay first")
-    return replay
+    return station.replay
+
+
+def conflict(exc: StationError) -> HTTPException:
+    return HTTPException(status.HTTP_409_CONFLICT, detail=str(exc))
 
 
 @router.get("/sessions")
-def list_recorded(station: GroundStation = Depends(get_station)) -> list[dict]:
+async def list_recorded(station: StationDep) -> list[dict[str, Any]]:
     return [s.as_dict() for s in layout.list_sessions(recording_root(station))]
 
 
 @router.get("/logs")
-def list_logs(station: GroundStation = Depends(get_station)) -> list[dict]:
+async def list_logs(station: StationDep) -> list[dict[str, Any]]:
     """Log files from other tools (.tlog, .bin, .ulg) in the recording folder: replay and what-if
     sources, by name, beside the recorded sessions."""
     root = recording_root(station)
@@ -102,135 +100,117 @@ def list_logs(station: GroundStation = Depends(get_station)) -> list[dict]:
 
 
 @router.get("/sessions/{name}/export", response_class=FileResponse)
-async def export(name: str, format: str = "csv", station: GroundStation = Depends(get_station)) -> FileResponse:
+async def export(name: str, station: StationDep, format: str = "csv") -> FileResponse:
     if format not in FORMATS:
         raise HTTPException(422, detail=f"format {format!r}: use {' or '.join(FORMATS)}")
     path = named_source(station, name)
-    tmp = tempfile.NamedTemporaryFile(suffix=f".{format}", delete=False)
-    tmp.close()
+    with tempfile.NamedTemporaryFile(suffix=f".{format}", delete=False) as tmp:
+        out = Path(tmp.name)
     try:
-        table = await asyncio.to_thread(attitude_table, path)
-        await asyncio.to_thread(write_table, table, format, tmp.name)
+        await station.in_worker(export_file, path, format, out)
     except InputError as exc:
-        Path(tmp.name).unlink(missing_ok=True)
+        out.unlink(missing_ok=True)
         raise HTTPException(422, detail=str(exc)) from None
     return FileResponse(
-        tmp.name,
-        filename=f"{Path(name).stem}.{format}",
-        background=BackgroundTask(Path(tmp.name).unlink, missing_ok=True),
+        out, filename=f"{Path(name).stem}.{format}", background=BackgroundTask(out.unlink, missing_ok=True)
     )
 
 
 @router.get("/recording")
-def recording(station: GroundStation = Depends(get_station)) -> dict:
-    return station.recorder.status() if station.recorder else {"state": "off"}
+async def recording(station: StationDep) -> RecordingSnapshot:
+    return station.snapshot.recording if station.recorder is None else station.recorder.snapshot()
 
 
-@router.post("/recording/start", dependencies=[Depends(require_token)])
-async def start_recording(station: GroundStation = Depends(get_station)) -> dict:
-    recorder = recorder_of(station)
-    recorder.start_recording()
-    return recorder.status()
+@router.post("/recording/start", dependencies=[TOKEN])
+async def start_recording(station: StationDep) -> RecordingSnapshot:
+    try:
+        return station.start_recording()
+    except StationError as exc:
+        raise conflict(exc) from None
 
 
-@router.post("/recording/stop", dependencies=[Depends(require_token)])
-async def stop_recording(request: Request, station: GroundStation = Depends(get_station)) -> dict:
-    """Detach the session in the event loop, then close it (flush, Parquet) in a worker thread."""
-    recorder = recorder_of(station)
-    session = recorder.detach(client_name(request))
-    if session is not None:
-        try:
-            await asyncio.to_thread(recorder.finish, session)
-        except OSError as exc:
-            recorder.report_error(f"cannot close session {session.folder}: {exc.strerror or exc}")
-    return recorder.status()
+@router.post("/recording/stop", dependencies=[TOKEN])
+async def stop_recording(station: StationDep, client: ClientDep) -> RecordingSnapshot:
+    try:
+        return await station.stop_recording(client)
+    except StationError as exc:
+        raise conflict(exc) from None
 
 
-@router.post("/recording/note", dependencies=[Depends(require_token)])
-async def add_note(note: Note, request: Request, station: GroundStation = Depends(get_station)) -> dict:
-    recorder_of(station).note(note.text, client_name(request))
+@router.post("/recording/note", dependencies=[TOKEN])
+async def add_note(note: Note, station: StationDep, client: ClientDep) -> dict[str, bool]:
+    try:
+        station.add_note(note.text, client)
+    except StationError as exc:
+        raise conflict(exc) from None
     return {"ok": True}
 
 
-@router.post("/replay", dependencies=[Depends(require_token)])
-async def load_replay(body: ReplayRequest, request: Request, station: GroundStation = Depends(get_station)) -> dict:
+@router.post("/replay", dependencies=[TOKEN])
+async def load_replay(body: ReplayRequest, station: StationDep) -> dict[str, Any]:
     """Load a source and start playing it (replacing any replay already loaded)."""
     path = named_source(station, body.source)
     try:
-        source = await asyncio.to_thread(cached_source, path)
-        replay = ReplaySession(source, body.speed, body.estimators, body.gains)
+        replay = await station.load_replay(path, body.speed, body.estimators, body.gains)
     except (InputError, KeyError, GainError) as exc:
         raise HTTPException(422, detail=str(exc).strip("'")) from None
-    await unload_replay(request)
-    hub = getattr(request.app.state, "hub", None)
-    if hub is not None:
-        replay.add_listener(hub.on_points)  # the dashboard plots replayed points as it plots live ones
-    request.app.state.replay = replay
-    request.app.state.replay_task = asyncio.create_task(replay.run())
     return replay.status()
 
 
 @router.get("/replay")
-def replay_status(request: Request) -> dict:
-    return replay_of(request).status()
+async def replay_status(station: StationDep) -> dict[str, Any]:
+    return loaded_replay(station).status()
 
 
 @router.get("/replay/current")
-def current_replay(request: Request) -> dict:
+async def current_replay(station: StationDep) -> dict[str, Any]:
     """The loaded replay's status with loaded=true, or {"loaded": false}: what the page polls
     (no 404 every second while nothing is replayed)."""
-    replay = getattr(request.app.state, "replay", None)
+    replay = station.replay
     return {"loaded": False} if replay is None else {"loaded": True, **replay.status()}
 
 
-@router.post("/replay/play", dependencies=[Depends(require_token)])
-def play(request: Request) -> dict:
-    replay = replay_of(request)
+@router.post("/replay/play", dependencies=[TOKEN])
+async def play(station: StationDep) -> dict[str, Any]:
+    replay = loaded_replay(station)
     replay.play()
     return replay.status()
 
 
-@router.post("/replay/pause", dependencies=[Depends(require_token)])
-def pause(request: Request) -> dict:
-    replay = replay_of(request)
+@router.post("/replay/pause", dependencies=[TOKEN])
+async def pause(station: StationDep) -> dict[str, Any]:
+    replay = loaded_replay(station)
     replay.pause()
     return replay.status()
 
 
-@router.post("/replay/seek", dependencies=[Depends(require_token)])
-async def seek(body: Seek, request: Request) -> dict:
-    replay = replay_of(request)
-    replay.pause()
-    await asyncio.to_thread(replay.seek, body.offset_s)
-    replay.play()
+@router.post("/replay/seek", dependencies=[TOKEN])
+async def seek(body: Seek, station: StationDep) -> dict[str, Any]:
+    replay = loaded_replay(station)
+    replay.seek(body.offset_s)
     return replay.status()
 
 
-@router.post("/replay/speed", dependencies=[Depends(require_token)])
-def speed(body: Speed, request: Request) -> dict:
-    replay = replay_of(request)
+@router.post("/replay/speed", dependencies=[TOKEN])
+async def speed(body: Speed, station: StationDep) -> dict[str, Any]:
+    replay = loaded_replay(station)
     replay.set_speed(body.speed)
     return replay.status()
 
 
-@router.delete("/replay", dependencies=[Depends(require_token)])
-async def unload_replay(request: Request) -> dict:
-    task = getattr(request.app.state, "replay_task", None)
-    if task is not None:
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-    request.app.state.replay = request.app.state.replay_task = None
+@router.delete("/replay", dependencies=[TOKEN])
+async def unload_replay(station: StationDep) -> dict[str, bool]:
+    await station.unload_replay()
     return {"ok": True}
 
 
 @router.post("/whatif")
-async def whatif(body: WhatIfRequest, station: GroundStation = Depends(get_station)) -> dict:
+async def whatif(body: WhatIfRequest, station: StationDep) -> dict[str, Any]:
     """Old and new output of one estimator over a whole session with other gains, and the RMS table."""
     path = named_source(station, body.source)
     try:
-        result = await asyncio.to_thread(what_if, path, body.estimator, body.gains)
+        return await station.in_worker(what_if_json, path, body.estimator, body.gains)
     except KeyError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=exc.args[0]) from None
     except (InputError, GainError) as exc:
         raise HTTPException(422, detail=str(exc)) from None
-    return result.as_dict()

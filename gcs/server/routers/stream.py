@@ -14,14 +14,15 @@ Messages on /ws/live, JSON text:
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import time
 
-from fastapi import APIRouter, Depends, Query, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 
-from gcs.server.deps import get_hub
-from gcs.server.live import ClientFeed, LiveHub
+from gcs.server.deps import HubDep
+from gcs.server.live import ClientFeed
 from gcs.server.models import History
 
 router = APIRouter(tags=["live"])
@@ -31,9 +32,9 @@ CLIENT_STATS_PERIOD = 1.0
 
 
 @router.get("/api/history", response_model=History)
-def get_history(
+async def get_history(
+    hub: HubDep,
     seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
-    hub: LiveHub = Depends(get_hub),
 ) -> Response:
     # Encoded here, not validated by pydantic: a 10-minute window is a million numbers.
     body = json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
@@ -41,7 +42,7 @@ def get_history(
 
 
 @router.websocket("/ws/live")
-async def live(ws: WebSocket, hub: LiveHub = Depends(get_hub)) -> None:
+async def live(ws: WebSocket, hub: HubDep) -> None:
     await ws.accept()
     feed = hub.connect(f"{ws.client.host}:{ws.client.port}" if ws.client else "?")
     sender = asyncio.create_task(send_feed(ws, feed))
@@ -67,4 +68,4 @@ async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
         now = time.monotonic()
         if now - last_stats >= CLIENT_STATS_PERIOD:
             last_stats = now
-            await ws.send_text(json.dumps({"type": "client", **feed.as_dict()}))
+            await ws.send_text(json.dumps({"type": "client", **dataclasses.asdict(feed.snapshot())}))

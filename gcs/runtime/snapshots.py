@@ -1,0 +1,171 @@
+"""The station's state as typed, frozen values: what the server, the CLI and the recorder read.
+
+The station publishes one `StationSnapshot` at a fixed rate (and when a part fails); readers never
+touch the live objects. Numbers that are unknown are None, never NaN (JSON has no NaN).
+Angles a person reads are in degrees, as the field names say.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from gcs.runtime.supervisor import PartStatus
+
+
+def finite(x: float | None) -> float | None:
+    """None for a missing or non-finite number."""
+    return None if x is None or not math.isfinite(x) else x
+
+
+@dataclass(frozen=True, slots=True)
+class LinkCounters:
+    packets: int
+    bytes_in: int
+    bytes_out: int
+    packets_out: int
+    bytes_per_s: float
+    rates_hz: dict[str, float]
+    counts: dict[str, int]
+    crc_errors: int
+    malformed: int
+    bytes_skipped: int
+    unknown_messages: int
+    packets_lost: int
+    loss_fraction: float
+    lost_by_source: dict[str, int]
+    mavlink1_packets: int
+    mavlink2_packets: int
+
+
+@dataclass(frozen=True, slots=True)
+class LinkNote:
+    """A link event as an engineer reads it (state change, reconnect, baud detection...)."""
+
+    wall_time: float
+    kind: str
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSnapshot:
+    name: str
+    address: str
+    state: str
+    transport_open: bool
+    baud: int | str | None
+    target_system: int | None
+    target_component: int | None
+    mavlink_version: int | None
+    heartbeat_age_s: float | None
+    stats: LinkCounters
+    events: list[LinkNote]
+
+
+@dataclass(frozen=True, slots=True)
+class StreamRate:
+    requested_hz: float
+    achieved_hz: float
+    ratio: float | None
+    ack: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class StreamsSnapshot:
+    method: str | None  # "SET_MESSAGE_INTERVAL" or "REQUEST_DATA_STREAM" once decided
+    requests_sent: int
+    messages: dict[str, StreamRate]
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSnapshot:
+    sysid: int | None
+    compid: int | None
+    autopilot: str | None
+    vehicle_type: str | None
+    mavlink_version: int | None
+    armed: bool
+    custom_mode: int | None
+    system_status: str | None
+    firmware: str | None
+    reboots: int
+    heartbeats: int
+
+
+@dataclass(frozen=True, slots=True)
+class OutputSnapshot:
+    address: str
+    open: bool
+    packets_out: int
+    packets_in: int
+
+
+@dataclass(frozen=True, slots=True)
+class ErrorStats:
+    """|estimator − reference| per axis (roll, pitch, yaw), degrees."""
+
+    n: int
+    window_rms_deg: list[float | None]
+    window_max_deg: list[float | None]
+    session_rms_deg: list[float | None]
+    session_max_deg: list[float | None]
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorSnapshot:
+    preset: str
+    gains: dict[str, float]
+    health: dict[str, float | str | None]
+    reliable: bool
+    reason: str
+    imu_rate_hz: float
+    lag_s: float | None  # > 0: the estimator is behind the onboard attitude
+    dropped: int
+    errors: dict[str, ErrorStats]  # per reference
+
+
+@dataclass(frozen=True, slots=True)
+class SourceAttitude:
+    """One source's latest attitude at its vehicle time, degrees, Z-Y-X."""
+
+    source: str
+    kind: str  # "reference" (onboard, ahrs2, truth) or "estimator"
+    t: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingSnapshot:
+    state: str  # off | recording | failed | stopped
+    folder: str | None
+    root: str | None
+    bytes_written: int
+    last_flush_age_s: float | None
+    packets_received: int
+    packets_sent: int
+    dropped: int
+    error: str | None
+    recovered: list[dict[str, object]] = field(default_factory=list)
+
+
+@dataclass(frozen=True, slots=True)
+class EstimationSnapshot:
+    imu_type: str | None
+    imu_samples: int
+    declination_rad: float | None
+    estimators: dict[str, EstimatorSnapshot]
+    latest: dict[str, SourceAttitude]
+
+
+@dataclass(frozen=True, slots=True)
+class StationSnapshot:
+    published: float  # UNIX time
+    link: LinkSnapshot
+    vehicle: VehicleSnapshot
+    streams: StreamsSnapshot
+    outputs: list[OutputSnapshot]
+    estimation: EstimationSnapshot | None
+    recording: RecordingSnapshot
+    parts: list[PartStatus]
