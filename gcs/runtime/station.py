@@ -1,6 +1,6 @@
 """The ground station's live core for one vehicle: link, forwarding outputs, vehicle state
 and stream requests, run together in one event loop. `gcs status`, `gcs demo` and the
-server all start one of these."""
+server all start one of these. Data flow and conventions: docs/design.md"""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""FastAPI dependencies shared by every router: the running GroundStation (dependency
-injection, so routers never import a global) and the token check for state-changing requests.
-
-Routers use them as `from gcs.server.deps import get_station, require_token`:
-
-    @router.put("/thing", dependencies=[Depends(require_token)])
-    def change(station: GroundStation = Depends(get_station)): ...
+"""FastAPI dependencies shared by every router: the running GroundStation (injected, so routers
+never import a global) and the token check for state-changing requests, used as
+`@router.put(..., dependencies=[Depends(require_token)])` with `station = Depends(get_station)`.
 
 `create_app` stores the station and the token on `app.state`. The token is None when the server
 is bound to a loopback address (only this machine can reach it); otherwise every state-changing
