@@ -1,32 +1,14 @@
-"""Live comparison of one ground-side estimator with reference attitudes.
+"""Live comparison of one ground-side estimator with the reference attitudes.
 
-References (`AttitudeSample.source`): `onboard` (ATTITUDE, the autopilot's primary estimator,
-EKF3 on ArduPilot), `ahrs2` (AHRS2, ArduPilot's DCM) and `truth` (SIMSTATE, the simulator).
-
-**Time alignment.** Everything is compared on the vehicle clock. ATTITUDE carries time_boot_ms.
-AHRS2 and SIMSTATE carry no timestamp: each is given the vehicle time of the most recent
-timestamped message (time_boot_ms, or RAW_IMU/HIGHRES_IMU time_usec) from the same system that
-arrived before it (`gcs.core.samples.VehicleClock`). ArduPilot sends them in bursts with the
-timestamped messages, so the error of this rule is at most one stream period; in ArduCopter's
-burst order (AHRS2, ATTITUDE, ..., RAW_IMU, SIMSTATE) AHRS2 gets the previous burst's time,
-i.e. it looks one period late, and SIMSTATE gets the time of its own burst.
-
-**Interpolation.** The estimator's output is kept for the last `history` seconds; a reference is
-scored once the estimator has passed its time, against the estimator slerped between the two
-bracketing outputs (the nearest one at the ends). Older references are dropped and counted.
-
-**Errors** are estimator − reference, roll, pitch and wrapped yaw in degrees (Z-Y-X), with RMS
-and max |error| over the last `window` seconds and over the session.
-
-**Lag.** The delay L that best aligns the estimator with ATTITUDE: the L minimising the summed
-squared roll and pitch error between est(t + L) and ATTITUDE(t) over the history, searched
-from −lag_max to +lag_max in lag_step steps. L > 0: the estimator lags the onboard attitude.
-
-**Reliability.** Below `min_imu_rate` (50 Hz) of raw IMU, a ground-side estimator cannot follow
-a vehicle (anchors-estimators.md §0.4): `reliable` is False with the measured rate as reason.
-
-Memory is bounded by `history` and `window`; the numbers depend only on the samples fed, so a
-live run and an offline recomputation over the same samples give identical numbers.
+References (`AttitudeSample.source`): `onboard` (ATTITUDE), `ahrs2` (AHRS2) and `truth` (SIMSTATE), on the
+vehicle clock (AHRS2 and SIMSTATE take the time of the previous timestamped message, see
+`gcs.mavlink.sampling.VehicleClock`). A reference is scored once the estimator has passed its time, against
+the estimator slerped between the two bracketing outputs: estimator − reference roll, pitch and wrapped yaw
+in degrees, RMS and max |error| over the last `window` seconds and over the session. `lag()` is the delay
+that best aligns roll and pitch with ATTITUDE. Below `min_imu_rate` (50 Hz) of raw IMU the comparison is
+marked unreliable. Memory is bounded, and the numbers depend only on the samples fed, so a live run and an
+offline recomputation over the same samples agree exactly.
+Time alignment, lag, why 50 Hz: docs/estimators/comparison.md
 """
 
 from __future__ import annotations

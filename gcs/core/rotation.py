@@ -1,6 +1,6 @@
 """Attitude algebra shared by every part: quaternions, rotation matrices, Euler angles.
 
-Conventions (DESIGN.md): a quaternion is (w, x, y, z), unit, and rotates body (FRD) vectors
+Conventions (docs/design.md): a quaternion is (w, x, y, z), unit, and rotates body (FRD) vectors
 into the earth frame (NED): v_ned = R(q) v_body. Euler angles are Z-Y-X (yaw, pitch, roll), in
 radians, as MAVLink ATTITUDE carries them.
 """

@@ -167,10 +167,9 @@ GPS_CLOCK_TOLERANCE = 5.0
 class MessageSampler:
     """One vehicle's MAVLink messages, in arrival order → samples on its clock.
 
-    The one place where a live stream and a replayed .tlog become `ImuSample`, `GpsSample` and
-    reference `AttitudeSample`s, so live and offline numbers are computed from identical input.
-    The vehicle is `system` (None: the first that sends IMU data); the IMU stream is
-    `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
+    The one place where a live stream and a replayed .tlog become samples, so live and offline numbers
+    come from identical input. The vehicle is `system` (None: the first that sends IMU data); the IMU
+    stream is `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
     streamed alone for SECONDARY_IMU_WAIT s). GPS_RAW_INT time_usec is used when it is boot
     time; otherwise (UNIX time on ArduPilot) the fix gets the vehicle time at its arrival.
     """

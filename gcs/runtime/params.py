@@ -1,23 +1,13 @@
 """The MAVLink parameter protocol, client side: download the whole table, read one, write one
 and prove the vehicle stored it.
 
-Why each rule exists (research/anchors-gcs.md §1, §3.3):
-- A write is only done when the vehicle's PARAM_VALUE echo says so. No echo: resend, up to
-  `set_attempts` × `reply_timeout` (Mission Planner 3 × 0.7 s, MAVProxy 3 × 1 s). An echo with
-  another value (the firmware clamped or refused it) is an error naming both values, never
-  silence: a gain that silently did not take has crashed aircraft (PX4#6660).
-- A download is PARAM_REQUEST_LIST, then every index still missing is asked for by
-  PARAM_REQUEST_READ, a few at a time (`window`), each a bounded number of times (QGC: ×5),
-  until the table is complete or the deadline passes; the error then names what is missing.
-  Asking a few at a time paces the requests by the vehicle's own replies, so an APM 2.5 on a
-  57600 radio with its streams running is never flooded.
-- Encoding: ArduPilot sends every value as the float it equals; PX4 puts the bytes of integer
-  parameters in the float field (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE). The vehicle's
-  AUTOPILOT_VERSION capabilities decide (asked for once with MAV_CMD_REQUEST_MESSAGE); without
-  an answer the autopilot type does (PX4 → bytewise).
-
-Every PARAM_VALUE the vehicle sends updates the table, including replies to other clients behind
-a forwarding output, so the table follows changes made elsewhere.
+- A write is done only when the vehicle's PARAM_VALUE echo says so, resent up to `set_attempts` ×
+  `reply_timeout`; an echo with another value is an error naming both values, never silence.
+- A download is PARAM_REQUEST_LIST, then every missing index by PARAM_REQUEST_READ, `window` at a
+  time, each a bounded number of times, until complete or the deadline; the error names what is missing.
+- Integer parameters travel bytewise on PX4: AUTOPILOT_VERSION capabilities decide, else the autopilot.
+Every PARAM_VALUE updates the table, including replies to other clients behind a forwarding output.
+Why each rule exists (other ground stations, failures in the field): docs/vehicles.md
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 """Records a ground station's session to disk from its first byte.
 
-A `SessionRecorder` belongs to one `Station`. `start()` (synchronous, before the link
-runs) first closes sessions a crash left open, then opens a new session folder and hooks in:
-- a bus subscription for every received packet → `telemetry.tlog` with the arrival wall time
-  (low 2 bits 0), and the link's send listener for every packet sent (low 2 bits 3, as MAVProxy
-  marks its own packets);
-- the estimation's points → the `attitude` table; the station's published snapshots (every
-  second) → the `comparison` table;
-- the station's event log → `events.jsonl` (gain changes also carry `input_index`, the number
-  of estimation input messages the live pipeline had consumed when the gain was applied, which
-  is where a replay applies it again);
-- vehicle, parameters and estimator configuration → `meta.json`.
+A `SessionRecorder` belongs to one `Station`. `start()` (before the link runs) closes sessions
+a crash left open, opens a new session folder and hooks in: bus → `telemetry.tlog` (received packets,
+link bits 0) and the link's sent packets (link bits 3, as MAVProxy marks its own); estimation points
+→ the `attitude` table, the station's published snapshots (every second) → `comparison`; the event
+log → `events.jsonl` (a gain change also carries `input_index`, the estimation input count where a
+replay applies it again); vehicle, parameters and estimator configuration → `meta.json`.
 The event loop only appends to buffers; a `SessionWriter` thread writes them every 0.25 s.
+Session format: docs/design.md
 """
 
 from __future__ import annotations

@@ -5,6 +5,7 @@ estimation, recording, tuning, replay) and runs each part under a `Supervisor`. 
 `StationSnapshot`s published at a fixed rate; writers call its commands, which must run on the
 event loop thread (a route handler is `async def`; anything else hops in with
 `loop.call_soon_threadsafe`). Heavy work (what-if, export) runs in a worker process.
+Data flow and conventions: docs/design.md
 """
 
 from __future__ import annotations

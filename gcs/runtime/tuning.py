@@ -2,15 +2,12 @@
 their bounds, by small steps, not too often, every write verified and logged, and one call that
 puts back every value as it was before the flight.
 
-A tuning profile (gcs/vehicle/profiles/*.toml, or any file of that shape) declares each tunable
-vehicle parameter once: bounds from the firmware's documented range, the largest change one write
-may make, and one line of meaning. The REST panel and `gcs params set --profile` both go through
-`TuningSession.set`, so they refuse the same things with the same messages.
-
-Rate limits (declared here, shown in the panel): at least `PER_PARAM_INTERVAL` s between two
-writes of one parameter, and at most `GLOBAL_PER_SECOND` writes in any 1 s, so a slider dragged
-in a browser cannot flood a 57600-baud radio with PARAM_SETs. A revert is not rate-limited: it is
-a sequence of verified writes, each waiting for its echo, which paces it by itself.
+A tuning profile (gcs/runtime/profiles/*.toml, or any file of that shape) declares each tunable
+parameter once: the firmware's documented range, the largest change one write may make, one line of
+meaning. The REST panel and `gcs params set --profile` both go through `TuningSession.set`, so they
+refuse the same things with the same messages. The rate limits (`PER_PARAM_INTERVAL`,
+`GLOBAL_PER_SECOND`) keep a dragged slider from flooding a 57600-baud radio; a revert is paced by
+its own verified writes. See docs/vehicles.md.
 """
 
 from __future__ import annotations

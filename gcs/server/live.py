@@ -1,20 +1,14 @@
 """The live store and the WebSocket fan-out.
 
-Every AttitudePoint the estimation produces (references and estimators) arrives through
-`LiveEstimation.add_listener`, in the event loop, right after the estimation drained the bus.
-It goes to two places, both O(1) per point and never awaiting anyone:
-
-* the **store**: per source a preallocated ring of the last `seconds × max_rate` samples, so a
-  page opened now fills its window at once (`GET /api/history`) and memory never grows;
-* the **pending frame**: flushed at most every `frame_interval` (10 ms: batching adds under 10 ms
-  of latency; 5 ms halves that but doubles the sends, and with 20 viewers on 2 loaded cores the
-  link then lost UDP packets), encoded to JSON ONCE and offered to every client's own bounded
-  queue (`ClientFeed`).
-
-A client's queue holds `client_max_frames` frames (10 s). Each WebSocket has its own sender task
-that sends whatever its queue holds, several frames joined into one message when it fell behind.
-A client that stops reading fills its queue; the oldest frames are then dropped and counted for
-that client alone, so the others and the link never wait. Nothing is ever decimated for a client that keeps up.
+Every AttitudePoint (references and estimators) arrives through the `LiveEstimation.points` signal, in the
+event loop, and goes to two places, both O(1) per point and never awaiting anyone:
+* the **store**: per source a preallocated ring of the last `seconds × max_rate` samples, so a page
+  opened now fills its window at once (`GET /api/history`) and memory never grows;
+* the **pending frame**: flushed at most every `frame_interval` (10 ms), encoded to JSON once and
+  offered to each client's own bounded queue (`ClientFeed`, `client_max_frames`), sent by the client's
+  own task. A client that stops reading loses its oldest frames, counted for it alone; the others and
+  the link never wait, and nothing is decimated for a client that keeps up.
+Why 10 ms: docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations

@@ -1,20 +1,13 @@
 """The viser side of the dashboard: the 3-D pose view and the gain panel.
 
-**Display frame.** Our attitudes rotate body FRD into earth NED. viser (three.js) draws z up, so
-both frames are turned 180° about their x axis: earth NED → NWU (x north, y west, z up) and body
-FRD → FLU (x forward, y left, z up). For a quaternion that conjugation is (w, x, y, z) →
-(w, x, −y, −z) (`display_wxyz`); viser frames take wxyz. Looking at the scene from above, north
-is +x (red axis of the ground frame), and a nose-up pitch raises the nose.
-
-The scene: a ground grid with a NWU frame, the vehicle at the onboard attitude (solid, with body
-axes), and one translucent ghost per estimator (its own colour, body axes) overlaid at the same
-origin, so any disagreement shows as a visible split. `PoseView.update` runs ~30 Hz on the
-server's event loop (viser handles are thread-safe).
-
-The panel has one slider per declared gain (log10 scale for wide ranges, see gcs.server.gains),
-a reset button per estimator, and follows gain events so changes made on the page show here.
-viser callbacks run on viser's threads: they hop to the event loop with call_soon_threadsafe.
-viser has no authentication, so when the server needs a token the panel is read-only.
+**Display frame.** viser draws z up, so earth NED and body FRD are both turned 180° about x (NWU, FLU),
+which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
+The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
+ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs at
+about 30 Hz on the event loop (viser handles are thread-safe). The panel: one slider per declared gain
+(log10 for wide ranges, see gcs.server.gains) and a reset per estimator, following the gain events.
+viser callbacks run on viser's threads and hop to the event loop with call_soon_threadsafe; viser has
+no authentication, so the panel is read-only when the server needs a token.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The simulated autopilot's insides: sensors sampled from the truth, its own attitude filters
 run at the loop rate, the latest GPS fix, and the MAVLink messages it builds from them.
 
-Units on the wire follow what each firmware really sends (research/anchors-gcs.md §5.1):
+Units on the wire follow what each firmware really sends (docs/vehicles.md):
 ArduPilot RAW_IMU / SCALED_IMU2 carry mG, mrad/s and mgauss as integers; PX4 HIGHRES_IMU carries
 m/s², rad/s, gauss and hPa; SIMSTATE carries the truth as ArduPilot SITL sends it.
 """

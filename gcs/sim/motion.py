@@ -4,14 +4,11 @@ Every script is an analytic function of vehicle time t (s), so the body rates ar
 derivative of the attitude and the acceleration the exact derivative of the velocity; a ground
 estimator fed perfect sensors must reproduce the truth. All scripts loop forever.
 
-- `bench`  the seed 000 bench tests (§7.2): roll −30/−45/−60°, pitch +30/+45/+60°, yaw −30/−45/+60°,
-           each reached gradually, held, and undone; the board does not move.
-- `circuit` the seed 000 ground-vehicle circuit (§7.3): a car on a closed rounded rectangle with a
-           side-slope zone (roll ±22°), a bump zone (pitch ∓16°) and four 90° yaw turns.
-- `quad`   a quadcopter flight: take-off, two coordinated circles at 8 m/s (tan φ = v²/(r g)),
-           pitching to accelerate and brake, then landing.
+- `bench`   the seed 000 bench tests (§4.2): roll −30/−45/−60°, pitch +30/+45/+60°, yaw −30/−45/+60°.
+- `circuit` the seed 000 ground-vehicle circuit (§4.3): side slope (roll ±22°), bump (pitch ∓16°), 90° turns.
+- `quad`    take-off, two coordinated circles at 8 m/s (tan φ = v²/(r g)), landing.
 
-Frames and units follow DESIGN.md: NED metres from the home point, body FRD, q body→NED, rad.
+Frames and units as docs/design.md: NED metres from the home point, body FRD, q body→NED, rad.
 """
 
 from __future__ import annotations
@@ -217,10 +214,9 @@ class CircuitScript(Script):
 
     The car moves along its body x axis at `speed` m/s, so v_ned = speed · (cosθ cosψ, cosθ sinψ,
     −sinθ) and a_ned = speed · d/dt of that direction (analytic). Zones as in the thesis (Fig. 14):
-    a side slope on each short side (roll +22° then −22°; roll does not change the path), a bump on
-    each long side (pitch −16° then +16°: down and up, zero net climb), and four 90° right turns.
-    Both long sides carry the same bump, so the loop closes. Position is the velocity integrated
-    once at construction on a fine grid (the only non-analytic quantity; error ~1e-9 m).
+    a side slope on each short side (roll +22° then −22°), a bump on each long side (pitch −16° then
+    +16°: zero net climb, so the loop closes), and four 90° right turns. Position is the velocity
+    integrated once at construction on a fine grid (the only non-analytic quantity; error ~1e-9 m).
     """
 
     name = "circuit"
@@ -279,10 +275,9 @@ class CircuitScript(Script):
 class QuadScript(Script):
     """A quadcopter flight whose attitude is what its thrust and heading require.
 
-    The translation is analytic to the third derivative: climb to `altitude` m with a
-    minimum-jerk profile, then an arc-length speed profile along a circle of radius `radius` m
-    (speed ramps 0 → `speed` m/s with a minimum-jerk blend, `laps` full circles, ramps back to 0),
-    then descend and land. The heading follows the course. The thrust axis (−body z) is along
+    The translation is analytic to the third derivative: a minimum-jerk climb to `altitude` m, then
+    `laps` circles of radius `radius` m (speed ramped 0 → `speed` → 0 m/s with minimum-jerk blends),
+    then descent and landing. The heading follows the course. The thrust axis (−body z) is along
     −f with f = a − g, so in a steady turn tan φ = v²/(r g) and the specific force has no body-y
     component; accelerating forward pitches the nose down. Euler rates come from the jerk.
     """

@@ -1,17 +1,13 @@
 """The simulated vehicle's parameter table and the server side of the MAVLink parameter protocol.
 
-PARAM_REQUEST_LIST streams every parameter, paced at `rate_hz` like firmware does (ArduPilot
-sends a few per scheduler tick); PARAM_REQUEST_READ answers one by name or index; PARAM_SET
-stores and echoes the stored value in PARAM_VALUE (unknown names are ignored, as ArduPilot does).
-
-Encoding: ArduPilot sends every value as the float it equals ("C cast"), whatever its type; PX4
-sends integer parameters bytewise (the INT32 bytes reinterpreted as the float32 `param_value`).
-A Python float cannot carry signalling-NaN bit patterns, so INT32 values in [-8388607, -4194305]
-and [2139095041, 2143289343] would not survive bytewise transport; no real parameter uses them.
-
-Protocol faults, to test a ground station's verify and retry logic, settable at any time:
-`drop` (fraction of PARAM_VALUE packets silently lost, seeded) and `clamp` (name → maximum the
-vehicle will store, so a set of a larger value reads back different).
+PARAM_REQUEST_LIST streams every parameter, paced at `rate_hz` like firmware; PARAM_REQUEST_READ
+answers one by name or index; PARAM_SET stores and echoes the stored value in PARAM_VALUE (unknown
+names are ignored, as ArduPilot does). ArduPilot sends every value as the float it equals; PX4 sends
+integer parameters bytewise (INT32 bytes as the float32 `param_value`; bit patterns of a signalling
+NaN cannot survive a Python float, and no real parameter uses them).
+Protocol faults, settable at any time, test a ground station's verify and retry logic: `drop` (a seeded
+fraction of PARAM_VALUE packets lost) and `clamp` (name → the largest value the vehicle will store).
+See docs/vehicles.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """How each simulated autopilot behaves on the link: protocol version, stream groups, default
-rates, rate caps, commands it knows, parameter encoding. Facts from research/anchors-gcs.md §5.
+rates, rate caps, commands it knows, parameter encoding. The firmware facts: docs/vehicles.md.
 
 - apm25: ArduCopter 3.2.1 on an APM 2.5 (AVR): MAVLink 1 only, streams only per group via
   REQUEST_DATA_STREAM (SRx default 0), ≤ 50 Hz, no SET_MESSAGE_INTERVAL, one IMU, DCM only.
@@ -34,8 +34,7 @@ class Profile:
     group_share: message → fraction of its group's rate (APM sends SENSOR_OFFSETS at ~1/11).
     default_rates: message → Hz streamed at boot (HEARTBEAT is always 1 Hz and not listed).
     group_cap_hz / interval_cap_hz: highest rate per group request / per SET_MESSAGE_INTERVAL
-    (0: command unsupported). loop_hz: autopilot main loop, where its AHRS runs.
-    param_rows: the firmware's parameter table (gcs.sim.param_tables).
+    (0: command unsupported). loop_hz: main loop, where its AHRS runs. param_rows: its parameter table.
     """
 
     name: str

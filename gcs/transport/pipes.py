@@ -1,15 +1,14 @@
 """Byte pipes to a vehicle or a peer: UDP, TCP, serial and a replayed .tlog.
 
-Every transport has the same small surface, so the link (and the simulator, which is the
-other end of the same pipes in tests) never cares which one it has:
+Every transport has the same small surface, so the link and the simulator never care which one:
 
     await t.open(on_data)   # start delivering received bytes to on_data; OSError if not now
     t.write(data)           # never blocks: what cannot be sent now is dropped and counted
     await t.wait_closed()   # returns when the pipe is gone (peer hung up, device vanished)
     t.close()
 
-Received bytes are handed over in the event loop's own callback, without a queue: the link's
-work per chunk is small and bounded, and nothing downstream can make the reader wait.
+Received bytes are handed over in the event loop's own callback, without a queue: the link's work
+per chunk is small and bounded, so nothing downstream can make the reader wait.
 """
 
 from __future__ import annotations

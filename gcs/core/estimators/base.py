@@ -1,15 +1,13 @@
 """What every attitude estimator offers, so the live pipeline, `gcs estimate`, replay and the
-dashboard treat them alike — and the policies they must share so they can be compared fairly:
+dashboard treat them alike, and the policies they share so they can be compared fairly:
 
-* **Frames.** Samples may be in ANY right-handed sensor frame (MAVLink's FRD, BROAD's z-up, ...).
-  The earth frame is NED, defined only by physics: "down" is opposite to the specific force at
-  rest and "north" is the horizontal part of the magnetic field rotated by `declination`. No
-  estimator assumes the sensor's z axis points down; the quaternion rotates sensor → NED.
-* **Initialisation** (`initial_attitude`): tilt from the accelerometer, heading from the
-  magnetometer (tilt-compensated), or heading 0 when there is none.
-* **Time** (`_check_time`): estimators integrate on the vehicle clock. A repeated timestamp is a
-  duplicate and is ignored; a clock going back (reboot, log splice) or a gap longer than `max_gap`
-  re-initialises the filter from the current sample, and the reason is kept for `health()`.
+* **Frames.** Samples may be in any right-handed sensor frame (MAVLink's FRD, a z-up IMU, ...). Earth
+  is NED, defined by physics only: "down" opposes the specific force at rest, north is the horizontal
+  field turned by `declination`; the quaternion rotates sensor → NED.
+* **Initialisation** (`initial_attitude`): tilt from the accelerometer, heading from the magnetometer (or 0).
+* **Time** (`_check_time`): the vehicle clock. A repeated timestamp is ignored; a clock going back or a
+  gap longer than `max_gap` re-initialises the filter, with the reason kept for `health()`.
+Details: docs/estimators/common.md
 """
 
 from __future__ import annotations
@@ -40,7 +38,7 @@ def initial_attitude(accel: np.ndarray, mag: np.ndarray | None, declination: flo
     """Rotation matrix sensor → NED from one specific-force vector and an optional magnetic vector.
 
     Rows of R are the NED axes seen in the sensor frame (seed 000 eqs. 5-10, as the thesis code
-    builds them, §4.4): D = -f/|f|; N = horizontal part of the field, (D × m) × D, normalised;
+    builds them in Annex A): D = -f/|f|; N = horizontal part of the field, (D × m) × D, normalised;
     E = D × N. Without a usable field the heading is 0: N is the sensor axis closest to
     horizontal, projected. The declination then turns magnetic north into true north.
     """

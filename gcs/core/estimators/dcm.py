@@ -61,83 +61,11 @@ def rotate_rows(rows, wx: float, wy: float, wz: float):
 class DcmEstimator(AttitudeEstimator):
     """Direction cosine matrix filter with PI drift correction (Premerlani & Bizard 2009).
 
-    State: R, sensor → NED (rows N, E, D in sensor axes, seed 000 eq. 2/10); ω_I, the learned
-    gyro-bias correction; ω_P and ω_Y, the proportional roll-pitch and yaw corrections.
-
-    Each IMU sample at vehicle time t, with dt from the previous sample:
-
-    1. Gyro update (eqs. 11-12, 26-27): R ← R·exp([ω dt]×), ω = ½(g_prev + g) + ω_I + ω_P + ω_Y.
-    2. Renormalisation (eqs. 13-17): `renormalize`.
-    3. Roll-pitch error in the earth frame (eqs. 21-22 as Premerlani's "equation 9", as in
-       AP_AHRS_DCM): measured specific force f_e = R·f; reference r = (0, 0, -g) + k_gps·a_gps
-       where a_gps = dv_ned/dt from successive GPS velocities: the centripetal (ω × v) AND the
-       along-track acceleration. Both are averaged by the same first-order low-pass (accel_tau)
-       in the earth frame, and f_avg is turned with each P correction (R·ω_P dt) so the average
-       filters the measurement without delaying the loop. e_rp = w·f̂_avg × r̂_avg with its z
-       (yaw) part dropped, so only the yaw reference steers heading; w is the accel weight.
-    4. Yaw error (eqs. 18-20): with a magnetometer, tilt-compensated: m_e = R·m, b = its
-       horizontal unit vector, e_z = b × (cos δ, sin δ) for declination δ, unless the field is
-       disturbed (`gcs.core.estimators.magnetic.MagDisturbance`), then 0; without one, GPS course c when ground speed ≥
-       gps_speed_min: e_z = R11·sin c − R21·cos c (eq. 19).
-    5. PI (eqs. 23-26): ω_P = kp_rp·s·Rᵀe_rp, ω_Y = kp_yaw·e_z·R[2] (eq. 20), with s the
-       ArduPilot spin-rate schedule clip(|ω|/50°/s, 1, 10) when spin_gain = 1 (on ω_Y too
-       only when spin_gain_yaw = 1); ω_I += (ki_rp·Rᵀe_rp + ki_yaw·e_z·R[2])·dt (forward
-       Euler, §4.1.2), frozen above 20°/s, clamped to ±OMEGA_I_MAX.
-    6. Output: q of R; Euler roll = atan2(R32, R33), pitch = −asin(R31), yaw = atan2(R21, R11).
-
-    Deviations from the thesis code, each a fix (seed-000-dcm.md §11):
-    * R1: gyro in rad/s (the code fed deg/s as rad/s, 57.3× too strong).
-    * R2: the heading reference is in radians (the code took cos/sin of degrees).
-    * R3-R5: no ±2 / 0.85 "angle weights" (K_P1..3, eqs. 28-30); they undid an accelerometer
-      mis-scale. Standard Z-Y-X extraction with atan2, valid for |yaw| > 90°.
-    * R7: dt is the real interval on the vehicle clock, not a fixed Ts = 0.02 s.
-    * R9: the centrifugal term is subtracted in consistent SI units (eq. 22 has "+" and mixes
-      deg/s × cm/s with g), and comes from GPS dv/dt, which adds the along-track acceleration
-      and does not assume the velocity lies along body x.
-    * R6: no in-place matrix product.
-    * R11: the magnetometer heading is tilt-compensated; declination is a setting.
-    * Eqs. 11-12: the first-order R_G = I + [ω]×Ts is replaced by its exact exponential
-      (Rodrigues), and ω is the trapezoid of two gyro samples: at telemetry rates (25 Hz) the
-      truncation and the one-sided rate are the largest integration errors.
-    * Eq. 25 / R8: forward Euler integral (as the text says), not the code's trapezoid.
-    * Eqs. 5-10: initial R as the thesis *code* builds it (R12), see `initial_attitude`.
-
-    Robustness without GPS (deviations from AP_AHRS_DCM, whose P/I gains are kept; defaults
-    chosen on the six BROAD trials, Laidig et al. 2021, with physically read values):
-    * accel_tau = 1 s: AP_AHRS_DCM also corrects from the earth-frame specific force *averaged*
-      (`_ra_sum`, over the GPS interval, or ≥ 0.2 s without GPS); VQF low-passes it in the
-      gyro-integrated frame with tauAcc = 3 s. Linear acceleration with a bounded velocity change
-      Δv averages to Δv/T, and a sensor off the rotation axis sees centripetal force that turns
-      with it and averages out. BROAD mean total RMSE is flat within 0.2° for 1-3 s; 1 s keeps
-      more of the tilt bandwidth. 0 = the instantaneous accelerometer (seed 000, old code).
-    * accel_weight: Premerlani & Bizard / ArduIMU "Accel_weight" = clip(1 − 2|1 − |a|/g|, 0, 1),
-      here on the averaged |f_avg|/|r_avg| (the smoothed weight), so single jolts do not count.
-    * spin_gain_yaw = 0: ArduPilot multiplies both P gains by the spin schedule; on BROAD's fast
-      rotations (up to 800°/s) boosting the magnetometer gain ×10 made heading worse (trial 07
-      3.7° → 2.8°, trial 30 9.3° → 5.5° total without it): at dip ~70° every degree of tilt
-      error is ~2.7° of magnetometer heading error, and field-sample lag grows with spin rate.
-      The roll-pitch spin gain is kept (the gyro scale error it fights grows with rate too).
-    * Magnetic disturbance rejection (VQF's, Laidig & Seel 2023): mag_norm_tol 0.1 and
-      mag_dip_tol 10° (VQF magNormTh/magDipTh), reference relearned after mag_relearn = 20 s
-      (magNewTime) of a steady disturbed field while turning ≥ 20°/s (magNewMinGyr). AP_AHRS_DCM
-      itself has no such test. The yaw correction is 0 while rejected (health: mag_disturbed).
-    Setting accel_tau = accel_weight = 0, spin_gain_yaw = 1, mag_norm_tol = 10 and
-    mag_dip_tol = π gives the previous filter exactly.
-
-    Presets: `ardupilot` — AP_AHRS_DCM today (AHRS_RP_P 0.2, AHRS_YAW_P 0.2, _ki 0.0087,
-    _ki_yaw 0.01, spin-rate gain, AHRS_GPS_GAIN 1); the start-up ×8 "fast gains" and the
-    per-GPS-step accumulation of AP_AHRS_DCM are not reproduced (we initialise from the first
-    samples instead). `seed000` — the thesis W_RP = 2, W_Y = 3, Kp = 13.9, Ki = 0.5 in
-    consistent units: the code adds ω_corr = Kp·(W_RP·e_rp + W_Y·e_y) directly to the rate it
-    integrates, with e dimensionless (unit vectors, g units) and the integral K_i·Ts·e per loop,
-    so kp_rp = Kp·W_RP = 27.8 s⁻¹, kp_yaw = Kp·W_Y = 41.7 s⁻¹, ki_rp = Ki·W_RP = 1.0 s⁻²,
-    ki_yaw = Ki·W_Y = 1.5 s⁻², no spin-rate gain, and none of the robustness terms above.
-    (Per loop of Ts = 0.02 s this is the 0.56 step gain of §11 R1: an accelerometer/magnetometer
-    tracker.) Default: `ardupilot`, the more
-    accurate on the ArduCopter SITL hop (RAW_IMU 25 Hz, vs SIMSTATE, declination 12.5°):
-    roll/pitch RMS 0.19°/0.17° (0.29°/0.22° before the averaging) against 2.3°/2.0° for
-    `seed000` (tests/test_dcm.py). BROAD, six trials, mean total RMSE: 2.8° at 285.7 Hz, 2.9°
-    at 47.6 Hz (8.9° / 9.7° before the robustness terms).
+    R (sensor → NED) ← R·exp([ω dt]×), ω = ½(g_prev + g) + ω_I + ω_P + ω_Y, renormalised (eqs. 13-17); the
+    roll-pitch error compares the earth-frame averaged specific force with (0, 0, −g) + GPS dv/dt, the yaw
+    error uses the tilt-compensated magnetometer (else the GPS course); PI gains as AP_AHRS_DCM's, with the
+    seed 000 code's unit and timing bugs fixed. Presets `ardupilot` (default) and `seed000` (thesis gains).
+    Derivation, deviations from seed 000 and AP_AHRS_DCM, gains: docs/estimators/dcm.md
     """
 
     name = "dcm"

@@ -1,65 +1,13 @@
 """`ekf`: a multiplicative (error-state) Kalman filter for attitude, velocity and gyro bias.
 
-Sources: F. L. Markley, "Attitude Error Representations for Kalman Filtering", JGCD 26(2), 2003;
-J. Solà, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508, 2017
-(§5 for the inertial model, §7.2 for the global angular error).
-
-State
-    nominal:  q  unit quaternion sensor → NED,  v  NED velocity (m/s),  b  gyro bias (rad/s, sensor)
-    error:    x = [δθ, δv, δb]  (9)   with  q_true = Exp(δθ) ⊗ q,  v_true = v + δv,  b_true = b + δb
-δθ is a small rotation expressed in NED ("global" error, Solà §7.2): gyro noise is isotropic in
-that frame, a velocity residual is a plain NED vector, and heading is simply δθ_D, which is what
-lets the magnetometer correct heading only.
-
-Why a velocity state. The accelerometer measures specific force a = Rᵀ(v̇ − g). Comparing a with
-gravity sample by sample (a first-order filter) lets every linear acceleration tilt the estimate
-in proportion to its size. Integrating it instead, v̇ = R·a + g, turns a tilt error δθ into a
-velocity error that grows without bound (δv̇ = −[R·a]× δθ), while a real linear acceleration only
-changes v by the bounded amount the body actually moved. So a velocity measurement — the GPS
-velocity when there is one, else the pseudo-measurement "the velocity stays near zero" — corrects
-the tilt with a second-order response that averages out back-and-forth motion. With GPS this is the
-integral form of subtracting GPS-derived linear acceleration from the expected specific force
-(AP_AHRS_DCM compares the same Δv over each GPS interval).
-
-Prediction over dt with ω = gyro − b, R = R(q):
-    q ← q ⊗ Exp(ω dt),   v ← v + (R a + g) dt
-    F = I + [[0, 0, −R dt], [−[R a]× dt, 0, 0], [0, 0, 0]],   P ← F P Fᵀ + diag(σ_g², σ_a², σ_b²)·dt
-σ_a (the accel noise density) grows as 1 + (d/acc_gate)² with d = | |a| − g |: while the sensor
-is accelerating hard (impacts, tapping) the velocity, and so the tilt, trusts it less. The default
-gate is wide on purpose: a norm gate is one-sided (it discounts the peaks of |a| more than the
-troughs), which biases the average the velocity state relies on; on BROAD (6D, full rate) a 2 m/s²
-gate doubled the inclination error of the fast combined-motion trial 30 (1.2° → 2.4°).
-
-Measurements (y = residual, H = Jacobian in x, r = variance)
-    velocity  y = v_meas − v,           H = [0, I, 0]  (GPS: N, E with gps_noise², against v at
-                                                         the fix's own time, kept in a short
-                                                         history; otherwise 0 with vel_noise²/dt
-                                                         per sample)
-    rest      y = gyro − b,             H = [0, 0, I]  (zero-rate update, after rest_time still)
-              y = R a + g,              H = [[−g]×, 0, 0]  (gravity alone; not with GPS, where a
-                                                         steady acceleration can look like rest)
-    heading   y = wrap(decl − ψ(R m)),  H = e_3ᵀ       (ψ = azimuth of the field in NED)
-The heading update keeps only its gain on δθ_D, so a disturbed field can never tilt the estimate:
-not directly, and not later through the bias (a field error taken into the bias about the vertical
-becomes a tilt drift once the body turns: 8° in the bent-field case of tests/test_ekf.py). The
-bias is learned at rest and from gravity as the body turns. P is updated with the Joseph form,
-valid for that non-optimal gain.
-The heading noise grows with the departure of |m| and of the dip angle from the values learned at
-initialisation; above mag_reject the update is skipped, and a field rejected for mag_relearn
-seconds becomes the new reference (the vehicle moved, or started beside a magnet).
-
-Units: gyro rad/s, accel m/s², magnetometer any consistent unit (only its direction and ratios to
-the reference are used). Any right-handed sensor frame: at rest the specific force points up.
-
-Implementation (what-if re-runs this over 30,000-sample sessions, so the cost per sample matters;
-numpy's per-call overhead dominates 3- and 9-element arithmetic). q, v, b are tuples of plain
-floats and the kinematics are written out. P stays a 9×9 array: F is a preallocated identity whose
-two off-diagonal blocks are overwritten each step, and F P Fᵀ is two 9×9 products (fewer numpy
-calls than the block products), with Q added to the diagonal only. Each optimal-gain update has
-1 to 3 rows and S = H P Hᵀ + r I, inverted in closed form; the gravity update drops the zero third
-row of [−g]× (its residual component has no gain). The heading gain is non-zero only on δθ_D, so
-its Joseph update P − K pᵀ − p Kᵀ + s K Kᵀ (p = P e_3) touches row and column 3 only. Every step
-equals a plain transcription of these equations to rounding (tests/test_ekf.py checks 1e-12).
+Nominal q (sensor → NED), v (NED), b (gyro bias); error x = [δθ, δv, δb] with q_true = Exp(δθ) ⊗ q and δθ
+in NED (Markley 2003; Solà 2017, §5 and §7.2). Prediction: q ← q ⊗ Exp((gyro − b) dt), v ← v + (R a + g) dt,
+P ← F P Fᵀ + Q dt. The accelerometer is integrated into a velocity, corrected by GPS velocity (or by a
+"velocity stays near zero" prior), which cancels linear acceleration; at rest, zero-rate and gravity updates
+learn the bias; the magnetometer corrects heading only (gain on δθ_D, Joseph form), its noise growing with
+the field's departure from the reference. Plain-float state and closed-form small inverses keep what-if
+re-runs fast; each step equals a plain transcription of the equations to rounding.
+Equations, measurements, gains and why: docs/estimators/ekf.md
 """
 
 from __future__ import annotations
@@ -106,7 +54,7 @@ class EkfEstimator(AttitudeEstimator):
     """Error-state (multiplicative) Kalman filter of attitude, velocity and gyro bias.
 
     GPS velocity, or a bounded-velocity prior without GPS, removes linear acceleration; the
-    magnetometer corrects heading only. Math and sources in the module docstring."""
+    magnetometer corrects heading only. Equations and sources: docs/estimators/ekf.md"""
 
     name: ClassVar[str] = "ekf"
     GAINS: ClassVar[tuple[Gain, ...]] = (
@@ -133,7 +81,7 @@ class EkfEstimator(AttitudeEstimator):
     PRESETS: ClassVar[dict[str, dict[str, float]]] = {
         "default": {},
         # 25-50 Hz RAW_IMU streams: picking samples makes the gyro integration coarser, and real
-        # airframes vibrate (BROAD at 24 Hz: 6.0° vs 6.2° mean total with the default gains)
+        # airframes vibrate (measured on BROAD: docs/benchmarks.md)
         "telemetry": {"gyro_noise": 0.02, "acc_noise": 0.5},
     }
     DEFAULT_PRESET: ClassVar[str] = "default"

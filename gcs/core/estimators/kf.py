@@ -78,78 +78,11 @@ def euler_rates(roll: float, pitch: float, gyro, cos_min: float = 1e-6) -> tuple
 class KalmanAttitudeFilter(AttitudeEstimator):
     """KF-A: linear Kalman filter on Euler angles and their rates (seed 004, §5.2.2).
 
-    State x = [φ θ ψ φ̇ θ̇ ψ̇]ᵀ (5.19; p q r in the thesis code). Model (5.28)-(5.29):
-    x⁻ = Φx + Bu, Φ = [[I, Δt·I], [0, I]], B = [[Δt²/2·I], [Δt·I]], H = I₆. Predict P⁻ = ΦPΦᵀ + Q, update with the
-    filterpy `KalmanFilter` (Joseph form, equivalent to the thesis (I − KH)P for the optimal K).
-
-    Measurements z = [φ_a θ_a ψ_m φ̇_g θ̇_g ψ̇_g]: tilt from the accelerometer (`accel_tilt`, with
-    the GPS acceleration removed as in the DCM), heading from the tilt-compensated magnetometer
-    (`mag_heading`, plus declination; without a magnetometer the GPS course above
-    gps_speed_min, else no heading row), and the gyro mapped to Euler rates by (4.9).
-
-    Deviations from the thesis, and why:
-    * u is the Euler-angle acceleration from successive gyro samples, u = (ω̇ₖ − ω̇ₖ₋₁)/Δt with
-      ω̇ the gyro mapped to Euler rates, and B = [[Δt²/2·I], [Δt·I]] (5.29 with I_x = I_y = I_z = 1):
-      the thesis got the same quantity, τ/I, from commanded PWMs through the motor model, which
-      a ground station fusing RAW_IMU does not have. It makes the angle prediction the
-      trapezoid of two rate samples, not a one-step-late rectangle.
-    * z comes from raw sensors, not PX4's attitude estimate (which the thesis filtered).
-    * The gyro is mapped to Euler rates (4.9) instead of being used as φ̇θ̇ψ̇ (the hover
-      linearisation), so the filter is right at large tilts and while yawing.
-    * Δt is the real interval and Q is rebuilt for it: the thesis Q is per step of
-      dt_ref = 4 ms, so Q(Δt) = k_q·diag(q)·Δt/dt_ref (white process noise); R is per sample.
-    * Angle innovations (roll and yaw) are wrapped into (−π, π]: the measurement is shifted to
-      the branch nearest the state before filterpy forms z − Hx; angles are wrapped after.
-    * x₀ comes from the first sample (tilt, heading, rates) instead of 0; P₀ = unscaled Q (5.35).
-
-    Robustness for raw flight-test data (deviations from the thesis; all off in `seed004`, whose
-    values are given in brackets; on the thesis's PX4-filtered inputs none of them was needed):
-    * exact_predict = 1 [0]: the predicted MEAN of the angles is the attitude turned by the gyro
-      exactly — q⁻ = q(φ,θ,ψ) ⊗ Exp(½(ωₖ₋₁ + ωₖ)Δt + (ωₖ₋₁ × ωₖ)Δt²/12) (trapezoid plus the
-      second-order coning term, Bortz), back to Z-Y-X Euler — and the rates are (4.9) at q⁻.
-      P is still ΦPΦᵀ + Q with the linear Φ above, and the update is the linear filterpy one.
-      At 48 Hz and 800°/s (BROAD trials 07/30) the attitude turns 17° per sample and the
-      Euler-rate linearisation over one step is badly wrong; the rotation also removes the Euler
-      singularity from the prediction.
-    * cos_pitch_min = 0.1 [1e-6]: (4.9) divides by cos θ; it is floored at 0.1 (|θ| ≈ 84°) so the
-      rate states and u stay bounded through pitch ±90°.
-    * gimbal_r = 1 [0]: near pitch ±90° roll and yaw are ill-defined (only their sum or
-      difference is): the accelerometer roll is atan2 of two vanishing components and the
-      heading follows the roll used to level the field, so R of φ, ψ, φ̇ and ψ̇ is scaled by
-      1/max(cos²θ, cos_pitch_min²) — their sensitivity to sensor noise.
-    * accel_tau = 1 s [0]: the tilt is measured from the gravity-only specific force
-      (f − Rᵀk·a_gps) averaged in the earth frame over accel_tau, turned back to the sensor at
-      the predicted attitude; the average is turned with each correction (R⁺R⁻ᵀ) so it filters
-      the measurement without delaying the loop — the DCM's and VQF's scheme (VQF tauAcc 3 s).
-      Linear acceleration with a bounded velocity change averages to Δv/T; centripetal force of
-      a sensor off the rotation axis turns with it and averages out. Without it BROAD trial 30
-      (fast rotation) scores 26° instead of 2.5°.
-    * accel_gate = 1 m/s² [0 = off]: R of φ and θ × (1 + (||f_avg| − g| / accel_gate)²): a
-      sustained acceleration along gravity, which the average keeps, makes the tilt count less
-      (0.1 g of departure doubles its variance).
-    * mag_norm_tol = 0.1, mag_dip_tol = 10°, mag_relearn = 20 s [10, π: off]: the heading row is
-      dropped while the field's norm or dip (earth frame, at the predicted attitude) departs from
-      the reference learned on the first sample — VQF's test (magNormTh, magDipTh, magNewTime),
-      the same as the DCM's (`gcs.core.estimators.magnetic.MagDisturbance`). Heading then rides on the gyro.
-    * mag_time_sigma = 0.05 s [0]: yaw R + (|ω|·σ_t)². The field sample is rarely simultaneous
-      with the gyro's (BROAD's lags it ~14 ms, found by shifting it against the optical truth;
-      RAW_IMU carries whatever compass reading was latest), so the heading is trusted less while
-      turning fast. It biases nothing when the sensors are in step.
-    * mag_delay = 0 s [0]: a KNOWN field-sample delay τ: m is turned forward, m − τ ω × m. Default
-      0 (as PX4's EKF2_MAG_DELAY): a wrong value biases the heading by ω·Δτ while turning. Set per
-      sensor: on BROAD, mag_delay = 0.014 s takes trial 30 at full rate from 7.1° to 2.1° (mean
-      3.4° → 2.5°; at 47.6 Hz 3.0° → 2.9°).
-    The Euler representation is kept (x, P, z in φ θ ψ): roll and yaw innovations are wrapped,
-    and near pitch ±90° the filter relies on the prediction (gimbal_r) rather than diverging.
-
-    Presets: `seed004` — Q diag, k_q = 0.03 and R as printed (Q 5.35, R 5.37), the thesis linear
-    prediction, and none of the robustness terms; `telemetry` — the angle process noises
-    q_roll, q_pitch, q_yaw 10⁴ times smaller, rates unchanged, robustness terms on: the thesis Q
-    let the angles follow PX4's smooth estimate, while raw accelerometer tilt is disturbed by
-    every manoeuvre, so the angles must trust the integrated gyro. Default `telemetry`, the more
-    accurate on the ArduCopter SITL hop (roll/pitch RMS vs SIMSTATE 0.24°/0.21° against
-    1.75°/1.19° for `seed004`, tests/test_kf.py). BROAD, six trials (bench.broad), mean total
-    RMSE: 3.4° at 285.7 Hz and 3.0° at 47.6 Hz (11.2° / 36.5° before the robustness terms).
+    x = [φ θ ψ φ̇ θ̇ ψ̇]; x⁻ = Φx + Bu, Φ = [[I, Δt·I], [0, I]], B = [[Δt²/2·I], [Δt·I]] (5.28)-(5.29), u the
+    Euler-angle acceleration from successive gyro samples; z = accelerometer tilt, magnetometer (or GPS
+    course) heading and the gyro mapped to Euler rates (4.9), H = I; Q(Δt) = k_q·diag(q)·Δt/dt_ref. Fed raw
+    IMU instead of PX4's estimate. Presets `telemetry` (default, robustness terms on) and `seed004`.
+    Derivation, deviations from seed 004, robustness terms, gains: docs/estimators/kf.md
     """
 
     name = "kf"
@@ -393,7 +326,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             H, R, zc = self._H5, self._R5, self._z5
             zc[:, 0] = (z0, pitch, *rates)
             R[_DIAG5] = (r[0], r[1], r[3], r[4], r[5])
-        # column vector z: filterpy skips its reshape when H is passed (packages-smoke.md §5)
+        # column vector z: filterpy 2.0.0 skips its reshape of z when H is passed
         kf.update(zc, R=R, H=H)
         y = kf.y[:, 0].tolist()
         self.innovation = np.array(y if yaw is not None else (y[0], y[1], 0.0, y[2], y[3], y[4]))

@@ -1,6 +1,7 @@
 """Magnetic disturbance rejection shared by the estimators that take heading from the
 magnetometer: a steel structure, a motor or a magnet near the sensor bends the field, and a
 filter that keeps trusting it turns its heading (and, through the tilt compensation, more).
+The test and its sources: docs/estimators/magnetic.md
 """
 
 from __future__ import annotations
