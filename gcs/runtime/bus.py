@@ -7,12 +7,11 @@ and counted for that subscriber alone. Publishing costs one append per intereste
 
 from __future__ import annotations
 
-import asyncio
-from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.runtime.dropqueue import DropOldestQueue
 
 #: Vehicle time fields above this many µs are UNIX-epoch times (e.g. GPS_RAW_INT.time_usec on
 #: ArduPilot), not time since boot.
@@ -55,57 +54,42 @@ def vehicle_time_of(msg: MAVLinkMessage) -> float | None:
 
 
 class Subscription:
-    """One subscriber's bounded queue. Iterate it with `async for`, or call `get()`."""
+    """One subscriber's bounded queue (`DropOldestQueue`). Iterate it with `async for`, or call
+    `get()`, `next()` or `drain()`."""
 
     def __init__(self, bus: MessageBus, name: str, types: frozenset[str] | None, maxlen: int) -> None:
         self.bus = bus
         self.name = name
         self.types = types
-        self.queue: deque[Message] = deque(maxlen=maxlen)
+        self.queue: DropOldestQueue[Message] = DropOldestQueue(maxlen)
         self.delivered = 0
-        self.dropped = 0
-        self._ready = asyncio.Event()
+
+    @property
+    def dropped(self) -> int:
+        return self.queue.dropped
 
     def _offer(self, item: Message) -> None:
-        if len(self.queue) == self.queue.maxlen:
-            self.dropped += 1  # deque(maxlen) discards the oldest on append
-        self.queue.append(item)
+        self.queue.put(item)
         self.delivered += 1
-        self._ready.set()
 
     async def get(self, timeout: float | None = None) -> Message | None:
-        """The oldest queued message, waiting for one; None if `timeout` s pass first.
+        """The oldest queued message, waiting for one; None if `timeout` s pass first."""
+        return self.queue.get_nowait() if await self.queue.wait(timeout) else None
 
-        Uses `asyncio.timeout`, not `wait_for`: on Python 3.11 `wait_for` can swallow a
-        cancellation that arrives as the message does, and a stopping station would hang.
-        """
-        try:
-            async with asyncio.timeout(timeout):
-                while not self.queue:
-                    self._ready.clear()
-                    await self._ready.wait()
-        except TimeoutError:
-            return None
-        return self.queue.popleft()
+    async def next(self) -> Message:
+        """The oldest queued message, waiting as long as it takes."""
+        await self.queue.wait()
+        return self.queue.get_nowait()
 
     def drain(self) -> list[Message]:
         """Everything queued now, without waiting."""
-        items = list(self.queue)
-        self.queue.clear()
-        return items
+        return self.queue.drain()
 
-    def __aiter__(self):
+    def __aiter__(self) -> Subscription:
         return self
 
     async def __anext__(self) -> Message:
         return await self.next()
-
-    async def next(self) -> Message:
-        """The oldest queued message, waiting as long as it takes."""
-        while not self.queue:
-            self._ready.clear()
-            await self._ready.wait()
-        return self.queue.popleft()
 
     def close(self) -> None:
         self.bus.unsubscribe(self)

@@ -18,12 +18,12 @@ import itertools
 import json
 import math
 import time
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from gcs.core.estimation import AttitudePoint
+from gcs.runtime.dropqueue import DropOldestQueue
 
 DEG = 180.0 / math.pi
 
@@ -80,33 +80,29 @@ class ClientFeed:
     max_frames: int
 
     def __post_init__(self) -> None:
-        self.frames: deque[tuple[str, int]] = deque()
+        self.frames: DropOldestQueue[tuple[str, int]] = DropOldestQueue(self.max_frames)
         self.queued_points = 0
         self.sent_points = 0
         self.sent_messages = 0
         self.dropped_points = 0
-        self.dropped_frames = 0
         self.connected_at = time.monotonic()
-        self._ready = asyncio.Event()
+
+    @property
+    def dropped_frames(self) -> int:
+        return self.frames.dropped
 
     def offer(self, text: str, points: int) -> None:
-        """Queue a frame without waiting; when full, drop the oldest one and count it."""
-        if len(self.frames) >= self.max_frames:
-            _, lost = self.frames.popleft()
-            self.queued_points -= lost
-            self.dropped_points += lost
-            self.dropped_frames += 1
-        self.frames.append((text, points))
+        """Queue a frame without waiting; when full, the oldest one is dropped and counted."""
+        lost = self.frames.put((text, points))
         self.queued_points += points
-        self._ready.set()
+        if lost is not None:
+            self.queued_points -= lost[1]
+            self.dropped_points += lost[1]
 
     async def next_message(self) -> tuple[str, int]:
         """Everything queued as one text message: a frame alone, or a "batch" of frames."""
-        while not self.frames:
-            self._ready.clear()
-            await self._ready.wait()
-        frames = list(self.frames)
-        self.frames.clear()
+        await self.frames.wait()
+        frames = self.frames.drain()
         points = sum(n for _, n in frames)
         self.queued_points -= points
         text = (

@@ -1,0 +1,54 @@
+"""A bounded FIFO that never makes its producer wait: when it is full, the oldest item makes room
+and is counted. The message bus gives one to each subscriber, the dashboard one to each viewer."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class DropOldestQueue(Generic[T]):
+    def __init__(self, maxlen: int) -> None:
+        self.maxlen = maxlen
+        self.items: deque[T] = deque()
+        self.dropped = 0
+        self._ready = asyncio.Event()
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def put(self, item: T) -> T | None:
+        """Queue item now; returns the oldest item if it had to be dropped to make room."""
+        lost = None
+        if len(self.items) >= self.maxlen:
+            lost = self.items.popleft()
+            self.dropped += 1
+        self.items.append(item)
+        self._ready.set()
+        return lost
+
+    async def wait(self, timeout: float | None = None) -> bool:
+        """Until something is queued (True), or `timeout` s pass first (False).
+
+        `asyncio.timeout`, not `wait_for`: on Python 3.11 `wait_for` can swallow a cancellation
+        that arrives as the item does, and a stopping station would hang."""
+        try:
+            async with asyncio.timeout(timeout):
+                while not self.items:
+                    self._ready.clear()
+                    await self._ready.wait()
+        except TimeoutError:
+            return False
+        return True
+
+    def get_nowait(self) -> T:
+        return self.items.popleft()
+
+    def drain(self) -> list[T]:
+        """Everything queued now, oldest first, without waiting."""
+        items = list(self.items)
+        self.items.clear()
+        return items
