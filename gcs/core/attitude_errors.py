@@ -6,9 +6,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 
-def errors_against(series: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def errors_against(series: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Estimator − reference in degrees at the reference times inside the estimator's time span,
     as an M×4 array (t s, roll, pitch, yaw error deg).
 

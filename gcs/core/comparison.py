@@ -15,13 +15,44 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterable
+from typing import TypedDict
 
 import numpy as np
+import numpy.typing as npt
 
+from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.rotation import quat_slerp, quat_to_euler, wrap_pi
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 DEG = 180.0 / math.pi
+
+
+class ErrorSummary(TypedDict):
+    """RMS and max |error| (deg; roll, pitch, yaw) over n scored references."""
+
+    n: int
+    rms: list[float]
+    max: list[float]
+
+
+class ReferenceSummary(TypedDict):
+    """`_Stats.summary()`: errors against one reference, over the window and the session."""
+
+    n: int
+    window: ErrorSummary
+    session: ErrorSummary
+
+
+class ComparisonSummary(TypedDict):
+    """`Comparison.summary()`."""
+
+    reliable: bool
+    reason: str
+    imu_rate: float
+    lag: float | None
+    dropped: int
+    references: dict[str, ReferenceSummary]
 
 
 class _Stats:
@@ -43,7 +74,7 @@ class _Stats:
             self.sum_sq[i] += e * e
             self.max[i] = max(self.max[i], abs(e))
 
-    def summary(self) -> dict:
+    def summary(self) -> ReferenceSummary:
         w = list(self.recent)
         n = len(w)
         window_rms = [math.sqrt(sum(r[i] ** 2 for r in w) / n) if n else math.nan for i in (1, 2, 3)]
@@ -73,14 +104,14 @@ class Comparison:
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate
-        self.estimates: deque[tuple[float, np.ndarray]] = deque()
+        self.estimates: deque[tuple[float, npt.NDArray[np.float64]]] = deque()
         self.pending: deque[AttitudeSample] = deque()
         self.onboard: deque[tuple[float, float, float]] = deque()  # (t, roll, pitch) for the lag search
         self.est_euler: deque[tuple[float, float, float]] = deque()
         self.stats: dict[str, _Stats] = {}
         self.dropped = 0
 
-    def add_estimate(self, t: float, q: np.ndarray) -> None:
+    def add_estimate(self, t: float, q: npt.NDArray[np.float64]) -> None:
         if self.estimates and t < self.estimates[-1][0]:  # vehicle clock went back: a new session
             self.estimates.clear()
             self.pending.clear()
@@ -106,7 +137,7 @@ class Comparison:
                 self.pending.popleft()
                 self.dropped += 1
 
-    def _estimate_at(self, t: float) -> np.ndarray | None:
+    def _estimate_at(self, t: float) -> npt.NDArray[np.float64] | None:
         est = self.estimates
         if not est or t < est[0][0]:
             return None
@@ -174,7 +205,7 @@ class Comparison:
             )
         return True, ""
 
-    def summary(self) -> dict:
+    def summary(self) -> ComparisonSummary:
         reliable, reason = self.reliability()
         return {
             "reliable": reliable,
@@ -186,7 +217,11 @@ class Comparison:
         }
 
 
-def compare_stream(samples, estimator, comparison: Comparison | None = None) -> Comparison:
+def compare_stream(
+    samples: Iterable[ImuSample | GpsSample | AttitudeSample],
+    estimator: AttitudeEstimator,
+    comparison: Comparison | None = None,
+) -> Comparison:
     """Run estimator over a sample stream (IMU, GPS, references in arrival order) and compare.
 
     The same calls the live pipeline makes, so its result equals the live numbers.

@@ -10,10 +10,11 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TypedDict
 
-from gcs.core.comparison import Comparison
+from gcs.core.comparison import Comparison, ComparisonSummary
 from gcs.core.estimators import registry
-from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
@@ -41,6 +42,33 @@ class AttitudePoint:
     roll: float
     pitch: float
     yaw: float
+
+
+class EstimatorSummary(TypedDict):
+    """One estimator in `EstimationPipeline.summary()`."""
+
+    preset: str
+    gains: dict[str, float]
+    health: dict[str, HealthValue]
+    comparison: ComparisonSummary
+
+
+class LatestAttitude(TypedDict):
+    """The latest attitude of one source in `EstimationPipeline.summary()`, degrees."""
+
+    t: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
+class PipelineSummary(TypedDict):
+    """`EstimationPipeline.summary()`."""
+
+    imu_samples: int
+    declination_rad: float | None
+    estimators: dict[str, EstimatorSummary]
+    latest: dict[str, LatestAttitude]
 
 
 class EstimationPipeline:
@@ -109,7 +137,7 @@ class EstimationPipeline:
             raise KeyError(f"unknown estimator {estimator!r}; running: {', '.join(self.estimators)}")
         return self.estimators[estimator].set_gain(name, value)
 
-    def summary(self) -> dict:
+    def summary(self) -> PipelineSummary:
         """Per estimator: preset, gains, health and the comparison; latest attitude per source."""
         return {
             "imu_samples": self.imu_samples,

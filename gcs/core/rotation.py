@@ -8,12 +8,16 @@ radians, as MAVLink ATTITUDE carries them.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 Rows = tuple[Vec3, Vec3, Vec3]
+#: A vector or quaternion as plain floats or a numpy array (the formulas only unpack it).
+VectorLike = Sequence[float] | npt.NDArray[np.float64]
 
 
 # --- the formulas, on plain floats (tuples in, tuples out) ---------------------------------------
@@ -21,7 +25,7 @@ Rows = tuple[Vec3, Vec3, Vec3]
 # more than the arithmetic. The numpy functions further down wrap the same formulas.
 
 
-def quat_mul(p, q) -> Quat:
+def quat_mul(p: VectorLike, q: VectorLike) -> Quat:
     """Hamilton product p ⊗ q (apply q first, then p)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
@@ -40,14 +44,14 @@ def quat_exp(x: float, y: float, z: float) -> Quat:
     return math.cos(0.5 * angle), x * s, y * s, z * s
 
 
-def quat_unit(q) -> Quat:
+def quat_unit(q: VectorLike) -> Quat:
     """q / |q|."""
     w, x, y, z = q
     n = math.sqrt(w * w + x * x + y * y + z * z)
     return w / n, x / n, y / n, z / n
 
 
-def quat_rows(q) -> Rows:
+def quat_rows(q: VectorLike) -> Rows:
     """Rows of the rotation matrix R (body→earth) of a unit quaternion."""
     w, x, y, z = q
     return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
@@ -55,7 +59,7 @@ def quat_rows(q) -> Rows:
             (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
 
 
-def rows_times(R: Rows, a) -> Vec3:
+def rows_times(R: Rows, a: VectorLike) -> Vec3:
     """R a, for R given as rows."""
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
     ax, ay, az = a
@@ -71,36 +75,42 @@ def euler_quat(roll: float, pitch: float, yaw: float) -> Quat:
             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
 
 
+def vec3(v: Iterable[float]) -> Vec3:
+    """The three components of v as a tuple (ValueError unless there are exactly three)."""
+    x, y, z = v
+    return x, y, z
+
+
 # --- numpy API ------------------------------------------------------------------------------------
 
 
-def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+def quat_multiply(p: npt.NDArray[np.float64], q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Hamilton product p ⊗ q (apply q first, then p); also element-wise over (4, N) arrays."""
     return np.array(quat_mul(p, q))
 
 
-def quat_conjugate(q: np.ndarray) -> np.ndarray:
+def quat_conjugate(q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
-def quat_normalize(q: np.ndarray) -> np.ndarray:
+def quat_normalize(q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Unit quaternion with a non-negative scalar part (q and -q are the same rotation)."""
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q)
     return -q if q[0] < 0 else q
 
 
-def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+def quat_from_rotvec(v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Quaternion of a rotation by |v| radians about v (exact, also for tiny angles)."""
     return np.array(quat_exp(float(v[0]), float(v[1]), float(v[2])))
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+def quat_to_matrix(q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Rotation matrix R (body→earth) of a unit quaternion."""
     return np.array(quat_rows(q))
 
 
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:
+def matrix_to_quat(R: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Unit quaternion of a rotation matrix (Shepperd's method, stable for every rotation)."""
     trace = R[0, 0] + R[1, 1] + R[2, 2]
     if trace > 0:
@@ -118,12 +128,12 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     return quat_normalize(np.array(q))
 
 
-def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
+def euler_to_quat(roll: float, pitch: float, yaw: float) -> npt.NDArray[np.float64]:
     """Quaternion of Z-Y-X Euler angles in radians."""
     return np.array(euler_quat(roll, pitch, yaw))
 
 
-def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
+def quat_to_euler(q: VectorLike) -> tuple[float, float, float]:
     """Z-Y-X Euler angles (roll, pitch, yaw) in radians, yaw in (-pi, pi]."""
     w, x, y, z = q
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -132,7 +142,7 @@ def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
-def matrix_to_euler(R: np.ndarray) -> tuple[float, float, float]:
+def matrix_to_euler(R: npt.NDArray[np.float64]) -> tuple[float, float, float]:
     """Z-Y-X Euler angles (roll, pitch, yaw) in radians of a body→earth rotation matrix."""
     pitch = -math.asin(max(-1.0, min(1.0, R[2, 0])))
     roll = math.atan2(R[2, 1], R[2, 2])
@@ -148,7 +158,7 @@ def wrap_pi(angle: float) -> float:
     return a - math.pi
 
 
-def quat_slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
+def quat_slerp(q0: npt.NDArray[np.float64], q1: npt.NDArray[np.float64], u: float) -> npt.NDArray[np.float64]:
     """Spherical interpolation from q0 (u = 0) to q1 (u = 1) along the shorter arc."""
     d = float(np.dot(q0, q1))
     if d < 0.0:

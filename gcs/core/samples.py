@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 
 @dataclass(frozen=True, slots=True)
@@ -24,9 +25,9 @@ class ImuSample:
     """
 
     t: float
-    gyro: np.ndarray
-    accel: np.ndarray
-    mag: np.ndarray | None = None
+    gyro: npt.NDArray[np.float64]
+    accel: npt.NDArray[np.float64]
+    mag: npt.NDArray[np.float64] | None = None
     source: str = ""
 
 
@@ -45,7 +46,7 @@ class GpsSample:
     alt: float
     ground_speed: float
     course: float
-    vel_ned: np.ndarray | None = None
+    vel_ned: npt.NDArray[np.float64] | None = None
     fix_type: int = 3
     source: str = ""
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Iterator
+from typing import TypeGuard
 
 import numpy as np
 
@@ -36,6 +37,11 @@ def _number(path: str, line: int, field: str, text: str, required: bool) -> floa
     return value
 
 
+def _all_given(values: tuple[float | None, float | None, float | None]) -> TypeGuard[tuple[float, float, float]]:
+    """True when none of the three (optional) fields is empty."""
+    return all(x is not None for x in values)
+
+
 def read_csv(path: str) -> Iterator[ImuSample | GpsSample]:
     """IMU (and GPS velocity) samples from a CSV following the contract in the module docstring."""
     with open(path, newline="") as fh:
@@ -52,7 +58,7 @@ def read_csv(path: str) -> Iterator[ImuSample | GpsSample]:
             )
         col = {name: header.index(name) for name in CSV_COLUMNS + CSV_GPS_COLUMNS if name in header}
         has_gps = all(c in col for c in CSV_GPS_COLUMNS)
-        last_vel = None
+        last_vel: tuple[float, float, float] | None = None
         for line, row in enumerate(reader, start=2):
             if not row or all(not cell.strip() for cell in row):
                 continue
@@ -63,13 +69,14 @@ def read_csv(path: str) -> Iterator[ImuSample | GpsSample]:
                 for name, i in col.items()
             }
             t = v["t"]
+            assert t is not None  # a required field: _number raised if it was empty
             mags = (v["mx"], v["my"], v["mz"])
             if any(m is None for m in mags) and not all(m is None for m in mags):
                 raise InputError(f"{path}: line {line}: field 'mx'/'my'/'mz': give all three or none")
             mag = None if mags[0] is None else np.array(mags)
             if has_gps:
                 vel = (v["vn"], v["ve"], v["vd"])
-                if all(x is not None for x in vel) and vel != last_vel:
+                if _all_given(vel) and vel != last_vel:
                     last_vel = vel
                     vn, ve, _ = vel
                     yield GpsSample(

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from typing import TypeAlias
 
 import numpy as np
-from pymavlink.DFReader import DFReader_binary
+from pymavlink.DFReader import DFMessage, DFReader_binary
 
 from gcs.core.rotation import wrap_pi
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, usec_to_s
@@ -23,9 +24,12 @@ from gcs.logs.logfile import InputError, LogFile
 #: DataFlash reference attitude record → reference name.
 REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
 TYPES = ("IMU", "GPS", *REFERENCES)
+#: One decoded record. pymavlink ships no type information and creates each record's fields at
+#: run time, so this is Any to mypy: the dynamic boundary of this reader, named here once.
+DataflashRecord: TypeAlias = DFMessage
 
 
-def imu_from_dataflash(record) -> ImuSample:
+def imu_from_dataflash(record: DataflashRecord) -> ImuSample:
     """DataFlash IMU record: TimeUS µs, GyrX/Y/Z rad/s, AccX/Y/Z m/s² (body FRD, no magnetometer)."""
     return ImuSample(
         usec_to_s(record.TimeUS),
@@ -36,7 +40,7 @@ def imu_from_dataflash(record) -> ImuSample:
     )
 
 
-def gps_from_dataflash(record) -> GpsSample:
+def gps_from_dataflash(record: DataflashRecord) -> GpsSample:
     """DataFlash GPS record: TimeUS µs, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg, VZ m/s (down), Status."""
     speed = float(record.Spd)
     course = math.radians(record.GCrs)
@@ -54,7 +58,7 @@ def gps_from_dataflash(record) -> GpsSample:
     )
 
 
-def attitude_from_dataflash(record, source: str) -> AttitudeSample:
+def attitude_from_dataflash(record: DataflashRecord, source: str) -> AttitudeSample:
     """ATT / AHR2 / SIM record: TimeUS µs, Roll/Pitch/Yaw in degrees (yaw 0..360) → rad, yaw wrapped."""
     return AttitudeSample(
         usec_to_s(record.TimeUS),
@@ -69,7 +73,7 @@ class DataflashLog(LogFile):
     """Iterates the samples of a .bin log in file order (see LogFile for what it reports);
     IMU and GPS records of instance 0 only."""
 
-    def __iter__(self) -> Iterator:
+    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
         try:
             log = DFReader_binary(self.path)  # never mavlink_connection: it treats some paths as devices
         except Exception as exc:  # DFReader raises bare Exceptions on a bad header

@@ -15,6 +15,8 @@ from gcs.logs.logfile import InputError
 from gcs.logs.tlog import read_tlog
 from gcs.logs.ulog import UlogFile
 
+__all__ = ["READERS", "InputError", "Sample", "read_samples"]
+
 Sample = ImuSample | GpsSample | AttitudeSample
 
 READERS: dict[str, Callable[[str], Iterable[Sample]]] = {

@@ -12,6 +12,7 @@ import heapq
 from collections.abc import Iterator
 
 import numpy as np
+import numpy.typing as npt
 from pyulog import ULog
 
 from gcs.core.rotation import quat_to_euler
@@ -24,7 +25,9 @@ ATTITUDE_TOPIC = "vehicle_attitude"
 TOPICS = (IMU_TOPIC, ATTITUDE_TOPIC)
 
 
-def imu_from_ulog_sensor_combined(timestamp_us: int, gyro_rad, accelerometer_m_s2) -> ImuSample:
+def imu_from_ulog_sensor_combined(
+    timestamp_us: int, gyro_rad: npt.ArrayLike, accelerometer_m_s2: npt.ArrayLike
+) -> ImuSample:
     """ULog `sensor_combined` row: timestamp µs, gyro_rad[3] rad/s, accelerometer_m_s2[3] (body FRD)."""
     return ImuSample(
         usec_to_s(timestamp_us),
@@ -35,7 +38,7 @@ def imu_from_ulog_sensor_combined(timestamp_us: int, gyro_rad, accelerometer_m_s
     )
 
 
-def attitude_from_ulog(timestamp_us: int, q) -> AttitudeSample:
+def attitude_from_ulog(timestamp_us: int, q: npt.ArrayLike) -> AttitudeSample:
     """`vehicle_attitude` row: timestamp µs, q[4] (w, x, y, z) body→NED → Z-Y-X Euler in rad."""
     return AttitudeSample(usec_to_s(timestamp_us), *quat_to_euler(np.asarray(q, dtype=float)), "onboard")
 
@@ -43,7 +46,7 @@ def attitude_from_ulog(timestamp_us: int, q) -> AttitudeSample:
 class UlogFile(LogFile):
     """Iterates the samples of a .ulg in timestamp order (see LogFile for what it reports)."""
 
-    def __iter__(self) -> Iterator:
+    def __iter__(self) -> Iterator[ImuSample | AttitudeSample]:
         try:
             ulog = ULog(self.path, [IMU_TOPIC, ATTITUDE_TOPIC])
         except Exception as exc:  # pyulog raises plain Exceptions for a bad header or version
@@ -54,20 +57,20 @@ class UlogFile(LogFile):
         imu = topics.get(IMU_TOPIC)
         if imu is None or len(imu["timestamp"]) == 0:
             raise InputError(f"{self.path}: offset 0: no {IMU_TOPIC} topic; cannot estimate attitude")
-        streams = [self._imu_rows(imu)]
+        streams: list[Iterator[tuple[int, int, ImuSample | AttitudeSample]]] = [self._imu_rows(imu)]
         if ATTITUDE_TOPIC in topics:
             streams.append(self._attitude_rows(topics[ATTITUDE_TOPIC]))
         for timestamp, topic, sample in heapq.merge(*streams, key=lambda row: row[:2]):
             self._seen(TOPICS[topic], timestamp)
             yield sample
 
-    def _imu_rows(self, data: dict) -> Iterator:
+    def _imu_rows(self, data: dict[str, npt.NDArray[np.generic]]) -> Iterator[tuple[int, int, ImuSample]]:
         gyro = np.column_stack([data[f"gyro_rad[{i}]"] for i in range(3)])
         accel = np.column_stack([data[f"accelerometer_m_s2[{i}]"] for i in range(3)])
         for k, timestamp in enumerate(data["timestamp"].tolist()):
             yield timestamp, 0, imu_from_ulog_sensor_combined(timestamp, gyro[k], accel[k])
 
-    def _attitude_rows(self, data: dict) -> Iterator:
+    def _attitude_rows(self, data: dict[str, npt.NDArray[np.generic]]) -> Iterator[tuple[int, int, AttitudeSample]]:
         q = np.column_stack([data[f"q[{i}]"] for i in range(4)])
         for k, timestamp in enumerate(data["timestamp"].tolist()):
             yield timestamp, 1, attitude_from_ulog(timestamp, q[k])

@@ -8,10 +8,16 @@ and 2 packets alike; an `Encoder` writes MAVLink 1 for vehicles that only speak 
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 from pymavlink.dialects.v20 import all as mavlink
 
+__all__ = ["MARKER_V1", "MARKER_V2", "Encoder", "MAVError", "MAVLink", "MAVLinkMessage", "mavlink"]
+
 MAVLink = mavlink.MAVLink
-MAVLinkMessage = mavlink.MAVLink_message
+#: A decoded or built message. pymavlink ships no type information and creates each message's
+#: fields at run time, so this is Any to mypy: the dynamic boundary, named here once.
+MAVLinkMessage: TypeAlias = mavlink.MAVLink_message
 MAVError = mavlink.MAVError
 
 #: Start-of-frame markers.

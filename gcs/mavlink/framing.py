@@ -81,7 +81,7 @@ class MavlinkDecoder:
             return a
         return min(a, b)
 
-    def _try_frame(self, buf: bytearray, i: int, n: int, final: bool):
+    def _try_frame(self, buf: bytearray, i: int, n: int, final: bool) -> tuple[MAVLinkMessage, int] | int | None:
         """(message, length) for a valid frame at i; None to wait for more bytes; 0 to reject."""
         c = self.counters
         v2 = buf[i] == MARKER_V2

@@ -89,7 +89,7 @@ class Difference:
     a: float | None
     b: float | None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, str | float | None]:
         return {"name": self.name, "a": self.a, "b": self.b}
 
 

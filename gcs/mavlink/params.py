@@ -36,7 +36,8 @@ def type_name(param_type: int) -> str:
 
 def float32(value: float) -> float:
     """The value as the vehicle's float32 holds it."""
-    return struct.unpack("<f", struct.pack("<f", value))[0]
+    stored: float = struct.unpack("<f", struct.pack("<f", value))[0]
+    return stored
 
 
 def format_value(value: float) -> str:
@@ -60,12 +61,13 @@ def same_value(a: float, b: float) -> bool:
 
 def decode(raw: bytes, param_type: int, bytewise: bool) -> int | float:
     """A PARAM_VALUE's 4 value bytes → the typed value."""
-    wire = struct.unpack("<f", raw)[0]
+    wire: float = struct.unpack("<f", raw)[0]
     if param_type in _FLOAT_TYPES or param_type not in _INT_FORMATS:
         return wire
     if bytewise:
         fmt = _INT_FORMATS[param_type]
-        return struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0]
+        integer: int = struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0]
+        return integer
     return int(wire)
 
 

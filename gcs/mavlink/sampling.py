@@ -34,27 +34,26 @@ from gcs.mavlink.params import param_name
 UINT16_UNKNOWN = 65535
 
 
-def _imu_from_scaled(msg, t: float) -> ImuSample:
+def _imu_from_scaled(msg: MAVLinkMessage, t: float) -> ImuSample:
     """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled)."""
     gyro = np.array([mrad_to_rads(msg.xgyro), mrad_to_rads(msg.ygyro), mrad_to_rads(msg.zgyro)])
     accel = np.array([mg_to_mps2(msg.xacc), mg_to_mps2(msg.yacc), mg_to_mps2(msg.zacc)])
-    mag = np.array([mgauss_to_gauss(msg.xmag), mgauss_to_gauss(msg.ymag), mgauss_to_gauss(msg.zmag)])
-    if not mag.any():
-        mag = None  # an all-zero field means "no compass", not a zero field
+    field = np.array([mgauss_to_gauss(msg.xmag), mgauss_to_gauss(msg.ymag), mgauss_to_gauss(msg.zmag)])
+    mag = field if field.any() else None  # an all-zero field means "no compass", not a zero field
     return ImuSample(t, gyro, accel, mag, msg.get_type())
 
 
-def imu_from_raw_imu(msg) -> ImuSample:
+def imu_from_raw_imu(msg: MAVLinkMessage) -> ImuSample:
     """RAW_IMU: time_usec since boot; accel mG, gyro mrad/s, mag mgauss (ArduPilot's scaled values)."""
     return _imu_from_scaled(msg, usec_to_s(msg.time_usec))
 
 
-def imu_from_scaled_imu(msg) -> ImuSample:
+def imu_from_scaled_imu(msg: MAVLinkMessage) -> ImuSample:
     """SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: time_boot_ms; same units as RAW_IMU."""
     return _imu_from_scaled(msg, ms_to_s(msg.time_boot_ms))
 
 
-def imu_from_highres_imu(msg) -> ImuSample:
+def imu_from_highres_imu(msg: MAVLinkMessage) -> ImuSample:
     """HIGHRES_IMU (PX4): already SI — m/s², rad/s, gauss; time_usec since boot."""
     return ImuSample(
         usec_to_s(msg.time_usec),
@@ -65,7 +64,7 @@ def imu_from_highres_imu(msg) -> ImuSample:
     )
 
 
-def gps_from_gps_raw_int(msg) -> GpsSample:
+def gps_from_gps_raw_int(msg: MAVLinkMessage) -> GpsSample:
     """GPS_RAW_INT: lat/lon degE7, alt mm, vel cm/s, cog cdeg (65535 = unknown), time_usec.
 
     The NED velocity is built from ground speed and course (GPS_RAW_INT has no vertical speed,
@@ -89,20 +88,25 @@ def gps_from_gps_raw_int(msg) -> GpsSample:
     )
 
 
-def baro_from_scaled_pressure(msg) -> BaroSample:
+def baro_from_scaled_pressure(msg: MAVLinkMessage) -> BaroSample:
     """SCALED_PRESSURE*: press_abs hPa, temperature cdegC, time_boot_ms."""
     return BaroSample(
         ms_to_s(msg.time_boot_ms), hpa_to_pa(msg.press_abs), cdegc_to_degc(msg.temperature), msg.get_type()
     )
 
 
-#: MAVLink message type → converter.
-CONVERTERS = {
+#: IMU message type → converter.
+_IMU_CONVERTERS: dict[str, Callable[[MAVLinkMessage], ImuSample]] = {
     "RAW_IMU": imu_from_raw_imu,
     "SCALED_IMU": imu_from_scaled_imu,
     "SCALED_IMU2": imu_from_scaled_imu,
     "SCALED_IMU3": imu_from_scaled_imu,
     "HIGHRES_IMU": imu_from_highres_imu,
+}
+
+#: MAVLink message type → converter.
+CONVERTERS: dict[str, Callable[[MAVLinkMessage], ImuSample | GpsSample | BaroSample]] = {
+    **_IMU_CONVERTERS,
     "GPS_RAW_INT": gps_from_gps_raw_int,
     "SCALED_PRESSURE": baro_from_scaled_pressure,
     "SCALED_PRESSURE2": baro_from_scaled_pressure,
@@ -110,7 +114,7 @@ CONVERTERS = {
 }
 
 
-def sample_from_message(msg) -> ImuSample | GpsSample | BaroSample | None:
+def sample_from_message(msg: MAVLinkMessage) -> ImuSample | GpsSample | BaroSample | None:
     """The sample a pymavlink message carries, or None for message types that carry no sensor data."""
     convert = CONVERTERS.get(msg.get_type())
     return convert(msg) if convert else None
@@ -134,7 +138,7 @@ class VehicleClock:
     def __init__(self) -> None:
         self.latest: dict[int, float] = {}
 
-    def observe(self, msg) -> float | None:
+    def observe(self, msg: MAVLinkMessage) -> float | None:
         """Update from msg and return the vehicle time to assign to it (None: nothing seen yet)."""
         system = msg.get_srcSystem()
         if hasattr(msg, "time_boot_ms"):
@@ -144,7 +148,7 @@ class VehicleClock:
         return self.latest.get(system)
 
 
-def attitude_from_message(msg, t: float) -> AttitudeSample | None:
+def attitude_from_message(msg: MAVLinkMessage, t: float) -> AttitudeSample | None:
     """ATTITUDE / AHRS2 / SIMSTATE (roll, pitch, yaw in rad) at vehicle time t, else None."""
     source = REFERENCE_MESSAGES.get(msg.get_type())
     if source is None:
@@ -180,7 +184,7 @@ class MessageSampler:
         self.clock = VehicleClock()
         self._secondary_since: dict[str, float] = {}
 
-    def feed(self, msg) -> ImuSample | GpsSample | AttitudeSample | None:
+    def feed(self, msg: MAVLinkMessage) -> ImuSample | GpsSample | AttitudeSample | None:
         kind = msg.get_type()
         if kind == "BAD_DATA" or kind.startswith("UNKNOWN"):
             return None
@@ -195,7 +199,7 @@ class MessageSampler:
         if now is None:
             return None
         if kind in IMU_TYPES:
-            return sample_from_message(msg) if self._is_imu_stream(kind, now) else None
+            return _IMU_CONVERTERS[kind](msg) if self._is_imu_stream(kind, now) else None
         if kind == "GPS_RAW_INT":
             gps = gps_from_gps_raw_int(msg)
             if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:

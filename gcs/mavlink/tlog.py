@@ -17,7 +17,7 @@ TIMESTAMP = struct.Struct(">Q")
 SIGNED = 0x01
 
 
-def packet_length(buf, start: int) -> int | None:
+def packet_length(buf: bytes | bytearray, start: int) -> int | None:
     """Length of the MAVLink packet starting at buf[start], from its header; None if the
     byte there is not a start-of-frame marker or the header is not complete."""
     if start + 3 > len(buf):

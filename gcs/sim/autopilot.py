@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from gcs.core.rotation import vec3
 from gcs.mavlink.dialect import mavlink
 from gcs.sim.ahrs import OnboardAhrs
 from gcs.sim.motion import GRAVITY, Script, Truth
@@ -136,7 +137,7 @@ class Autopilot:
         fix = self.gps.fix(self.truth(t))
         if self.fix is not None and fix.t > self.fix.t:
             dt = fix.t - self.fix.t
-            self.gps_accel = tuple((fix.vel_ned[i] - self.fix.vel_ned[i]) / dt for i in range(3))
+            self.gps_accel = vec3((fix.vel_ned[i] - self.fix.vel_ned[i]) / dt for i in range(3))
         self.fix = fix
 
     # --- messages ----------------------------------------------------------------------------------
@@ -260,6 +261,7 @@ class Autopilot:
         return mavlink.MAVLink_ahrs_message(*(-b for b in dcm.bias), 0.0, 0.0, dcm.error_rp, dcm.error_yaw)
 
     def _ahrs2(self, t: float):
+        assert self.secondary is not None  # AHRS2 is only in the streams of profiles with two IMUs
         fix = self.fix or self.gps.fix(self.truth(t))
         return mavlink.MAVLink_ahrs2_message(*self.secondary.euler(), fix.alt, _deg_e7(fix.lat), _deg_e7(fix.lon))
 

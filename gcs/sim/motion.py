@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.core.rotation import euler_to_quat
 
@@ -37,17 +38,17 @@ class Truth:
     """
 
     t: float
-    q: np.ndarray
+    q: npt.NDArray[np.float64]
     euler: tuple[float, float, float]
-    omega_body: np.ndarray
-    accel_ned: np.ndarray
-    vel_ned: np.ndarray
-    pos: np.ndarray
-    specific_force: np.ndarray
-    rotation: np.ndarray
+    omega_body: npt.NDArray[np.float64]
+    accel_ned: npt.NDArray[np.float64]
+    vel_ned: npt.NDArray[np.float64]
+    pos: npt.NDArray[np.float64]
+    specific_force: npt.NDArray[np.float64]
+    rotation: npt.NDArray[np.float64]
 
 
-def euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+def euler_matrix(roll: float, pitch: float, yaw: float) -> npt.NDArray[np.float64]:
     """R = Rz(yaw) Ry(pitch) Rx(roll) (body→NED) straight from Z-Y-X Euler angles."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)

@@ -47,7 +47,7 @@ class PtyTransport(SerialTransport):
 
     def close(self) -> None:
         super().close()  # stops reading, marks the transport closed
-        if self._master is None:
+        if self._master is None or self._slave is None:  # both are set by open() or neither
             return
         try:
             if os.path.islink(self.path) and os.readlink(self.path) == os.ttyname(self._slave):

@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from gcs.core.rotation import vec3
 from gcs.sim.motion import Truth
 
 #: Metres per degree of latitude on a spherical earth (WGS-84 equatorial radius), for the
@@ -144,15 +145,15 @@ class ImuModel:
             step = f.gyro_bias_walk * math.sqrt(dt)
             self.bias = [b + step * draw() for b in self.bias]
         w = truth.omega_body
-        gyro = tuple(float(w[i]) + self.bias[i] + f.gyro_noise * draw() for i in range(3))
+        gyro = vec3(float(w[i]) + self.bias[i] + f.gyro_noise * draw() for i in range(3))
         sf = truth.specific_force
         omega_t = 2 * math.pi * f.vibration_freq * truth.t
-        accel = tuple(
+        accel = vec3(
             float(sf[i]) + f.vibration * math.sin(omega_t + self.vibration_phase[i]) + f.accel_noise * draw()
             for i in range(3)
         )
         field_body = truth.rotation.T @ np.array(f.earth_field())
-        mag = tuple(float(field_body[i]) + f.mag_hard_iron[i] + f.mag_noise * draw() for i in range(3))
+        mag = vec3(float(field_body[i]) + f.mag_hard_iron[i] + f.mag_noise * draw() for i in range(3))
         return ImuReading(truth.t, gyro, accel, mag)
 
 
@@ -196,7 +197,7 @@ class GpsModel:
         f, draw = self.faults, self.normals.draw
         p, v = truth.pos, truth.vel_ned
         north, east, down = (float(p[i]) + f.gps_pos_noise * draw() for i in range(3))
-        vel = tuple(float(v[i]) + f.gps_vel_noise * draw() for i in range(3))
+        vel = vec3(float(v[i]) + f.gps_vel_noise * draw() for i in range(3))
         lat, lon = self.home.lat_lon(north, east)
         speed = math.hypot(vel[0], vel[1])
         return GpsFix(truth.t, lat, lon, self.home.alt - down, vel, speed, math.atan2(vel[1], vel[0]))

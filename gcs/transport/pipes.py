@@ -101,12 +101,15 @@ class UdpTransport(Transport):
         loop = asyncio.get_running_loop()
         self._on_data = on_data
         self._new_closed_future()
+        local_addr: tuple[str, int] | None = None  # the defaults of create_datagram_endpoint
+        family = 0
         if self.address.kind == "udpin":
-            kwargs = {"local_addr": (self.address.host, self.address.port)}
+            local_addr = (self.address.host, self.address.port)
         else:
             family = socket.AF_INET6 if ":" in self.address.host else socket.AF_INET
-            kwargs = {"family": family}
-        self._transport, _ = await loop.create_datagram_endpoint(lambda: _DatagramProtocol(self), **kwargs)
+        self._transport, _ = await loop.create_datagram_endpoint(
+            lambda: _DatagramProtocol(self), local_addr=local_addr, family=family
+        )
         sock = self._transport.get_extra_info("socket")
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER)  # capped by rmem_max
 
@@ -118,6 +121,7 @@ class UdpTransport(Transport):
     def _received(self, data: bytes, addr) -> None:
         if self.address.kind == "udpin":
             self.peer = addr
+        assert self._on_data is not None  # set by open() before the endpoint exists
         self._on_data(data)
 
     def write(self, data: bytes) -> None:
@@ -236,7 +240,7 @@ class SerialTransport(Transport):
     def __init__(self, address: Address, baud: int = 57600) -> None:
         super().__init__(address)
         self.baud = baud
-        self._port = None
+        self._port: serial.Serial | None = None
         self._fd: int | None = None
 
     async def open(self, on_data: DataCallback) -> None:
@@ -252,6 +256,7 @@ class SerialTransport(Transport):
         asyncio.get_running_loop().add_reader(self._fd, self._readable)
 
     def _readable(self) -> None:
+        assert self._fd is not None  # the event loop calls this only between open() and close()
         try:
             data = os.read(self._fd, 4096)
         except BlockingIOError:

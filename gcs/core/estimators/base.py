@@ -17,6 +17,7 @@ from abc import ABC, abstractmethod
 from typing import ClassVar
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.core.gains import Gain, GainSet
 from gcs.core.samples import GpsSample, ImuSample
@@ -33,8 +34,13 @@ GPS_GAINS: tuple[Gain, ...] = (
     Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no mag)"),
 )
 
+#: A number or a label in `AttitudeEstimator.health()`; a few are per-axis tuples.
+HealthValue = float | str | tuple[float, ...]
 
-def initial_attitude(accel: np.ndarray, mag: np.ndarray | None, declination: float = 0.0) -> np.ndarray:
+
+def initial_attitude(
+    accel: npt.NDArray[np.float64], mag: npt.NDArray[np.float64] | None, declination: float = 0.0
+) -> npt.NDArray[np.float64]:
     """Rotation matrix sensor → NED from one specific-force vector and an optional magnetic vector.
 
     Rows of R are the NED axes seen in the sensor frame (seed 000 eqs. 5-10, as the thesis code
@@ -54,7 +60,7 @@ def initial_attitude(accel: np.ndarray, mag: np.ndarray | None, declination: flo
         h = axis - down * float(axis @ down)
         north = h / np.linalg.norm(h)
     east = np.cross(down, north)
-    R = np.vstack([north, east, down])
+    R: npt.NDArray[np.float64] = np.vstack([north, east, down])
     c, s = math.cos(declination), math.sin(declination)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
 
@@ -111,7 +117,7 @@ class AttitudeEstimator(ABC):
         self.last_reinit = reason
         return None
 
-    def _common_health(self) -> dict[str, float | str]:
+    def _common_health(self) -> dict[str, HealthValue]:
         return {"reinit_count": self.reinit_count, "last_reinit": self.last_reinit, "duplicates": self.duplicates}
 
     @abstractmethod
@@ -123,11 +129,11 @@ class AttitudeEstimator(ABC):
 
     @property
     @abstractmethod
-    def quaternion(self) -> np.ndarray:
+    def quaternion(self) -> npt.NDArray[np.float64]:
         """Current attitude, unit quaternion (w, x, y, z), sensor/body → earth NED."""
 
     @abstractmethod
-    def health(self) -> dict[str, float | str]:
+    def health(self) -> dict[str, HealthValue]:
         """Numbers that tell whether to trust the output (accel norm, innovations, ...)."""
 
 
@@ -147,7 +153,7 @@ class GpsAcceleration:
 
     def reset(self) -> None:
         self.t: float | None = None
-        self.vel: np.ndarray | None = None
+        self.vel: npt.NDArray[np.float64] | None = None
         self.accel = np.zeros(3)
         self.ground_speed = 0.0
         self.course = math.nan
@@ -161,7 +167,7 @@ class GpsAcceleration:
             self.reset()
             return
         vel = np.asarray(sample.vel_ned, dtype=float)
-        if self.vel is not None and sample.t - self.t <= self.timeout:
+        if self.vel is not None and self.t is not None and sample.t - self.t <= self.timeout:
             self.accel = (vel - self.vel) / (sample.t - self.t)
         else:
             self.accel = np.zeros(3)

@@ -6,11 +6,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
-from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration, initial_attitude
+from gcs.core.estimators.base import (
+    COMMON_GAINS,
+    GPS_GAINS,
+    AttitudeEstimator,
+    GpsAcceleration,
+    HealthValue,
+    initial_attitude,
+)
 from gcs.core.estimators.magnetic import MagDisturbance
 from gcs.core.gains import Gain
-from gcs.core.rotation import matrix_to_quat
+from gcs.core.rotation import Rows, Vec3, matrix_to_quat, vec3
 from gcs.core.samples import G0, GpsSample, ImuSample
 
 #: Spin rate above which the integrator freezes (AP_AHRS_DCM SPIN_RATE_LIMIT, 20 deg/s).
@@ -19,7 +27,7 @@ SPIN_RATE_LIMIT = math.radians(20.0)
 OMEGA_I_MAX = 0.1
 
 
-def renormalize(X, Y):
+def renormalize(X: Vec3, Y: Vec3) -> tuple[Vec3, Vec3, Vec3, float]:
     """Seed 000 eqs. (13)-(17) on the first two rows X, Y of R (3-tuples of floats).
 
     error = X·Y (13) is split half to each row (14)-(15), Z = X_orth × Y_orth (16), and each row is
@@ -39,7 +47,7 @@ def renormalize(X, Y):
     return (x0 * sx, x1 * sx, x2 * sx), (y0 * sy, y1 * sy, y2 * sy), (z0 * sz, z1 * sz, z2 * sz), size
 
 
-def rotate_rows(rows, wx: float, wy: float, wz: float):
+def rotate_rows(rows: Rows, wx: float, wy: float, wz: float) -> tuple[Vec3, ...]:
     """R · exp([w]×) for a body rotation vector w (rad): Rodrigues' exact form of eqs. (11)-(12)."""
     a2 = wx * wx + wy * wy + wz * wz
     if a2 < 1e-12:
@@ -107,7 +115,7 @@ class DcmEstimator(AttitudeEstimator):
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         super().__init__(preset, **gains)
         self.gps = GpsAcceleration()
-        self.rows = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+        self.rows: Rows = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
         self._reset_correction((0.0, 0.0, 0.0))
         self.valid = False
         self.accel_norm = 0.0
@@ -118,7 +126,7 @@ class DcmEstimator(AttitudeEstimator):
         self.yaw_source = "none"
         self.mag_rejected = 0
 
-    def _reset_correction(self, gyro) -> None:
+    def _reset_correction(self, gyro: Vec3) -> None:
         self.omega_I = [0.0, 0.0, 0.0]
         self.omega_P = (0.0, 0.0, 0.0)
         self.omega_Y = (0.0, 0.0, 0.0)
@@ -142,7 +150,8 @@ class DcmEstimator(AttitudeEstimator):
                 self.t = None
                 return self.valid
             R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
-            self.rows = tuple(tuple(float(v) for v in row) for row in R)
+            north, east, down = (vec3(float(v) for v in row) for row in R)
+            self.rows = (north, east, down)
             self._reset_correction((gx, gy, gz))
             self.valid = True
             return True
@@ -216,7 +225,7 @@ class DcmEstimator(AttitudeEstimator):
                 self.omega_I[i] = min(max(self.omega_I[i] + ki * b + kiy * z, -OMEGA_I_MAX), OMEGA_I_MAX)
         return True
 
-    def _yaw_error(self, sample: ImuSample, X, Y, Z, dt: float = 0.0, spin: float = 0.0) -> float:
+    def _yaw_error(self, sample: ImuSample, X: Vec3, Y: Vec3, Z: Vec3, dt: float = 0.0, spin: float = 0.0) -> float:
         """Heading error about earth down (rad, small-angle sine), or 0 without a usable reference."""
         mag = sample.mag
         if mag is not None:
@@ -250,15 +259,15 @@ class DcmEstimator(AttitudeEstimator):
         return 0.0
 
     @property
-    def matrix(self) -> np.ndarray:
+    def matrix(self) -> npt.NDArray[np.float64]:
         """R, sensor → NED."""
         return np.array(self.rows)
 
     @property
-    def quaternion(self) -> np.ndarray:
+    def quaternion(self) -> npt.NDArray[np.float64]:
         return matrix_to_quat(np.array(self.rows))
 
-    def health(self) -> dict[str, float | str]:
+    def health(self) -> dict[str, HealthValue]:
         return {
             **self._common_health(),
             "valid": self.valid,

@@ -17,8 +17,9 @@ from collections import deque
 from typing import ClassVar
 
 import numpy as np
+import numpy.typing as npt
 
-from gcs.core.estimators.base import COMMON_GAINS, AttitudeEstimator, initial_attitude
+from gcs.core.estimators.base import COMMON_GAINS, AttitudeEstimator, HealthValue, initial_attitude
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times, wrap_pi
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -42,9 +43,9 @@ def _inv_sym(S: list[list[float]]) -> list[list[float]]:
     return [[A / det, B / det, C / det], [B / det, D / det, E / det], [C / det, E / det, F / det]]
 
 
-def _plus_r(block: np.ndarray, r: float) -> list[list[float]]:
+def _plus_r(block: npt.NDArray[np.float64], r: float) -> list[list[float]]:
     """block + r I, as lists (S = H P Hᵀ + r I for the closed-form inverse)."""
-    S = block.tolist()
+    S: list[list[float]] = block.tolist()
     for i, row in enumerate(S):
         row[i] += r
     return S
@@ -112,11 +113,11 @@ class EkfEstimator(AttitudeEstimator):
 
     # -- public API ---------------------------------------------------------------------------
     @property
-    def quaternion(self) -> np.ndarray:
+    def quaternion(self) -> npt.NDArray[np.float64]:
         return np.array(self.q)
 
-    def health(self) -> dict[str, float | str]:
-        h: dict[str, float | str] = {**self._common_health(), **self.stats}
+    def health(self) -> dict[str, HealthValue]:
+        h: dict[str, HealthValue] = {**self._common_health(), **self.stats}
         h.update(bias_x=self.b[0], bias_y=self.b[1], bias_z=self.b[2])
         h["tilt_sigma_deg"] = math.degrees(math.sqrt(max(self.P[0, 0] + self.P[1, 1], 0.0)))
         h["heading_sigma_deg"] = math.degrees(math.sqrt(max(self.P[2, 2], 0.0)))
@@ -145,7 +146,7 @@ class EkfEstimator(AttitudeEstimator):
                 self._update_gravity(accel, dt)
         self._update_velocity_prior(dt, 1 if aided else 3)
         if mag is not None:
-            self._update_heading(mag, dt)
+            self._update_heading(mag, dt, sample.t)
         return True
 
     def update_gps(self, sample: GpsSample) -> None:
@@ -225,7 +226,7 @@ class EkfEstimator(AttitudeEstimator):
         qg, qa, qb = g["gyro_noise"] ** 2 * dt, sa * sa * dt, g["bias_walk"] ** 2 * dt
         self.P.reshape(-1)[::10] += (qg, qg, qg, qa, qa, qa, qb, qb, qb)  # the diagonal of P
 
-    def _update(self, PHt: np.ndarray, S: list[list[float]], y: list[float]) -> list[list[float]]:
+    def _update(self, PHt: npt.NDArray[np.float64], S: list[list[float]], y: list[float]) -> list[list[float]]:
         """Optimal gain K = P Hᵀ S⁻¹, P ← P − K (P Hᵀ)ᵀ (symmetrised), and injection of K y into
         the nominal state. Returns S⁻¹."""
         S_inv = _inv_sym(S)
@@ -303,7 +304,7 @@ class EkfEstimator(AttitudeEstimator):
         self.mag_ref_dip = math.atan2(m_n[2], math.hypot(m_n[0], m_n[1]))
         self._mag_rejected_since = None
 
-    def _update_heading(self, mag: list[float], dt: float) -> None:
+    def _update_heading(self, mag: list[float], dt: float, t: float) -> None:
         g = self.gains.values
         m_n = rows_times(quat_rows(self.q), mag)
         m_h = math.hypot(m_n[0], m_n[1])
@@ -321,8 +322,8 @@ class EkfEstimator(AttitudeEstimator):
         if inflation > g["mag_reject"]:
             self.stats["mag_rejected"] += 1
             if self._mag_rejected_since is None:
-                self._mag_rejected_since = self.t
-            elif self.t - self._mag_rejected_since >= g["mag_relearn"]:
+                self._mag_rejected_since = t
+            elif t - self._mag_rejected_since >= g["mag_relearn"]:
                 self._learn_mag_reference(m_n)
                 self.stats["mag_relearned"] += 1
             return

@@ -6,12 +6,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 from filterpy.kalman import KalmanFilter
 
-from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration
+from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration, HealthValue
 from gcs.core.estimators.magnetic import MagDisturbance
 from gcs.core.gains import Gain
 from gcs.core.rotation import (
+    Rows,
+    VectorLike,
     euler_quat,
     euler_to_quat,
     quat_exp,
@@ -20,6 +23,7 @@ from gcs.core.rotation import (
     quat_to_euler,
     quat_to_matrix,
     quat_unit,
+    vec3,
     wrap_pi,
 )
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -36,7 +40,9 @@ _DIAG5, _DIAG6 = np.diag_indices(5), np.diag_indices(6)
 _ROWS5 = [0, 1, 3, 4, 5]
 
 
-def accel_tilt(f, a_ned=(0.0, 0.0, 0.0), yaw: float = 0.0, roll: float = 0.0, pitch: float = 0.0):
+def accel_tilt(
+    f: VectorLike, a_ned: VectorLike = (0.0, 0.0, 0.0), yaw: float = 0.0, roll: float = 0.0, pitch: float = 0.0
+) -> tuple[float, float]:
     """Roll and pitch (rad) that make the specific force f (sensor frame) point "up" (-z NED).
 
     a_ned, the vehicle's acceleration from GPS, is first removed: f_g = f - Rᵀ a_ned with R from
@@ -51,7 +57,7 @@ def accel_tilt(f, a_ned=(0.0, 0.0, 0.0), yaw: float = 0.0, roll: float = 0.0, pi
     return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
 
 
-def mag_heading(m, roll: float, pitch: float, declination: float) -> float | None:
+def mag_heading(m: VectorLike, roll: float, pitch: float, declination: float) -> float | None:
     """True heading (rad) from the tilt-compensated field: level it by Ry(pitch)·Rx(roll), then
     yaw = declination - atan2(m_level_y, m_level_x). None when the horizontal field vanishes."""
     mx, my, mz = (float(v) for v in m)
@@ -64,7 +70,7 @@ def mag_heading(m, roll: float, pitch: float, declination: float) -> float | Non
     return wrap_pi(declination - math.atan2(ly, lx))
 
 
-def euler_rates(roll: float, pitch: float, gyro, cos_min: float = 1e-6) -> tuple[float, float, float]:
+def euler_rates(roll: float, pitch: float, gyro: VectorLike, cos_min: float = 1e-6) -> tuple[float, float, float]:
     """Body rates → Z-Y-X Euler-angle rates, seed 004 eq. (4.9). cos(pitch) is floored at cos_min
     (keeping its sign), which bounds the map near the Euler singularity at pitch ±90°."""
     p, q, r = (float(v) for v in gyro)
@@ -157,24 +163,24 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         # filterpy inputs reused every sample (written in place; filterpy keeps none of them)
         self._F, self._B, self._Q = np.eye(6), np.zeros((6, 3)), np.zeros((6, 6))
         self._dt: float | None = None
-        self._q_key: tuple | None = None
+        self._q_key: tuple[float, ...] | None = None
         self._u = np.zeros((3, 1))
         self._H6, self._H5 = np.eye(6), np.eye(6)[_ROWS5]
         self._R6, self._R5 = np.zeros((6, 6)), np.zeros((5, 5))
         self._z6, self._z5 = np.zeros((6, 1)), np.zeros((5, 1))
 
-    def _q(self, dt: float) -> np.ndarray:
+    def _q(self, dt: float) -> npt.NDArray[np.float64]:
         g = self.gains
         scale = g["k_q"] * dt / g["dt_ref"]
         return np.diag([g[f"q_{s}"] * scale for s in _ANGLES + _RATES])
 
-    def _r(self) -> np.ndarray:
+    def _r(self) -> npt.NDArray[np.float64]:
         return np.diag([self.gains[f"r_{s}"] for s in _ANGLES + _RATES])
 
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
 
-    def _heading(self, sample: ImuSample, roll: float, pitch: float, Rm, dt: float, spin: float) -> float | None:
+    def _heading(self, sample: ImuSample, roll: float, pitch: float, Rm: Rows, dt: float, spin: float) -> float | None:
         g = self.gains
         if sample.mag is not None:
             mx, my, mz = map(float, sample.mag)
@@ -217,7 +223,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
         self.heading_source = "mag" if yaw is not None else "none"
         self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
-        self.gyro_prev = tuple(float(v) for v in sample.gyro)
+        self.gyro_prev = vec3(float(v) for v in sample.gyro)
         self.f_avg = None
         self.kf.x = np.array([[roll], [pitch], [yaw or 0.0], *([v] for v in self.rates_prev)])
         self.kf.P = np.diag([g[f"q_{s}"] for s in _ANGLES + _RATES])
@@ -252,7 +258,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             self._Q[_DIAG6] = [v * scale for v in q_key[3:]]
             self._q_key = q_key
         kf.Q = self._Q
-        gyro = tuple(map(float, sample.gyro))
+        gyro = vec3(map(float, sample.gyro))
         cmin = g["cos_pitch_min"]
         exact = g["exact_predict"] >= 0.5
         x0 = kf.x[:, 0].tolist()
@@ -294,10 +300,10 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         k = g["gps_gain"]
         r = [g[n] for n in _R_NAMES]
         if self.accel_norm > 1e-6:
-            fe = tuple(Rm[i][0] * fx + Rm[i][1] * fy + Rm[i][2] * fz - k * a[i] for i in range(3))
+            fe = vec3(Rm[i][0] * fx + Rm[i][1] * fy + Rm[i][2] * fz - k * a[i] for i in range(3))
             if self.f_avg is not None and g["accel_tau"] > 0.0:
                 c = dt / (g["accel_tau"] + dt)
-                fe = tuple(F + c * (f - F) for F, f in zip(self.f_avg, fe))
+                fe = vec3(F + c * (f - F) for F, f in zip(self.f_avg, fe))
             self.f_avg = fe
             fb = tuple(Rm[0][i] * fe[0] + Rm[1][i] * fe[1] + Rm[2][i] * fe[2] for i in range(3))
             roll, pitch = math.atan2(-fb[1], -fb[2]), math.atan2(fb[0], math.hypot(fb[1], fb[2]))
@@ -336,7 +342,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             # measurement without delaying the loop (as the DCM and VQF do)
             Rp = quat_rows(euler_quat(x[0], x[1], x[2]))
             fs = tuple(Rm[0][i] * self.f_avg[0] + Rm[1][i] * self.f_avg[1] + Rm[2][i] * self.f_avg[2] for i in range(3))
-            self.f_avg = tuple(Rp[i][0] * fs[0] + Rp[i][1] * fs[1] + Rp[i][2] * fs[2] for i in range(3))
+            self.f_avg = vec3(Rp[i][0] * fs[0] + Rp[i][1] * fs[1] + Rp[i][2] * fs[2] for i in range(3))
         kf.x[0, 0], kf.x[2, 0] = wrap_pi(x[0]), wrap_pi(x[2])
         return True
 
@@ -346,10 +352,10 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         return x[0], x[1], x[2]
 
     @property
-    def quaternion(self) -> np.ndarray:
+    def quaternion(self) -> npt.NDArray[np.float64]:
         return np.array(euler_quat(*self.euler))
 
-    def health(self) -> dict[str, float | str]:
+    def health(self) -> dict[str, HealthValue]:
         return {
             **self._common_health(),
             "valid": self.valid,

@@ -25,7 +25,8 @@ def get(name: str) -> type[AttitudeEstimator]:
         module, cls = ESTIMATORS[name].split(":")
     except KeyError:
         raise KeyError(f"unknown estimator {name!r}; known: {', '.join(ESTIMATORS)}") from None
-    return getattr(importlib.import_module(module), cls)
+    estimator: type[AttitudeEstimator] = getattr(importlib.import_module(module), cls)
+    return estimator
 
 
 def create(name: str, preset: str | None = None, **gains: float) -> AttitudeEstimator:
