@@ -7,7 +7,10 @@ import asyncio
 import httpx
 from live import running_sim, running_station, wait_for
 
+from gcs.runtime.snapshots import StreamRate
 from gcs.server.dashboard import DashboardServer
+
+NO_RATE = StreamRate(0.0, 0.0, None, None)
 
 
 def test_rest_api_status_estimates_gains_token(udp_port):
@@ -30,7 +33,7 @@ async def api_scenario(udp_port: int) -> None:
                 )
                 await wait_for(  # the status is the station's snapshot, published once a second
                     lambda: (
-                        station.snapshot.streams.messages["ATTITUDE"].achieved_hz > 30
+                        station.snapshot.streams.messages.get("ATTITUDE", NO_RATE).achieved_hz > 30
                         and all(e.errors for e in station.snapshot.estimation.estimators.values())
                     ),
                     15,

@@ -115,7 +115,7 @@ class ErrorStats:
 class EstimatorSnapshot:
     preset: str
     gains: dict[str, float]
-    health: dict[str, float | str | None]
+    health: dict[str, float | str | tuple[float, ...] | None]
     reliable: bool
     reason: str
     imu_rate_hz: float
