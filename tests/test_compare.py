@@ -5,7 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from gcs.core.comparison import Comparison, compare_stream
+from gcs.core.comparison import Comparison
+from gcs.core.estimation import compare_stream
 from gcs.core.estimators import registry
 from gcs.core.rotation import euler_to_quat
 from gcs.core.samples import AttitudeSample

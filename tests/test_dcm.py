@@ -8,7 +8,7 @@ import pytest
 from broad import broad_rmse
 from synthetic import imu, spinning, static
 
-from gcs.core.comparison import compare_stream
+from gcs.core.estimation import compare_stream
 from gcs.core.estimators.dcm import DcmEstimator, renormalize, rotate_rows
 from gcs.core.rotation import euler_to_quat, quat_to_euler
 from gcs.core.samples import GpsSample

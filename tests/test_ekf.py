@@ -13,7 +13,7 @@ import pytest
 from conftest import DATA, ROOT
 from synthetic import MAG_NED, Z_UP, angle_between, imu, spinning, static
 
-from gcs.core.comparison import compare_stream
+from gcs.core.estimation import compare_stream
 from gcs.core.estimators.ekf import EkfEstimator
 from gcs.core.rotation import (
     euler_to_quat,

@@ -4,12 +4,11 @@ import csv
 import math
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic import Z_UP, spinning
+from synthetic import Z_UP, angle_between, spinning
 
 from gcs.commands import estimate as offline
 from gcs.core.rotation import euler_to_quat
@@ -154,13 +153,16 @@ def test_not_a_tlog_is_a_clear_error(tmp_path):
 
 
 @pytest.mark.slow
-def test_dcm_runs_five_minutes_at_285_hz_in_seconds(tmp_path):
-    samples, _ = spinning(euler_to_quat(0.1, 0.2, 0.3), [0.1, -0.2, 0.3], rate=285.714, duration=300)
+def test_dcm_follows_five_minutes_at_285_hz(tmp_path):
+    """A long run keeps one row per sample and stays on the true attitude (its speed is measured
+    in bench/broad.py, not here: a timed test fails on a loaded machine for no reason)."""
+    samples, truth = spinning(euler_to_quat(0.1, 0.2, 0.3), [0.1, -0.2, 0.3], rate=285.714, duration=300)
     write_csv(tmp_path / "in.csv", samples)
-    start = time.perf_counter()
     assert estimate(tmp_path / "in.csv", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
-    elapsed = time.perf_counter() - start
-    assert elapsed < 15.0, f"{len(samples)} samples took {elapsed:.1f} s"
+    _, rows = read_out(tmp_path / "out.csv")
+    assert len(rows) == len(samples)
+    q_end = np.array([float(v) for v in rows[-1][1:5]])
+    assert angle_between(q_end, truth[-1]) < 2.0
 
 
 def test_through_the_gcs_command(tmp_path):

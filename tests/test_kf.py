@@ -8,7 +8,7 @@ import pytest
 from broad import broad_rmse
 from synthetic import imu, static
 
-from gcs.core.comparison import compare_stream
+from gcs.core.estimation import compare_stream
 from gcs.core.estimators.kf import SEED004_Q, SEED004_R, KalmanAttitudeFilter, mag_heading
 from gcs.core.rotation import euler_to_quat, quat_to_euler
 from gcs.logs.readers import read_samples

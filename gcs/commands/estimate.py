@@ -14,10 +14,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+from gcs.core.estimation import run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
-from gcs.core.samples import GpsSample, ImuSample
+from gcs.core.samples import ImuSample
 from gcs.logs.logfile import InputError
 from gcs.logs.readers import read_samples
 
@@ -76,9 +77,8 @@ def estimate(input_path: str, estimator, out) -> int:
     out.write(OUT_HEADER + "\n")
     rows = 0
     deg = 57.29577951308232
-    for sample in read_samples(input_path):
+    for sample, _ in run_estimator(estimator, read_samples(input_path)):
         if isinstance(sample, ImuSample):
-            estimator.update_imu(sample)
             q = estimator.quaternion
             roll, pitch, yaw = quat_to_euler(q)
             out.write(
@@ -86,8 +86,6 @@ def estimate(input_path: str, estimator, out) -> int:
                 f"{roll * deg:.6f},{pitch * deg:.6f},{yaw * deg:.6f}\n"
             )
             rows += 1
-        elif isinstance(sample, GpsSample):
-            estimator.update_gps(sample)
     return rows
 
 

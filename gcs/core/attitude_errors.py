@@ -3,10 +3,10 @@ comparison is gcs.core.comparison)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
+
+from gcs.core.rotation import wrap_pi_array
 
 
 def errors_against(series: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -26,5 +26,5 @@ def errors_against(series: npt.NDArray[np.float64], reference: npt.NDArray[np.fl
     for k in range(3):
         est = np.unwrap(series[:, 1 + k]) if k == 2 else series[:, 1 + k]
         diff = np.interp(ref[:, 0], series[:, 0], est) - ref[:, 1 + k]
-        out[:, 1 + k] = np.degrees((diff + math.pi) % (2 * math.pi) - math.pi)
+        out[:, 1 + k] = np.degrees(wrap_pi_array(diff))
     return out

@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable
 from typing import TypedDict
 
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.estimators.base import AttitudeEstimator
-from gcs.core.rotation import quat_slerp, quat_to_euler, wrap_pi
-from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.core.rotation import quat_slerp, quat_to_euler, wrap_pi, wrap_pi_array
+from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
 
@@ -190,7 +188,7 @@ class Comparison:
                 continue
             dr = np.interp(ts[inside], est[:, 0], est[:, 1]) - ref[inside, 1]
             dp = np.interp(ts[inside], est[:, 0], est[:, 2]) - ref[inside, 2]
-            dr = (dr + math.pi) % (2 * math.pi) - math.pi
+            dr = wrap_pi_array(dr)
             cost = float(np.mean(dr * dr + dp * dp))
             if cost < best_cost:
                 best, best_cost = lag, cost
@@ -215,24 +213,3 @@ class Comparison:
             "dropped": self.dropped,
             "references": {source: s.summary() for source, s in sorted(self.stats.items())},
         }
-
-
-def compare_stream(
-    samples: Iterable[ImuSample | GpsSample | AttitudeSample],
-    estimator: AttitudeEstimator,
-    comparison: Comparison | None = None,
-) -> Comparison:
-    """Run estimator over a sample stream (IMU, GPS, references in arrival order) and compare.
-
-    The same calls the live pipeline makes, so its result equals the live numbers.
-    """
-    comparison = comparison or Comparison()
-    for sample in samples:
-        if isinstance(sample, ImuSample):
-            estimator.update_imu(sample)
-            comparison.add_estimate(sample.t, estimator.quaternion)
-        elif isinstance(sample, GpsSample):
-            estimator.update_gps(sample)
-        elif isinstance(sample, AttitudeSample):
-            comparison.add_reference(sample)
-    return comparison

@@ -8,7 +8,7 @@ they were applied) in the same order and get the same numbers.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TypedDict
 
@@ -161,3 +161,43 @@ class EstimationPipeline:
                 for source, p in self.latest.items()
             },
         }
+
+
+def run_estimator(
+    estimator: AttitudeEstimator,
+    inputs: Iterable[EstimationInput],
+    name: str | None = None,
+    pinned: Collection[str] = (),
+) -> Iterator[tuple[EstimationInput, bool]]:
+    """Feed `inputs` in order to one estimator and yield each with whether the attitude is valid
+    after it (read the estimator's state then). IMU and GPS samples are fused; a GainChange for
+    estimator `name` (or for every estimator) is applied unless its gain is `pinned`; references
+    pass through. The one loop behind `gcs estimate`, what-if and `compare_stream`."""
+    valid = False
+    for item in inputs:
+        if isinstance(item, ImuSample):
+            valid = estimator.update_imu(item)
+        elif isinstance(item, GpsSample):
+            estimator.update_gps(item)
+        elif isinstance(item, GainChange):
+            if item.estimator in (None, name) and item.name not in pinned and item.name in estimator.gains.declarations:
+                estimator.set_gain(item.name, item.value)
+        yield item, valid
+
+
+def compare_stream(
+    samples: Iterable[ImuSample | GpsSample | AttitudeSample],
+    estimator: AttitudeEstimator,
+    comparison: Comparison | None = None,
+) -> Comparison:
+    """Run estimator over a sample stream (IMU, GPS, references in arrival order) and compare.
+
+    The same calls the live pipeline makes, so its result equals the live numbers.
+    """
+    comparison = comparison or Comparison()
+    for item, _ in run_estimator(estimator, samples):
+        if isinstance(item, ImuSample):
+            comparison.add_estimate(item.t, estimator.quaternion)
+        elif isinstance(item, AttitudeSample):
+            comparison.add_reference(item)
+    return comparison

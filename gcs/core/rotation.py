@@ -158,6 +158,12 @@ def wrap_pi(angle: float) -> float:
     return a - math.pi
 
 
+def wrap_pi_array(angles: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """`wrap_pi` for arrays (into [-pi, pi): the two differ only at exactly ±pi)."""
+    wrapped: npt.NDArray[np.float64] = (angles + math.pi) % (2 * math.pi) - math.pi
+    return wrapped
+
+
 def quat_slerp(q0: npt.NDArray[np.float64], q1: npt.NDArray[np.float64], u: float) -> npt.NDArray[np.float64]:
     """Spherical interpolation from q0 (u = 0) to q1 (u = 1) along the shorter arc."""
     d = float(np.dot(q0, q1))
