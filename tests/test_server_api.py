@@ -84,9 +84,8 @@ async def check_status_and_estimates(api: httpx.AsyncClient) -> None:
 
 
 async def check_gains(api: httpx.AsyncClient, station) -> None:
-    listing = {e["name"]: e for e in (await api.get("/api/estimators")).json()}
-    kp = next(g for g in listing["dcm"]["gains"] if g["name"] == "kp_rp")
-    assert (kp["min"], kp["max"], kp["unit"], kp["scale"]) == (0.0, 50.0, "1/s", "log")
+    """A change over REST reaches the running estimator and the event log (refusals, listing and
+    presets are covered against a fake station in test_server_routes.py)."""
     r = await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 0.5})
     assert r.status_code == 200 and r.json() == {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5}
     assert station.estimation.pipeline.estimators["dcm"].gains["kp_rp"] == 0.5
@@ -96,13 +95,3 @@ async def check_gains(api: httpx.AsyncClient, station) -> None:
         "api:127.0.0.1",
         {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5},
     )
-    bad = await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 51})
-    assert bad.status_code == 422 and bad.json()["detail"] == "gain kp_rp: 51 1/s is outside [0, 50] 1/s"
-    assert (await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": "x"})).status_code == 422
-    assert (await api.put("/api/estimators/dcm/gains/nope", json={"value": 1})).status_code == 404
-    assert (await api.put("/api/estimators/nope/gains/kp_rp", json={"value": 1})).status_code == 404
-    reset = (await api.post("/api/estimators/dcm/preset", json={})).json()
-    assert reset["preset"] == "ardupilot" and reset["changes"] == [
-        {"estimator": "dcm", "gain": "kp_rp", "old": 0.5, "new": 0.2}
-    ]
-    assert (await api.post("/api/estimators/dcm/preset", json={"preset": "nope"})).status_code == 422

@@ -101,6 +101,10 @@ class Station:
             self.link.state_changed.connect(self._ask_declination)
         #: every snapshot as it is published
         self.published: Signal[[StationSnapshot]] = Signal()
+        #: the attitudes the live estimation produces, as it produces them
+        self.points: Signal[[list[AttitudePoint]]] = Signal()
+        if self.estimation is not None:
+            self.estimation.points.connect(self.points.emit)
         replaying = self.link.address.kind == "tlog"  # a replayed log is not a new session
         self.recorder = SessionRecorder(self, config.record_dir) if config.record_dir and not replaying else None
         self.replay: ReplaySession | None = None
@@ -162,7 +166,7 @@ class Station:
             streams=self.streams.snapshot(),
             outputs=[o.snapshot() for o in self.outputs],
             estimation=None if self.estimation is None else estimation_snapshot(self.estimation),
-            recording=self.recorder.snapshot() if self.recorder else NOT_RECORDING,
+            recording=self.recording_snapshot(),
             parts=self.supervisor.statuses(),
         )
         self.published.emit(self._snapshot)
@@ -223,6 +227,15 @@ class Station:
         return changes
 
     # ---- commands: recording -------------------------------------------------------------
+    @property
+    def recording_root(self) -> Path:
+        """Where sessions are recorded (and where replay and what-if sources are looked up)."""
+        return self.recorder.root if self.recorder is not None else Path(self.config.record_dir or "sessions")
+
+    def recording_snapshot(self) -> RecordingSnapshot:
+        """The recorder's state now (not at the last published snapshot)."""
+        return self.recorder.snapshot() if self.recorder is not None else NOT_RECORDING
+
     def recording(self) -> SessionRecorder:
         if self.recorder is None:
             raise StationError("this station runs without recording (--no-record)")

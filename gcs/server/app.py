@@ -12,8 +12,8 @@ from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
 from gcs.runtime.events import Event
+from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
-from gcs.runtime.station import Station
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
 
@@ -22,7 +22,7 @@ UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 
 
 def create_app(
-    station: Station, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
+    station: StationFacade, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
 ) -> FastAPI:
     """The app for one running station. `token`: required on state-changing requests (None when
     only this machine can connect). The hub follows the station's estimation, replays and events."""
@@ -38,8 +38,7 @@ def create_app(
     app.state.hub = hub
     app.state.token = token
     app.state.viser_port = viser_port
-    if station.estimation is not None:
-        station.estimation.points.connect(hub.on_points)
+    station.points.connect(hub.on_points)
     station.replay_loaded.connect(lambda replay: follow_replay(hub, replay))
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
     for module in ROUTERS:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import uvicorn
 
-from gcs.runtime.station import Station
+from gcs.runtime.facade import StationFacade
 from gcs.server.app import create_app
 from gcs.server.live import LiveHub
 
@@ -42,7 +42,7 @@ class DashboardServer:
 
     def __init__(
         self,
-        station: Station,
+        station: StationFacade,
         host: str = "127.0.0.1",
         port: int = 8000,
         *,

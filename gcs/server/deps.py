@@ -1,4 +1,4 @@
-"""What every router is given: the running Station, the live hub, and the token check.
+"""What every router is given: the running Station (as its facade), the live hub, and the token check.
 
 Every dependency and every route is `async def`, so all of them run on the event loop thread,
 where the Station's state lives (a plain `def` would run in Starlette's thread pool).
@@ -17,15 +17,15 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
-from gcs.runtime.station import Station
+from gcs.runtime.facade import StationFacade
 from gcs.server.live import LiveHub
 
 TOKEN_HEADER = "X-GCS-Token"
 
 
-async def get_station(conn: HTTPConnection) -> Station:
+async def get_station(conn: HTTPConnection) -> StationFacade:
     """The running Station (for HTTP routes and WebSockets alike)."""
-    station: Station = conn.app.state.station
+    station: StationFacade = conn.app.state.station
     return station
 
 
@@ -65,7 +65,7 @@ async def get_client(request: Request) -> str:
     return f"api:{request.client.host if request.client else '?'}"
 
 
-StationDep = Annotated[Station, Depends(get_station)]
+StationDep = Annotated[StationFacade, Depends(get_station)]
 HubDep = Annotated[LiveHub, Depends(get_hub)]
 ClientDep = Annotated[str, Depends(get_client)]
 #: For the `dependencies=[...]` of every route that changes state.

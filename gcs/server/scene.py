@@ -22,7 +22,7 @@ import viser
 from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import euler_to_quat
 from gcs.runtime.events import Event
-from gcs.runtime.station import Station
+from gcs.runtime.facade import StationFacade
 from gcs.server.sliders import slider_spec
 
 #: Ghost colours per estimator (falls back to grey); the page uses the same ones.
@@ -98,7 +98,7 @@ class GainPanel:
     needs a token."""
 
     def __init__(
-        self, server: viser.ViserServer, station: Station, loop: asyncio.AbstractEventLoop, editable: bool
+        self, server: viser.ViserServer, station: StationFacade, loop: asyncio.AbstractEventLoop, editable: bool
     ) -> None:
         self.station = station
         self.loop = loop

@@ -20,9 +20,10 @@ from starlette.background import BackgroundTask
 
 from gcs.core.gains import GainError
 from gcs.logs.logfile import InputError
+from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.snapshots import RecordingSnapshot
-from gcs.runtime.station import Station, StationError
+from gcs.runtime.station import StationError
 from gcs.server.deps import TOKEN, ClientDep, StationDep
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS, export_file
@@ -57,20 +58,16 @@ class WhatIfRequest(BaseModel):
     gains: dict[str, float]
 
 
-def recording_root(station: Station) -> Path:
-    return station.recorder.root if station.recorder is not None else Path("sessions")
-
-
-def named_source(station: Station, name: str) -> Path:
+def named_source(station: StationFacade, name: str) -> Path:
     """The session or log called `name` in the recording folder; 404 otherwise."""
-    root = recording_root(station).resolve()
+    root = station.recording_root.resolve()
     path = (root / name).resolve()
     if path.parent != root or not path.exists():
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no session or log {name!r} in {root}")
     return path
 
 
-def loaded_replay(station: Station) -> ReplaySession:
+def loaded_replay(station: StationFacade) -> ReplaySession:
     if station.replay is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail="no replay loaded: POST /api/replay first")
     return station.replay
@@ -82,14 +79,14 @@ def conflict(exc: StationError) -> HTTPException:
 
 @router.get("/sessions")
 async def list_recorded(station: StationDep) -> list[dict[str, Any]]:
-    return [s.as_dict() for s in layout.list_sessions(recording_root(station))]
+    return [s.as_dict() for s in layout.list_sessions(station.recording_root)]
 
 
 @router.get("/logs")
 async def list_logs(station: StationDep) -> list[dict[str, Any]]:
     """Log files from other tools (.tlog, .bin, .ulg) in the recording folder: replay and what-if
     sources, by name, beside the recorded sessions."""
-    root = recording_root(station)
+    root = station.recording_root
     if not root.is_dir():
         return []
     return [
@@ -118,7 +115,7 @@ async def export(name: str, station: StationDep, format: str = "csv") -> FileRes
 
 @router.get("/recording")
 async def recording(station: StationDep) -> RecordingSnapshot:
-    return station.snapshot.recording if station.recorder is None else station.recorder.snapshot()
+    return station.recording_snapshot()
 
 
 @router.post("/recording/start", dependencies=[TOKEN])

@@ -1,0 +1,222 @@
+"""The REST routers against a fake station that implements the facade's protocol (real
+estimators and gain declarations, canned snapshots): fast, no sockets to a vehicle. The live
+end-to-end scenarios are in test_server_api.py and test_sessions_api.py."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from gcs.core.estimation import AttitudePoint
+from gcs.core.estimators import registry
+from gcs.core.estimators.base import AttitudeEstimator
+from gcs.runtime.events import EventLog
+from gcs.runtime.signal import Signal
+from gcs.runtime.snapshots import (
+    ErrorStats,
+    EstimationSnapshot,
+    EstimatorSnapshot,
+    LinkCounters,
+    LinkSnapshot,
+    RecordingSnapshot,
+    SourceAttitude,
+    StationSnapshot,
+    StreamRate,
+    StreamsSnapshot,
+    VehicleSnapshot,
+)
+from gcs.runtime.supervisor import PartStatus
+from gcs.server.app import create_app
+from gcs.server.deps import TOKEN_HEADER
+
+RECORDING_OFF = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
+
+
+def error_stats(n: int, rms: float) -> ErrorStats:
+    return ErrorStats(n, [rms] * 3, [2 * rms] * 3, [rms] * 3, [2 * rms] * 3)
+
+
+def canned_snapshot() -> StationSnapshot:
+    counters = LinkCounters(
+        1000,
+        50_000,
+        800,
+        20,
+        12_345.6,
+        {"ATTITUDE": 49.8},
+        {"ATTITUDE": 500},
+        2,
+        1,
+        7,
+        0,
+        3,
+        0.003,
+        {"1/1": 3},
+        0,
+        1000,
+    )
+    link = LinkSnapshot("vehicle", "udpin:0.0.0.0:14550", "connected", True, None, 1, 1, 2, 0.4, counters, [])
+    estimators = {
+        "dcm": EstimatorSnapshot(
+            "ardupilot",
+            {"kp_rp": 0.2},
+            {"accel_norm": 9.8},
+            True,
+            "",
+            50.1,
+            0.02,
+            0,
+            {"onboard": error_stats(400, 0.5), "ahrs2": error_stats(400, 0.7), "truth": error_stats(400, 0.3)},
+        ),
+        "kf": EstimatorSnapshot("telemetry", {}, {}, False, "raw IMU at 20.0 Hz < 50 Hz", 20.0, None, 0, {}),
+    }
+    latest = {
+        "onboard": SourceAttitude("onboard", "reference", 12.5, 1.0, -2.0, 90.0),
+        "dcm": SourceAttitude("dcm", "estimator", 12.5, 1.1, -2.1, 90.5),
+    }
+    return StationSnapshot(
+        published=time.time(),
+        link=link,
+        vehicle=VehicleSnapshot(1, 1, "ArduPilot", "QUADROTOR", 2, True, 0, "ACTIVE", "4.5.7", 0, 30),
+        streams=StreamsSnapshot("SET_MESSAGE_INTERVAL", 3, {"ATTITUDE": StreamRate(50.0, 49.8, 0.996, "ACCEPTED")}),
+        outputs=[],
+        estimation=EstimationSnapshot("RAW_IMU", 600, None, estimators, latest),
+        recording=RECORDING_OFF,
+        parts=[PartStatus("link", "running"), PartStatus("estimation", "failed", "RuntimeError: boom", 1.0)],
+    )
+
+
+class FakeStation:
+    """The facade with real estimators and a canned snapshot."""
+
+    def __init__(self) -> None:
+        self.events = EventLog()
+        self.params = None
+        self.points: Signal[[list[AttitudePoint]]] = Signal()
+        self.replay_loaded: Signal = Signal()
+        self.replay = None
+        self.estimators = {name: registry.create(name) for name in ("dcm", "kf")}
+        self.snapshot_reads = 0
+        self._snapshot = canned_snapshot()
+
+    @property
+    def snapshot(self) -> StationSnapshot:
+        self.snapshot_reads += 1
+        return self._snapshot
+
+    @property
+    def recording_root(self) -> Path:
+        return Path("sessions")
+
+    def recording_snapshot(self) -> RecordingSnapshot:
+        return RECORDING_OFF
+
+    def latest_attitudes(self):
+        return {}, {}
+
+    def estimator_names(self) -> list[str]:
+        return list(self.estimators)
+
+    def estimator(self, name: str) -> AttitudeEstimator:
+        if name not in self.estimators:
+            raise KeyError(f"unknown estimator {name!r}")
+        return self.estimators[name]
+
+    def set_gain(self, estimator: str, gain: str, value: float, client: str) -> tuple[float, float]:
+        old, new = self.estimator(estimator).set_gain(gain, value)
+        self.events.record("gain", client, estimator=estimator, gain=gain, old=old, new=new)
+        return old, new
+
+    def reset_gains(self, estimator: str, preset: str | None, client: str) -> dict[str, tuple[float, float]]:
+        est = self.estimator(estimator)
+        before = dict(est.gains.values)
+        est.gains.apply_preset(preset or est.DEFAULT_PRESET)
+        return {k: (before[k], v) for k, v in est.gains.values.items() if v != before[k]}
+
+
+@pytest.fixture
+def station() -> FakeStation:
+    return FakeStation()
+
+
+@pytest.fixture
+def api(station: FakeStation) -> TestClient:
+    return TestClient(create_app(station))  # type: ignore[arg-type]
+
+
+def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation):
+    status = api.get("/api/status").json()
+    assert station.snapshot_reads == 1  # read once, nothing recomputed
+    assert status["link"]["state"] == "connected" and status["link"]["crc_errors"] == 2
+    assert status["link"]["streams"]["ATTITUDE"] == {
+        "requested_hz": 50.0,
+        "achieved_hz": 49.8,
+        "ratio": 0.996,
+        "ack": "ACCEPTED",
+    }
+    assert status["vehicle"]["firmware"] == "4.5.7" and status["imu_type"] == "RAW_IMU"
+    assert status["estimators"]["kf"]["reliable"] is False and "20.0 Hz" in status["estimators"]["kf"]["reason"]
+    failed = [p for p in status["parts"] if p["state"] == "failed"]
+    assert failed == [{"name": "estimation", "state": "failed", "error": "RuntimeError: boom", "since": 1.0}]
+    assert status["token_required"] is False and status["clients"] == []
+
+
+def test_estimates_report_errors_against_onboard_and_truth_only(api: TestClient):
+    sources = api.get("/api/estimates").json()["sources"]
+    assert sources["onboard"]["kind"] == "reference" and sources["onboard"]["errors"] == {}
+    assert set(sources["dcm"]["errors"]) == {"onboard", "truth"}
+    assert sources["dcm"]["errors"]["truth"]["session_rms_deg"] == [0.3, 0.3, 0.3]
+    assert sources["dcm"]["yaw_deg"] == 90.5
+
+
+def test_gain_listing_change_and_refusals(api: TestClient, station: FakeStation):
+    listing = {e["name"]: e for e in api.get("/api/estimators").json()}
+    kp = next(g for g in listing["dcm"]["gains"] if g["name"] == "kp_rp")
+    assert (kp["min"], kp["max"], kp["scale"]) == (0.0, 50.0, "log")
+
+    ok = api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 0.5})
+    assert ok.status_code == 200 and ok.json() == {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5}
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.5
+    event = station.events.recent[-1]
+    assert (event.kind, event.client, event.data["new"]) == ("gain", "api:testclient", 0.5)
+
+    assert api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 99}).status_code == 422
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.5  # a refused value changes nothing
+    assert api.put("/api/estimators/dcm/gains/bogus", json={"value": 1}).status_code == 404
+    assert api.put("/api/estimators/nope/gains/kp_rp", json={"value": 1}).status_code == 404
+    assert api.put("/api/estimators/dcm/gains/kp_rp", json={"value": "abc"}).status_code == 422
+
+    reset = api.post("/api/estimators/dcm/preset", json={}).json()
+    assert {"gain": "kp_rp", "old": 0.5, "new": 0.2, "estimator": "dcm"} in reset["changes"]
+
+
+def test_changes_need_the_token_when_one_is_set(station: FakeStation):
+    api = TestClient(create_app(station, token="s3cret"))  # type: ignore[arg-type]
+    url = "/api/estimators/dcm/gains/kp_rp"
+    assert api.put(url, json={"value": 0.3}).status_code == 401
+    assert api.put(url, json={"value": 0.3}, headers={TOKEN_HEADER: "wrong"}).status_code == 401
+    assert api.put(url, json={"value": 0.3}, headers={"Authorization": "Bearer s3cret"}).status_code == 200
+    assert api.put(url, json={"value": 0.4}, params={"token": "s3cret"}).status_code == 200
+    assert api.get("/api/status").json()["token_required"] is True  # reading needs no token
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.4
+
+
+def test_page_and_its_scripts_are_served_locally(api: TestClient):
+    page = api.get("/")
+    assert page.status_code == 200 and "/vendor/uplot/uPlot.iife.min.js" in page.text
+    assert api.get("/vendor/uplot/uPlot.iife.min.js").status_code == 200
+    assert "/api/estimators/{name}/gains/{gain}" in api.get("/openapi.json").json()["paths"]
+
+
+def test_points_reach_the_history(api: TestClient, station: FakeStation):
+    points = [AttitudePoint(1.0, "dcm", 0.1, 0.2, 0.3), AttitudePoint(1.02, "dcm", 0.1, 0.2, 0.31)]
+    with api:  # the points arrive on the app's event loop, as the station emits them
+        api.portal.call(station.points.emit, points)
+        history = api.get("/api/history", params={"seconds": 10}).json()["points"]
+    t, roll, _, yaw = history["dcm"]
+    assert t == [1.0, 1.02] and np.allclose(roll, np.degrees(0.1), atol=1e-3)  # degrees, 3 decimals
+    assert np.isclose(yaw[-1], np.degrees(0.31), atol=1e-3)
