@@ -133,7 +133,8 @@ def test_full_disk_gives_clear_error_and_keeps_valid_files(tmp_path):
             async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(disk)) as station:
                 await wait_for(lambda: station.recorder.state == "failed", 30, "the disk to fill")
                 imu_at_failure = station.estimation.pipeline.imu_samples
-                await asyncio.sleep(1.0)
+                pipeline = station.estimation.pipeline
+                await wait_for(lambda: pipeline.imu_samples > imu_at_failure + 20, 10, "estimation after the failure")
                 events = [e.as_dict() for e in station.events.recent if e.kind == "recording"]
                 return (
                     dataclasses.asdict(station.recorder.snapshot()),
@@ -168,8 +169,7 @@ def test_unwritable_folder_is_reported_not_raised(tmp_path):
 
     async def run() -> dict:
         async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(blocked / "sessions")) as st:
-            await asyncio.sleep(0.2)
-            return dataclasses.asdict(st.recorder.snapshot())
+            return dataclasses.asdict(st.recorder.snapshot())  # start() reported it synchronously
 
     status = asyncio.run(run())
     assert status["state"] == "failed"

@@ -37,6 +37,10 @@ async def scenario(udp_port: int, root) -> dict:
                 await page.goto(server.url)
                 pipeline = station.estimation.pipeline
                 await wait_for(lambda: pipeline.imu_samples > 100, 20, "IMU samples")
+                # the page is up and polling the status before the fault
+                await page.wait_for_function(
+                    "document.querySelector('#link-state').textContent === 'link connected'", timeout=30_000
+                )
 
                 def broken(item):
                     raise RuntimeError("injected fault in the estimation")
