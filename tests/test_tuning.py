@@ -4,6 +4,7 @@ rate limits, verified writes in the event log, revert to the exact pre-flight sn
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 
 import pytest
 from test_params_protocol import station_and_sim
@@ -147,14 +148,14 @@ def test_session_refuses_writes_audits_them_and_reverts_exactly():
             await session.set("ATC_RAT_RLL_P", 0.165, "api:10.0.0.2")
             assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(0.165)
             assert sim.autopilot.secondary.kp == pytest.approx(0.25)  # the DCM took the new gain
-            rows = {row["name"]: row for row in session.rows()}
+            rows = {row.name: dataclasses.asdict(row) for row in session.rows()}
             assert rows["AHRS_RP_P"]["changed"] and rows["AHRS_RP_P"]["current"] == pytest.approx(0.25)
             assert rows["AHRS_RP_P"]["preflight"] == pytest.approx(0.2) and not rows["ATC_ANG_RLL_P"]["changed"]
 
             restored = await session.revert("test")
             assert {p.name for p in restored} == {"ATC_RAT_RLL_P", "AHRS_RP_P", "AHRS_YAW_P", "ATC_RAT_PIT_P"}
             assert sim.params.as_dict() == before  # exactly the pre-flight table
-            assert not any(row["changed"] for row in session.rows())
+            assert not any(row.changed for row in session.rows())
 
             writes = [e.as_dict() for e in station.events.recent if e.kind == "param"]
             assert [(w["name"], w["client"], w["verified"]) for w in writes] == [

@@ -55,6 +55,16 @@ class UnknownParam(ParamError):
 
 
 @dataclass(frozen=True, slots=True)
+class ParamRow:
+    """One parameter as files, the API and the page show it (the type by name: "REAL32")."""
+
+    name: str
+    value: int | float
+    type: str
+    index: int | None
+
+
+@dataclass(frozen=True, slots=True)
 class Param:
     """One parameter as the vehicle last reported it: value is an int for integer types."""
 
@@ -63,8 +73,8 @@ class Param:
     type: int
     index: int | None = None
 
-    def as_dict(self) -> dict:
-        return {"name": self.name, "value": self.value, "type": type_name(self.type), "index": self.index}
+    def snapshot(self) -> ParamRow:
+        return ParamRow(self.name, self.value, type_name(self.type), self.index)
 
 
 class ParamClient:

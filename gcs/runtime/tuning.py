@@ -52,9 +52,6 @@ class Tunable:
     step: float
     meaning: str
 
-    def as_dict(self) -> dict:
-        return {"name": self.name, "min": self.min, "max": self.max, "step": self.step, "meaning": self.meaning}
-
 
 @dataclass(frozen=True)
 class TuningProfile:
@@ -89,14 +86,6 @@ class TuningProfile:
                 f"allowed per write"
             )
         return spec
-
-    def as_dict(self) -> dict:
-        return {
-            "name": self.name,
-            "title": self.title,
-            "autopilot": self.autopilot,
-            "params": [p.as_dict() for p in self.params.values()],
-        }
 
 
 def available_profiles() -> list[str]:
@@ -206,8 +195,37 @@ class RateLimiter:
         self._last[name] = now
         self._recent.append(now)
 
-    def as_dict(self) -> dict:
-        return {"per_param_interval_s": self.per_param, "max_writes_per_s": self.per_second}
+    def snapshot(self) -> TuningLimits:
+        return TuningLimits(self.per_param, self.per_second)
+
+
+@dataclass(frozen=True, slots=True)
+class TuningLimits:
+    per_param_interval_s: float
+    max_writes_per_s: int
+
+
+@dataclass(frozen=True, slots=True)
+class TunedParam:
+    """One tunable as the tuning panel shows it."""
+
+    name: str
+    min: float
+    max: float
+    step: float
+    meaning: str
+    current: float | None
+    preflight: float | None
+    changed: bool | None  # None while either value is unknown
+
+
+@dataclass(frozen=True, slots=True)
+class TuningSnapshot:
+    profile: str
+    title: str
+    started: float | None  # UNIX time the pre-flight values were taken
+    limits: TuningLimits
+    params: list[TunedParam]
 
 
 class TuningSession:
@@ -267,28 +285,16 @@ class TuningSession:
             raise ParamError(f"revert incomplete ({len(restored)} restored): " + "; ".join(failed))
         return restored
 
-    def rows(self) -> list[dict]:
+    def rows(self) -> list[TunedParam]:
         """Each tunable with its limits, current and pre-flight value: what the panel shows."""
         out = []
         for name, spec in self.profile.params.items():
             known = self.params.table.get(name)
             current = known.value if known is not None else None
             before = self.preflight.get(name)
-            out.append(
-                {
-                    **spec.as_dict(),
-                    "current": current,
-                    "preflight": before,
-                    "changed": None if current is None or before is None else not same_value(current, before),
-                }
-            )
+            changed = None if current is None or before is None else not same_value(current, before)
+            out.append(TunedParam(name, spec.min, spec.max, spec.step, spec.meaning, current, before, changed))
         return out
 
-    def as_dict(self) -> dict:
-        return {
-            "profile": self.profile.name,
-            "title": self.profile.title,
-            "started": self.started,
-            "limits": self.limiter.as_dict(),
-            "params": self.rows(),
-        }
+    def snapshot(self) -> TuningSnapshot:
+        return TuningSnapshot(self.profile.name, self.profile.title, self.started, self.limiter.snapshot(), self.rows())

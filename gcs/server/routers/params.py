@@ -20,7 +20,7 @@ from pydantic import BaseModel
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
-from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession
+from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, TuningSnapshot
 from gcs.server.deps import TOKEN, ClientDep, StationDep
 
 router = APIRouter(tags=["params"])
@@ -65,7 +65,7 @@ async def get_params(station: StationDep) -> dict:
         "progress": params.progress(),
         "complete": params.complete,
         "bytewise": params.bytewise,
-        "params": [p.as_dict() for p in sorted(params.table.values(), key=lambda p: p.name)],
+        "params": [p.snapshot() for p in sorted(params.table.values(), key=lambda p: p.name)],
     }
 
 
@@ -76,8 +76,8 @@ async def start_download(station: StationDep) -> dict:
 
 
 @router.get("/api/tuning")
-async def get_tuning(session: TuningDep) -> dict:
-    return session.as_dict()
+async def get_tuning(session: TuningDep) -> TuningSnapshot:
+    return session.snapshot()
 
 
 @router.put(
@@ -106,4 +106,4 @@ async def revert(session: TuningDep, client: ClientDep) -> dict:
         restored = await session.revert(client)
     except ParamError as exc:
         raise http_error(exc) from None
-    return {"restored": [p.as_dict() for p in restored], "params": session.rows()}
+    return {"restored": [p.snapshot() for p in restored], "params": session.rows()}
