@@ -209,6 +209,9 @@ def test_page_and_its_scripts_are_served_locally(api: TestClient):
     page = api.get("/")
     assert page.status_code == 200 and "/vendor/uplot/uPlot.iife.min.js" in page.text
     assert api.get("/vendor/uplot/uPlot.iife.min.js").status_code == 200
+    assert '<script src="/colors.js">' in page.text
+    colors = api.get("/colors.js")  # the plots' colours are the 3-D view's (gcs/server/colors.py)
+    assert colors.headers["content-type"].startswith("text/javascript") and '"dcm": "#d62728"' in colors.text
     assert "/api/estimators/{name}/gains/{gain}" in api.get("/openapi.json").json()["paths"]
 
 

@@ -7,13 +7,14 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Response
 from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
+from gcs.server.colors import colors_script
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
 
@@ -43,9 +44,14 @@ def create_app(
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
     for module in ROUTERS:
         app.include_router(importlib.import_module(module).router)
+    app.add_api_route("/colors.js", colors_js, include_in_schema=False)
     app.mount("/vendor/uplot", StaticFiles(directory=UPLOT_DIR), name="uplot")
     app.mount("/", StaticFiles(directory=WEB_DIR / "public", html=True), name="page")
     return app
+
+
+async def colors_js() -> Response:
+    return Response(colors_script(), media_type="text/javascript")
 
 
 def follow_replay(hub: LiveHub, replay: ReplaySession) -> None:

@@ -23,17 +23,9 @@ from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import euler_to_quat
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
+from gcs.server.colors import COLORS, OTHER
 from gcs.server.sliders import slider_spec
 
-#: Ghost colours per estimator (falls back to grey); the page uses the same ones.
-COLORS = {
-    "onboard": (30, 30, 30),
-    "dcm": (214, 39, 40),
-    "kf": (31, 119, 180),
-    "ekf": (44, 160, 44),
-    "truth": (148, 103, 189),
-    "ahrs2": (255, 127, 14),
-}
 GHOST_OPACITY = 0.35
 
 
@@ -77,9 +69,7 @@ class PoseView:
         add_ground(server)
         self.onboard = add_vehicle(server, "onboard", COLORS["onboard"], None, axes_length=0.5)
         self.ghosts = {
-            name: add_vehicle(
-                server, f"ghost_{name}", COLORS.get(name, (128, 128, 128)), GHOST_OPACITY, axes_length=0.35
-            )
+            name: add_vehicle(server, f"ghost_{name}", COLORS.get(name, OTHER), GHOST_OPACITY, axes_length=0.35)
             for name in estimators
         }
 

@@ -8,7 +8,7 @@ const KEEP_S = 620;           // seconds of samples kept per source (10 min wind
 const AXES = ["roll", "pitch", "yaw"];
 const REFERENCES = ["onboard", "ahrs2", "truth"];
 const ERROR_REFERENCES = ["onboard", "truth"];
-const COLORS = { onboard: "#1e1e1e", ahrs2: "#ff7f0e", truth: "#9467bd", dcm: "#d62728", kf: "#1f77b4", ekf: "#2ca02c" };
+const COLORS = window.GCS_COLORS;  // from the server (gcs/server/colors.py), shared with the 3-D view
 const DASH = { onboard: [], truth: [6, 3] };
 
 // A time series: t and [roll, pitch, yaw] arrays; `base` counts samples trimmed from the front,
