@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterator
+
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 
 class InputError(ValueError):
@@ -20,6 +23,9 @@ class LogFile:
         self.first_us: int | None = None
         self.last_us: int | None = None
         self.damage: str | None = None
+
+    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+        raise NotImplementedError  # each reader yields its samples in time order
 
     def _seen(self, kind: str, timestamp_us: int) -> None:
         """Count one record of `kind` read at timestamp_us (records come in time order)."""

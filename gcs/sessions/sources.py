@@ -23,8 +23,9 @@ import numpy as np
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
 from gcs.core.estimators import registry
 from gcs.core.samples import AttitudeSample
-from gcs.logs.logfile import InputError
-from gcs.logs.readers import READERS
+from gcs.logs.dataflash import DataflashLog
+from gcs.logs.logfile import InputError, LogFile
+from gcs.logs.ulog import UlogFile
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import read_tlog_records
@@ -155,7 +156,7 @@ def _tlog_frames(
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     """Gain changes recorded in a session's events.jsonl with the input index they were applied at.
     An incomplete last line (a crash mid-write) is ignored."""
-    events = []
+    events: list[tuple[int, GainChange]] = []
     path = folder / layout.EVENTS
     if not path.exists():
         return events
@@ -169,14 +170,16 @@ def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     return events
 
 
-def _log_frames(path: str) -> tuple[list[Frame], dict, tuple[float, float] | None, str | None]:
-    log = READERS[os.path.splitext(path)[1].lower()](path)
+def _log_frames(path: str) -> tuple[list[Frame], dict[str, int], tuple[float, float] | None, str | None]:
+    log = LOG_FILES[os.path.splitext(path)[1].lower()](path)
     frames = [Frame(sample.t, None, False, (sample,)) for sample in log]
-    span = None if log.first_us is None else (log.first_us / 1e6, log.last_us / 1e6)
+    span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
     return frames, dict(log.counts), span, log.damage
 
 
 KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
+#: Log files replayed sample by sample (a .tlog is replayed packet by packet).
+LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".ulg": UlogFile}
 
 
 def open_source(path: str | os.PathLike) -> ReplaySource:
@@ -203,10 +206,10 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin or .ulg"
         )
     if kind == "tlog":
-        frames, counts, damage, framing = _tlog_frames(path, {}, [])
-        return ReplaySource(path, kind, frames, dict(counts), _span(frames), damage, framing=framing)
-    frames, counts, span, damage = _log_frames(path)
-    return ReplaySource(path, kind, frames, counts, span, damage)
+        frames, tlog_counts, damage, framing = _tlog_frames(path, {}, [])
+        return ReplaySource(path, kind, frames, dict(tlog_counts), _span(frames), damage, framing=framing)
+    frames, log_counts, span, damage = _log_frames(path)
+    return ReplaySource(path, kind, frames, log_counts, span, damage)
 
 
 def _span(frames: list[Frame]) -> tuple[float, float] | None:
