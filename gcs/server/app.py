@@ -9,6 +9,7 @@ from pathlib import Path
 
 from fastapi import FastAPI, Response
 from fastapi.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from gcs import __version__
 from gcs.runtime.events import Event
@@ -39,6 +40,7 @@ def create_app(
     app.state.hub = hub
     app.state.token = token
     app.state.viser_port = viser_port
+    app.add_middleware(OriginAgentCluster)
     station.points.connect(hub.on_points)
     station.replay_loaded.connect(lambda replay: follow_replay(hub, replay))
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
@@ -63,3 +65,26 @@ def forward_gain_event(hub: LiveHub, event: Event) -> None:
     """Every page learns of a gain change, whichever UI made it."""
     if event.kind == "gain":
         hub.broadcast({"type": "gain", **event.as_dict()})
+
+
+class OriginAgentCluster:
+    """ASGI middleware: `Origin-Agent-Cluster: ?1` on every HTTP response, so Chromium gives the
+    page's origin a renderer process of its own. The viser 3-D view (an iframe from the same host,
+    another port) is same-site and would otherwise share the page's main thread: with software
+    WebGL its shader compiles and canvas read-backs froze that thread for 0.3-20 s at a time on a
+    loaded machine, and the live plots' WebSocket messages waited that long."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_header(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                message["headers"] = [*message.get("headers", []), (b"origin-agent-cluster", b"?1")]
+            await send(message)
+
+        await self.app(scope, receive, send_with_header)

@@ -102,15 +102,22 @@ function gainRow(est, info) {
   Object.assign(range, { min: info.slider_min, max: info.slider_max, step: info.slider_step, value: toPosition(info, info.value) });
   Object.assign(number, { min: info.min, max: info.max, step: "any", value: info.value });
   range.dataset.estimator = est; range.dataset.gain = info.name;
-  let pending = null;
   const send = async (value) => {
     try { await api("PUT", `/api/estimators/${est}/gains/${info.name}`, { value }); row.classList.remove("error"); $("gain-error").textContent = ""; }
     catch (e) { row.classList.add("error"); $("gain-error").textContent = e.message; }
   };
-  range.addEventListener("input", () => {  // at most one request per animation frame while dragging
-    const value = fromPosition(info, Number(range.value));
-    number.value = +value.toPrecision(6);
-    if (!pending) pending = requestAnimationFrame(() => { pending = null; send(fromPosition(info, Number(range.value))); });
+  // While dragging: one request in flight at a time, the newest position next. Not paced by
+  // animation frames, which come seldom when the page draws slowly.
+  let inFlight = false, moved = false;
+  const sendLatest = async () => {
+    inFlight = true;
+    while (moved) { moved = false; await send(fromPosition(info, Number(range.value))); }
+    inFlight = false;
+  };
+  range.addEventListener("input", () => {
+    number.value = +fromPosition(info, Number(range.value)).toPrecision(6);
+    moved = true;
+    if (!inFlight) sendLatest();
   });
   number.addEventListener("change", () => send(Number(number.value)));
   gainRows[`${est}/${info.name}`] = { range, number, info };
