@@ -33,11 +33,11 @@ def test_mavsdk_reads_attitude_through_forward_output(udp_port):
                         if len(seen) >= 50:
                             break
                 await wait_for(lambda: station.outputs[0].packets_in > 0, 5, "packets back from MAVSDK")
-            return seen, onboard.drain(), station.outputs[0].status()
+            return seen, onboard.drain(), station.outputs[0].snapshot()
 
     seen, onboard, out_status = asyncio.run(asyncio.wait_for(scenario(), 60))
     assert len(seen) == 50
-    assert out_status["packets_out"] > 100 and out_status["packets_in"] > 0
+    assert out_status.packets_out > 100 and out_status.packets_in > 0
     # Every angle MAVSDK reported is one the vehicle actually sent.
     sent = {(round(math.degrees(m.msg.roll), 3), round(math.degrees(m.msg.pitch), 3)) for m in onboard}
     matched = sum((round(r, 3), round(p, 3)) in sent for r, p, _ in seen)

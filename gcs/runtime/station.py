@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
+import multiprocessing
 import threading
 import time
 from collections.abc import Callable
@@ -311,7 +312,8 @@ class Station:
         on its own copy of the data, so the live loop never waits on it. The worker keeps its
         decode caches between calls."""
         if self._workers is None:
-            self._workers = ProcessPoolExecutor(max_workers=1)
+            # spawned, not forked: a fork would inherit the server's sockets and pipes (and threads)
+            self._workers = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(self._workers, _call, function, args, kwargs)
 
