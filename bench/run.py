@@ -14,6 +14,7 @@ BENCHMARKS = {
     "ws_latency": "bench.ws_latency",
     "soak": "bench.soak",
     "status": "bench.status",
+    "replay_memory": "bench.replay_memory",
 }
 
 

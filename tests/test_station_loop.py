@@ -101,7 +101,7 @@ def test_gain_changes_at_400_hz_land_on_the_loop_and_replay_reproduces_live(tmp_
 
     replayed: list = []
     session = ReplaySession(open_source(folder), speed=0)
-    session.add_listener(replayed.extend)
+    session.points.connect(replayed.extend)
     session.run_to_end()
     assert len(live) > 10_000
     assert [p.source for p in replayed] == [p.source for p in live]

@@ -5,6 +5,7 @@ There is no header and no index, so damage is found by the frame structure itsel
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -15,6 +16,9 @@ from gcs.mavlink.dialect import MARKER_V1, MARKER_V2
 TIMESTAMP = struct.Struct(">Q")
 #: MAVLink 2 incompat flag: the packet carries a 13-byte signature.
 SIGNED = 0x01
+#: Bytes read at a time, and the longest possible record (timestamp + signed MAVLink 2 packet).
+CHUNK = 1 << 20
+MAX_RECORD = 8 + 12 + 255 + 13
 
 
 def packet_length(buf: bytes | bytearray, start: int) -> int | None:
@@ -32,35 +36,53 @@ def packet_length(buf: bytes | bytearray, start: int) -> int | None:
 
 @dataclass
 class TlogRecords:
-    """Iterates (usec, packet) over a .tlog. After iteration, `skipped` counts bytes that were
-    not a record (damage) and `truncated_at` is the file offset of an incomplete last record."""
+    """Iterates (usec, packet) over a .tlog, reading the file in chunks (a flight-hour at 400 Hz
+    is over 100 MB). `records()` also gives each packet's file offset. After iteration, `skipped`
+    counts bytes that were not a record (damage) and `truncated_at` is the file offset of an
+    incomplete last record; `size` is the file's size when it was opened."""
 
     path: str
     skipped: int = 0
     truncated_at: int | None = None
     damage_offsets: list[int] = field(default_factory=list)
+    size: int = 0
 
     def __post_init__(self) -> None:
-        self.data = Path(self.path).read_bytes()
+        self.size = os.stat(self.path).st_size  # OSError now, not mid-iteration, if it is missing
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
-        data, n, i = self.data, len(self.data), 0
-        while i + 8 < n:
-            length = packet_length(data, i + 8)
-            if length is None:
-                if not self.damage_offsets or self.damage_offsets[-1] != i - 1:
-                    self.damage_offsets.append(i)
-                self.skipped += 1
-                i += 1
-                continue
-            end = i + 8 + length
-            if end > n:
-                self.truncated_at = i
-                return
-            yield TIMESTAMP.unpack_from(data, i)[0], data[i + 8 : end]
-            i = end
-        if i < n:
-            self.truncated_at = i
+        for _, usec, packet in self.records():
+            yield usec, packet
+
+    def records(self) -> Iterator[tuple[int, int, bytes]]:
+        """(file offset of the packet, usec, packet) for every complete record."""
+        with open(self.path, "rb") as fh:
+            data, base, i = b"", 0, 0  # data holds the file from offset `base`
+            eof = False
+            last_skipped = -2  # file offset of the last byte skipped: a run of them is one place
+            while True:
+                if len(data) - i < MAX_RECORD and not eof:
+                    chunk = fh.read(CHUNK)
+                    eof = len(chunk) < CHUNK
+                    data, base, i = data[i:] + chunk, base + i, 0
+                if i + 8 >= len(data):
+                    break
+                length = packet_length(data, i + 8)
+                if length is None:
+                    if base + i != last_skipped + 1:
+                        self.damage_offsets.append(base + i)
+                    last_skipped = base + i
+                    self.skipped += 1
+                    i += 1
+                    continue
+                end = i + 8 + length
+                if end > len(data):
+                    self.truncated_at = base + i
+                    return
+                yield base + i + 8, TIMESTAMP.unpack_from(data, i)[0], data[i + 8 : end]
+                i = end
+            if i < len(data):
+                self.truncated_at = base + i
 
 
 def read_tlog_records(path: str | Path) -> TlogRecords:

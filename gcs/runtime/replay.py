@@ -1,11 +1,12 @@
 """Paced replay: a recorded session or a foreign log through the estimators on the event loop,
 with play, pause, seek and speed.
 
-`ReplaySession` is what the server drives: it has a `bus` (tlog packets are published there as
-`Message`s stamped with their recorded wall time, so the dashboard shows them as it shows a live
-link), an `add_listener(cb(points))` like `LiveEstimation`, and `play()`, `pause()`, `seek(t)`,
-`set_speed(x)`, `status()`. Seeking rebuilds the estimators by re-running the inputs from the
-start without pacing (they carry state, so there is no other exact way).
+`ReplaySession` is what the server drives: it has a `bus` (tlog packets, read back from the file,
+are published there as `Message`s stamped with their recorded wall time, so the dashboard shows
+them as it shows a live link), a `points` signal like `LiveEstimation`'s, and `play()`,
+`pause()`, `seek(t)`, `set_speed(x)`, `snapshot()`. Seeking rebuilds the estimators by re-running
+the inputs from the start without pacing (they carry state, so there is no other exact way), in
+chunks that let the loop serve everything else meanwhile.
 """
 
 from __future__ import annotations
@@ -14,10 +15,34 @@ import asyncio
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
+from itertools import islice
 
+import numpy as np
+
+from gcs.core.estimation import AttitudePoint
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
-from gcs.sessions.sources import ReplaySource
+from gcs.runtime.signal import Signal
+from gcs.sessions.sources import PacketReader, ReplaySource
+
+#: Inputs fed between two yields to the loop while seeking or replaying flat out.
+CHUNK = 2000
+
+
+@dataclass(frozen=True)
+class ReplaySnapshot:
+    path: str
+    kind: str
+    position_s: float
+    duration_s: float
+    frame: int
+    frames: int
+    playing: bool
+    finished: bool
+    seeking: bool
+    speed: float
+    damage: str | None
 
 
 class ReplaySession:
@@ -34,18 +59,20 @@ class ReplaySession:
         self.gains = gains or {}
         self.bus = MessageBus()
         self.pipeline = source.new_pipeline(estimators, self.gains)
+        self.points: Signal[[list[AttitudePoint]]] = Signal()
         self.position = 0  # index of the next frame
+        self._inputs = source.inputs()  # positioned at the next frame's first input
         self.finished = asyncio.Event()
         self._decoder = MavlinkDecoder()
-        self._listeners: list[Callable[[list], None]] = []
+        self._packets: PacketReader | None = None
         self._playing = asyncio.Event()
         self._playing.set()
+        self._settled = asyncio.Event()  # no seek in progress
+        self._settled.set()
+        self._seeks = 0
         self._anchor: tuple[float, float] | None = None  # (monotonic, source time) pacing origin
 
     # ---- control ---------------------------------------------------------------------
-    def add_listener(self, callback: Callable[[list], None]) -> None:
-        self._listeners.append(callback)
-
     def play(self) -> None:
         self._anchor = None
         self._playing.set()
@@ -59,56 +86,71 @@ class ReplaySession:
         self.speed = speed
         self._anchor = None
 
-    def seek(self, offset_s: float) -> None:
-        """Go to offset_s seconds from the start: the estimators are rebuilt from the start."""
-        frames = self.source.frames
-        if not frames:
+    async def seek(self, offset_s: float) -> None:
+        """Go to offset_s seconds from the start: the estimators are rebuilt from the start, CHUNK
+        inputs at a time, while playing waits. A newer seek supersedes one in progress."""
+        t = self.source.frames.t
+        if not len(t):
             return
-        target_t = frames[0].t + max(0.0, offset_s)
-        self.pipeline = self.source.new_pipeline(self.estimator_names, self.gains)
-        self.position = 0
-        while self.position < len(frames) and frames[self.position].t < target_t:
-            for item in frames[self.position].inputs:
-                self.pipeline.feed(item)
-            self.position += 1
-        self._anchor = None
-        if self.position < len(frames):
+        self._seeks += 1
+        ticket = self._seeks
+        self._settled.clear()
+        after = np.flatnonzero(t >= t[0] + max(0.0, offset_s))
+        target = int(after[0]) if len(after) else len(t)
+        pipeline = self.source.new_pipeline(self.estimator_names, self.gains)
+        inputs = self.source.inputs(0, target)
+        while chunk := list(islice(inputs, CHUNK)):
+            pipeline.feed_all(chunk)
+            await asyncio.sleep(0)
+            if ticket != self._seeks:
+                return
+        self.pipeline, self.position, self._anchor = pipeline, target, None
+        self._inputs = self.source.inputs(target)
+        if target < len(t):
             self.finished.clear()
+        self._settled.set()
 
-    def status(self) -> dict:
-        frames = self.source.frames
-        start = frames[0].t if frames else 0.0
-        now = frames[min(self.position, len(frames) - 1)].t - start if frames else 0.0
-        return {
-            "path": self.source.path,
-            "kind": self.source.kind,
-            "position_s": round(now, 3),
-            "duration_s": round(self.source.duration, 3),
-            "frame": self.position,
-            "frames": len(frames),
-            "playing": self._playing.is_set() and not self.finished.is_set(),
-            "finished": self.finished.is_set(),
-            "speed": self.speed,
-            "damage": self.source.damage,
-        }
+    def snapshot(self) -> ReplaySnapshot:
+        t = self.source.frames.t
+        now = float(t[min(self.position, len(t) - 1)] - t[0]) if len(t) else 0.0
+        return ReplaySnapshot(
+            path=self.source.path,
+            kind=self.source.kind,
+            position_s=round(now, 3),
+            duration_s=round(self.source.duration, 3),
+            frame=self.position,
+            frames=len(t),
+            playing=self._playing.is_set() and not self.finished.is_set(),
+            finished=self.finished.is_set(),
+            seeking=not self._settled.is_set(),
+            speed=self.speed,
+            damage=self.source.damage,
+        )
 
     # ---- playing ---------------------------------------------------------------------
     async def run(self) -> None:
         """Play to the end (then wait for a seek back), honouring pause, speed and seek."""
-        frames = self.source.frames
+        try:
+            await self._play()
+        finally:
+            self.close()
+
+    async def _play(self) -> None:
+        t = self.source.frames.t
         while True:
-            if self.position >= len(frames):
+            await self._settled.wait()
+            if self.position >= len(t):
                 self.finished.set()
                 await asyncio.sleep(0.1)
                 continue
             await self._playing.wait()
             if self.speed > 0:
-                due = self._due(frames[self.position].t)
+                due = self._due(float(t[self.position]))
                 if due > 0:
                     await asyncio.sleep(min(due, 0.1))
                     continue
             self.step()
-            if self.speed == 0 and self.position % 2000 == 0:
+            if self.speed == 0 and self.position % CHUNK == 0:
                 await asyncio.sleep(0)  # let the server answer while replaying flat out
 
     def _due(self, t: float) -> float:
@@ -117,41 +159,70 @@ class ReplaySession:
             self._anchor = (now, t)
         return self._anchor[0] + (t - self._anchor[1]) / self.speed - now
 
-    def step(self) -> list:
+    def step(self) -> list[AttitudePoint]:
         """Play one frame now: publish its packet, feed its inputs, tell the listeners."""
-        frame = self.source.frames[self.position]
+        frame = self.position
         self.position += 1
-        if frame.packet is not None and not frame.sent and self.bus.subscriptions():
-            now = time.monotonic()
-            for msg in self._decoder.feed(frame.packet, final=True):
-                header = msg.get_header()
-                self.bus.publish(
-                    Message(
-                        msg,
-                        msg.get_type(),
-                        now,
-                        frame.t,
-                        vehicle_time_of(msg),
-                        header.srcSystem,
-                        header.srcComponent,
-                        "replay",
-                    )
-                )
-        points = []
-        for item in frame.inputs:
+        frames = self.source.frames
+        if not frames.sent[frame] and self.bus.subscriptions():
+            self._publish(frame, float(frames.t[frame]))
+        points: list[AttitudePoint] = []
+        for item in islice(self._inputs, int(frames.input_end[frame]) - frames.input_start(frame)):
             points += self.pipeline.feed(item)
         if points:
-            for callback in self._listeners:
-                callback(points)
+            self.points.emit(points)
         return points
+
+    def _publish(self, frame: int, wall_time: float) -> None:
+        if self._packets is None:
+            self._packets = self.source.open_packets()
+            if self._packets is None:
+                return
+        now = time.monotonic()
+        for msg in self._decoder.feed(self._packets.packet(frame), final=True):
+            header = msg.get_header()
+            self.bus.publish(
+                Message(
+                    msg,
+                    msg.get_type(),
+                    now,
+                    wall_time,
+                    vehicle_time_of(msg),
+                    header.srcSystem,
+                    header.srcComponent,
+                    "replay",
+                )
+            )
 
     def run_to_end(self, progress: Callable[[int, int], None] | None = None) -> None:
         """Play every remaining frame at once (no pacing): `--fast`, reports, tests."""
-        frames = self.source.frames
-        while self.position < len(frames):
+        total = len(self.source.frames)
+        if not self.bus.subscriptions():
+            self._feed_rest(total, progress)
+        while self.position < total:
             self.step()
             if progress and self.position % 5000 == 0:
-                progress(self.position, len(frames))
+                progress(self.position, total)
         if progress:
-            progress(len(frames), len(frames))
+            progress(total, total)
         self.finished.set()
+        self.close()
+
+    def _feed_rest(self, total: int, progress: Callable[[int, int], None] | None) -> None:
+        """Every remaining input in one pass over the columns (nothing to publish)."""
+        start = self.position
+        frames = self.source.frames
+        done = frames.input_start(start)
+        for item in self._inputs:
+            points = self.pipeline.feed(item)
+            if points:
+                self.points.emit(points)
+            done += 1
+            if progress and done % 50_000 == 0:
+                progress(int(np.searchsorted(frames.input_end, done, side="left")), total)
+        self.position = total
+
+    def close(self) -> None:
+        if self._packets is not None:
+            self._packets.close()
+            self._packets = None

@@ -50,7 +50,7 @@ from gcs.runtime.streams import StreamPlan, StreamRequester
 from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
 from gcs.runtime.vehicle import VehicleState
-from gcs.sessions.sources import cached_source
+from gcs.sessions.workbench import load_source
 
 #: Seconds between published snapshots (and comparison rows in a recording).
 SNAPSHOT_INTERVAL = 1.0
@@ -289,10 +289,10 @@ class Station:
     async def load_replay(
         self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]
     ) -> ReplaySession:
-        """Decode a source (in a worker thread: file reading), then play it on the loop,
-        replacing any replay already loaded. InputError/KeyError/GainError as the source says."""
+        """Decode a source (in the worker process, which keeps it cached), then play it on the
+        loop, replacing any replay already loaded. InputError/KeyError/GainError as the source says."""
         self._on_loop()
-        source = await asyncio.to_thread(cached_source, path)
+        source = await self.in_worker(load_source, path)
         replay = ReplaySession(source, speed, estimators, gains)
         await self.unload_replay()
         self.replay = replay

@@ -58,7 +58,7 @@ async def colors_js() -> Response:
 
 def follow_replay(hub: LiveHub, replay: ReplaySession) -> None:
     """The dashboard plots replayed points as it plots live ones."""
-    replay.add_listener(hub.on_points)
+    replay.points.connect(hub.on_points)
 
 
 def forward_gain_event(hub: LiveHub, event: Event) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow as pa
@@ -18,17 +19,20 @@ import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
 from gcs.sessions import columnar, layout
-from gcs.sessions.sources import cached_source
+from gcs.sessions.sources import ReplaySource, open_source
 
 FORMATS = ("csv", "parquet")
 
 
-def attitude_table(path: str | os.PathLike) -> pa.Table:
-    """The attitude table of a session, or of a log replayed through every estimator (degrees)."""
+def attitude_table(
+    path: str | os.PathLike, decode: Callable[[str | os.PathLike], ReplaySource] = open_source
+) -> pa.Table:
+    """The attitude table of a session, or of a log replayed through every estimator (degrees);
+    `decode` opens the log (a Workbench's cache, in a worker)."""
     if layout.is_session(Path(path)):
         table = columnar.read_table(Path(path), "attitude")
     else:
-        source = cached_source(path)
+        source = decode(path)
         rows: list[tuple] = []
         source.replay(source.new_pipeline(), lambda points: rows.extend(columnar.attitude_rows(points, math.nan)))
         table = pa.Table.from_pylist(
@@ -50,10 +54,3 @@ def write_table(table: pa.Table, fmt: str, out: str | os.PathLike) -> None:
         pcsv.write_csv(table, out)
     else:
         pq.write_table(table, out)
-
-
-def export_file(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> int:
-    """Write the attitude table of `path` to `out` in `fmt`; returns the number of rows."""
-    table = attitude_table(path)
-    write_table(table, fmt, out)
-    return table.num_rows

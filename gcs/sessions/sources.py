@@ -1,78 +1,119 @@
-"""Anything `gcs replay` accepts, decoded once into frames the replay and what-if share.
+"""Anything `gcs replay` accepts, decoded once into columns the replay and what-if share.
 
 A source is a recorded session (folder), a .tlog from any ground station, a DataFlash .bin or
-a PX4 .ulg. Each becomes a list of `Frame`s: the pacing time, the MAVLink packet to publish on
-a bus (tlogs only) and the estimation inputs it carries: samples made by the same
-`MessageSampler` the live pipeline uses, plus `GainChange`s where a gain changed (the vehicle's
-declination parameter, or a gain change recorded in the session's event log at the pipeline
-input position where it was applied live). Feeding those inputs in order to a pipeline built
-from `pipeline_config` reproduces the live outputs exactly.
+a PX4 .ulg. It becomes `Frames` (per tlog record or log sample: pacing time, where its MAVLink
+packet is in the file, whether the ground station sent it, where its inputs end) and an
+`InputTable` of estimation inputs: samples made by the same `MessageSampler` the live pipeline
+uses, plus `GainChange`s where a gain changed (the vehicle's declination parameter, or a gain
+change recorded in the session's event log at the pipeline input position where it was applied
+live). Feeding those inputs in order to `new_pipeline()` reproduces the live outputs exactly.
+Packets stay in the file and are read back only when a replay publishes them.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from array import array
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
 from gcs.core.estimators import registry
-from gcs.core.samples import AttitudeSample
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
-from gcs.mavlink.tlog import read_tlog_records
+from gcs.mavlink.tlog import packet_length, read_tlog_records
 from gcs.sessions import layout
+from gcs.sessions.input_table import InputTable, InputTableBuilder
+
+#: A source's identity for caches: resolved path, mtime (ns) and size of the file decoded.
+SourceKey = tuple[str, int, int]
 
 
-@dataclass(slots=True)
-class Frame:
-    t: float  # pacing time, s: the record's wall time (tlog) or the vehicle time (logs)
-    packet: bytes | None  # the MAVLink packet of a tlog record, else None
-    sent: bool  # the ground station sent it (tlog link bits 3)
-    inputs: tuple[EstimationInput, ...]  # for the estimation pipeline, in order
+@dataclass(frozen=True, eq=False)
+class Frames:
+    """One row per tlog record (or log sample), in file order.
+
+    t: pacing time, s (the record's wall time for a tlog, the vehicle time for a log).
+    offset: file offset of the record's MAVLink packet (tlogs), or None (logs: no packets).
+    sent: the ground station sent it (tlog link bits 3). input_end: frame i's inputs are
+    input_end[i-1] (0 for the first) up to input_end[i].
+    """
+
+    t: npt.NDArray[np.float64]
+    offset: npt.NDArray[np.int64] | None
+    sent: npt.NDArray[np.bool_]
+    input_end: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def input_start(self, frame: int) -> int:
+        return 0 if frame == 0 else int(self.input_end[frame - 1])
+
+    @property
+    def nbytes(self) -> int:
+        return (
+            self.t.nbytes
+            + self.sent.nbytes
+            + self.input_end.nbytes
+            + (0 if self.offset is None else self.offset.nbytes)
+        )
 
 
 @dataclass
 class ReplaySource:
     path: str
     kind: str  # "session", "tlog", "dataflash", "ulog"
-    frames: list[Frame]
+    frames: Frames
+    table: InputTable
     counts: dict[str, int]  # messages / records / rows per type
     span: tuple[float, float] | None  # first and last time on the source's own clock, s
     damage: str | None = None
     pipeline_config: dict = field(default_factory=dict)  # imu_type, system, estimators {name: {preset, gains}}
     meta: dict = field(default_factory=dict)
     framing: FramingCounters | None = None  # tlogs: packets, CRC errors, loss by sequence number
-    _inputs: list | None = None
-    _references: dict | None = None
+    packet_file: str | None = None  # the tlog the frames' packet offsets point into
+    key: SourceKey | None = None
 
     @property
     def duration(self) -> float:
-        return 0.0 if not self.frames else self.frames[-1].t - self.frames[0].t
+        t = self.frames.t
+        return 0.0 if not len(t) else float(t[-1] - t[0])
 
-    def inputs(self) -> list[EstimationInput]:
-        """Every estimation input in order (cached: what-if runs over this list)."""
-        if self._inputs is None:
-            self._inputs = [i for frame in self.frames for i in frame.inputs]
-        return self._inputs
+    @property
+    def nbytes(self) -> int:
+        """Bytes of array data held (frames and inputs)."""
+        return self.frames.nbytes + self.table.nbytes
 
-    def references(self) -> dict[str, np.ndarray]:
-        """Reference attitudes {name: N×4 array t, roll, pitch, yaw} (cached: what-if scores against them)."""
-        if self._references is None:
-            rows: dict[str, list] = {}
-            for item in self.inputs():
-                if isinstance(item, AttitudeSample):
-                    rows.setdefault(item.source, []).append((item.t, item.roll, item.pitch, item.yaw))
-            self._references = {name: np.array(r) for name, r in rows.items()}
-        return self._references
+    def inputs(self, start_frame: int = 0, stop_frame: int | None = None) -> Iterator[EstimationInput]:
+        """The estimation inputs of frames start_frame..stop_frame-1 (default: all), in order."""
+        stop_frame = len(self.frames) if stop_frame is None else stop_frame
+        if stop_frame <= start_frame:
+            return iter(())
+        start = self.frames.input_start(start_frame)
+        return self.table.inputs(start, int(self.frames.input_end[stop_frame - 1]))
+
+    @cached_property
+    def references(self) -> dict[str, npt.NDArray[np.float64]]:
+        """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if scores against them."""
+        return self.table.references()
+
+    def open_packets(self) -> PacketReader | None:
+        """A reader of the frames' MAVLink packets, or None when the source has none (logs)."""
+        if self.packet_file is None or self.frames.offset is None:
+            return None
+        return PacketReader(self.packet_file, self.frames.offset)
 
     def estimator_config(self, name: str) -> tuple[str | None, dict[str, float]]:
         """(preset, gains) the estimator ran with at the start of the source."""
@@ -98,50 +139,103 @@ class ReplaySource:
         progress: Callable[[int, int], None] | None = None,
     ) -> EstimationPipeline:
         """Feed every input to `pipeline` at once (no pacing), handing the points it produces to
-        `on_points`; `progress(done, total)` is told every 5000 frames and at the end."""
-        total = len(self.frames)
-        for done, frame in enumerate(self.frames, start=1):
-            for item in frame.inputs:
-                points = pipeline.feed(item)
-                if points and on_points is not None:
-                    on_points(points)
-            if progress is not None and done % 5000 == 0:
+        `on_points`; `progress(done, total)` is told every 50000 inputs and at the end."""
+        total = len(self.table)
+        for done, item in enumerate(self.table.inputs(), start=1):
+            points = pipeline.feed(item)
+            if points and on_points is not None:
+                on_points(points)
+            if progress is not None and done % 50_000 == 0:
                 progress(done, total)
         if progress is not None:
             progress(total, total)
         return pipeline
 
 
-def _tlog_frames(
-    path: str, config: dict, gain_events: list[tuple[int, GainChange]]
-) -> tuple[list[Frame], Counter, str | None, FramingCounters]:
+class PacketReader:
+    """Reads frame i's MAVLink packet back from the tlog (buffered: sequential reads are cheap)."""
+
+    def __init__(self, path: str, offsets: npt.NDArray[np.int64]) -> None:
+        self._file: BinaryIO = open(path, "rb")
+        self._offsets = offsets
+
+    def packet(self, frame: int) -> bytes:
+        offset = int(self._offsets[frame])
+        if self._file.tell() != offset:
+            self._file.seek(offset)
+        head = self._file.read(3)
+        length = packet_length(head, 0)
+        if length is None:
+            raise InputError(f"{self._file.name}: offset {offset}: the file changed since it was decoded")
+        return head + self._file.read(length - 3)
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class _FramesBuilder:
+    def __init__(self, with_packets: bool) -> None:
+        self.t, self.offset, self.sent, self.input_end = array("d"), array("q"), array("b"), array("q")
+        self.with_packets = with_packets
+
+    def append(self, t: float, offset: int, sent: bool, input_end: int) -> None:
+        self.t.append(t)
+        if self.with_packets:
+            self.offset.append(offset)
+        self.sent.append(sent)
+        self.input_end.append(input_end)
+
+    def build(self) -> Frames:
+        return Frames(
+            np.frombuffer(self.t, dtype=np.float64) if self.t else np.empty(0),
+            (np.frombuffer(self.offset, dtype=np.int64) if self.offset else np.empty(0, np.int64))
+            if self.with_packets
+            else None,
+            np.frombuffer(self.sent, dtype=np.bool_) if self.sent else np.empty(0, np.bool_),
+            np.frombuffer(self.input_end, dtype=np.int64) if self.input_end else np.empty(0, np.int64),
+        )
+
+
+@dataclass
+class _Decoded:
+    frames: Frames
+    table: InputTable
+    counts: dict[str, int]
+    damage: str | None
+    framing: FramingCounters | None = None
+    span: tuple[float, float] | None = None
+
+
+def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChange]]) -> _Decoded:
     """Frames of a tlog: one per record; inputs made exactly as the live pipeline makes them."""
     records = read_tlog_records(path)
     decoder = MavlinkDecoder()
     to_inputs = MessageInputs(config.get("imu_type"), config.get("system"))
     pending = sorted(gain_events, key=lambda e: e[0])
-    frames: list[Frame] = []
+    frames = _FramesBuilder(with_packets=True)
+    table = InputTableBuilder()
     counts: Counter[str] = Counter()
     position = 0  # estimation input messages so far (the live pipeline's input index)
-    for usec, packet in records:
+    for offset, usec, packet in records.records():
         sent = usec & 3 == 3
-        inputs: list[EstimationInput] = []
         for msg in decoder.feed(packet, final=True):
             kind = msg.get_type()
             counts[kind] += 1
             if sent or kind not in INPUT_TYPES:
                 continue
             while pending and pending[0][0] <= position:
-                inputs.append(pending.pop(0)[1])
+                table.append(pending.pop(0)[1])
             position += 1
             item = to_inputs.feed(msg)
             if item is not None:
-                inputs.append(item)
-        frames.append(Frame((usec & ~3) / 1e6, packet, sent, tuple(inputs)))
-    if pending and frames:
-        frames[-1].inputs += tuple(change for _, change in pending)
+                table.append(item)
+        frames.append((usec & ~3) / 1e6, offset, sent, len(table))
+    if pending and frames.t:
+        for _, change in pending:
+            table.append(change)
+        frames.input_end[-1] = len(table)
     if not counts:
-        raise InputError(f"{path}: offset 0: no valid MAVLink packet in {len(records.data)} bytes; is this a .tlog?")
+        raise InputError(f"{path}: offset 0: no valid MAVLink packet in {records.size} bytes; is this a .tlog?")
     damage = None
     if records.truncated_at is not None:
         damage = f"{path}: offset {records.truncated_at}: last record incomplete; replayed up to it"
@@ -150,7 +244,9 @@ def _tlog_frames(
             f"{path}: offset {records.damage_offsets[0]}: {records.skipped} damaged bytes skipped "
             f"({len(records.damage_offsets)} places)"
         )
-    return frames, counts, damage, decoder.counters
+    built = frames.build()
+    span = (float(built.t[0]), float(built.t[-1])) if len(built) else None
+    return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span)
 
 
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
@@ -170,11 +266,16 @@ def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     return events
 
 
-def _log_frames(path: str) -> tuple[list[Frame], dict[str, int], tuple[float, float] | None, str | None]:
+def _decode_log(path: str) -> _Decoded:
+    """Frames of a DataFlash or ULog file: one per sample, paced on the vehicle clock."""
     log = LOG_FILES[os.path.splitext(path)[1].lower()](path)
-    frames = [Frame(sample.t, None, False, (sample,)) for sample in log]
+    frames = _FramesBuilder(with_packets=False)
+    table = InputTableBuilder()
+    for sample in log:
+        table.append(sample)
+        frames.append(sample.t, -1, False, len(table))
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
-    return frames, dict(log.counts), span, log.damage
+    return _Decoded(frames.build(), table.build(), dict(log.counts), log.damage, span=span)
 
 
 KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
@@ -182,9 +283,24 @@ KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
 LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".ulg": UlogFile}
 
 
+def decoded_file(path: str | os.PathLike) -> Path:
+    """The file a source's content comes from: the session's tlog for a folder, else the path."""
+    return Path(path) / layout.TLOG if os.path.isdir(path) else Path(path)
+
+
+def source_key(path: str | os.PathLike) -> SourceKey | None:
+    """(resolved path, mtime ns, size) of the decoded file; None when it cannot be read."""
+    try:
+        stat = decoded_file(path).stat()
+    except OSError:
+        return None
+    return (str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
+
+
 def open_source(path: str | os.PathLike) -> ReplaySource:
     """Decode a session folder, .tlog, .bin or .ulg; InputError names what is wrong and where."""
     path = str(path)
+    key = source_key(path)
     if os.path.isdir(path):
         folder = Path(path)
         if not layout.is_session(folder):
@@ -196,8 +312,10 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
         tlog = str(folder / layout.TLOG)
         if not os.path.isfile(tlog):
             raise InputError(f"{path}: session has no {layout.TLOG}")
-        frames, counts, damage, framing = _tlog_frames(tlog, config, _gain_events(folder))
-        return ReplaySource(path, "session", frames, dict(counts), _span(frames), damage, config, meta, framing)
+        d = _decode_tlog(tlog, config, _gain_events(folder))
+        return ReplaySource(
+            path, "session", d.frames, d.table, d.counts, d.span, d.damage, config, meta, d.framing, tlog, key
+        )
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file or session folder")
     kind = KINDS.get(os.path.splitext(path)[1].lower())
@@ -206,31 +324,9 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin or .ulg"
         )
     if kind == "tlog":
-        frames, tlog_counts, damage, framing = _tlog_frames(path, {}, [])
-        return ReplaySource(path, kind, frames, dict(tlog_counts), _span(frames), damage, framing=framing)
-    frames, log_counts, span, damage = _log_frames(path)
-    return ReplaySource(path, kind, frames, log_counts, span, damage)
-
-
-def _span(frames: list[Frame]) -> tuple[float, float] | None:
-    return (frames[0].t, frames[-1].t) if frames else None
-
-
-_CACHE: dict[tuple, ReplaySource] = {}
-_CACHE_SIZE = 4
-
-
-def cached_source(path: str | os.PathLike) -> ReplaySource:
-    """open_source, remembered while the file (or the session's tlog) is unchanged, so the
-    dashboard's what-if and replay controls do not decode the same log twice."""
-    key_file = Path(path) / layout.TLOG if os.path.isdir(path) else Path(path)
-    try:
-        stat = key_file.stat()
-    except OSError:
-        return open_source(path)  # raises the InputError that names the problem
-    key = (str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
-    if key not in _CACHE:
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = open_source(path)
-    return _CACHE[key]
+        d = _decode_tlog(path, {}, [])
+        return ReplaySource(
+            path, kind, d.frames, d.table, d.counts, d.span, d.damage, framing=d.framing, packet_file=path, key=key
+        )
+    d = _decode_log(path)
+    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, key=key)

@@ -1,16 +1,16 @@
 """What-if: re-run one estimator over a whole session with other gains, beside the original.
 
-"What if Kp had been 0.3?" must feel interactive, so nothing is decoded twice: the source's
-estimation inputs are cached (`sources.cached_source`), the run with the original gains is
-cached per (source, estimator, gains), and only the estimator whose gains changed is re-run.
-Recorded gain changes are applied where they happened, except for the gains the what-if pins.
+"What if Kp had been 0.3?" must feel interactive, so nothing is decoded twice: a `Workbench`
+(gcs.sessions.workbench) keeps decoded sources and the runs with the original gains, and only
+the estimator whose gains changed is re-run. Recorded gain changes are applied where they
+happened, except for the gains the what-if pins.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +20,7 @@ from gcs.core.estimation import GainChange
 from gcs.core.estimators import registry
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import GpsSample, ImuSample
-from gcs.sessions.sources import ReplaySource, cached_source
+from gcs.sessions.sources import ReplaySource
 
 
 @dataclass
@@ -40,7 +40,7 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
     preset, gains = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**gains, **pinned})
     t, euler = [], []
-    for item in source.inputs():
+    for item in source.inputs():  # one pass over the columns
         if isinstance(item, ImuSample):
             if estimator.update_imu(item):
                 t.append(item.t)
@@ -51,7 +51,7 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
             estimator.set_gain(item.name, item.value)
     series = np.column_stack([t, np.array(euler).reshape(-1, 3)]) if t else np.empty((0, 4))
     errors = {}
-    for ref, data in source.references().items():
+    for ref, data in source.references.items():
         err = errors_against(series, data)[:, 1:]
         if len(err):
             errors[ref] = {
@@ -59,19 +59,6 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
                 "max": np.max(np.abs(err), axis=0).tolist(),
             }
     return EstimatorRun(dict(estimator.gains.values), series[:, 0], series[:, 1:], errors)
-
-
-_RUNS: dict[tuple, EstimatorRun] = {}
-_RUNS_SIZE = 16
-
-
-def cached_run(source: ReplaySource, name: str, pinned: dict[str, float]) -> EstimatorRun:
-    key = (id(source), source.path, name, tuple(sorted(pinned.items())))
-    if key not in _RUNS:
-        if len(_RUNS) >= _RUNS_SIZE:
-            _RUNS.pop(next(iter(_RUNS)))
-        _RUNS[key] = run_estimator(source, name, pinned)
-    return _RUNS[key]
 
 
 @dataclass
@@ -115,18 +102,15 @@ class WhatIf:
         }
 
 
-def what_if(source: ReplaySource | str | os.PathLike, estimator: str, gains: dict[str, float]) -> WhatIf:
+#: (source, estimator, pinned gains) → that estimator's run; a Workbench caches it.
+RunEstimator = Callable[[ReplaySource, str, dict[str, float]], EstimatorRun]
+
+
+def what_if(source: ReplaySource, estimator: str, gains: dict[str, float], run: RunEstimator = run_estimator) -> WhatIf:
     """Old and new outputs of `estimator` over the source, the new one with `gains` pinned.
-    KeyError: unknown estimator; GainError: a bad gain name or value; InputError: bad source."""
-    if not isinstance(source, ReplaySource):
-        source = cached_source(source)
+    KeyError: unknown estimator; GainError: a bad gain name or value."""
     registry.create(estimator, None, **gains)  # validates names and ranges before any work
-    old = cached_run(source, estimator, {})
+    old = run(source, estimator, {})
     started = time.perf_counter()
-    new = cached_run(source, estimator, dict(gains))
+    new = run(source, estimator, dict(gains))
     return WhatIf(estimator, dict(gains), old, new, time.perf_counter() - started)
-
-
-def what_if_json(source: str | os.PathLike, estimator: str, gains: dict[str, float]) -> dict:
-    """`what_if(...).as_dict()`: what a worker process hands back (small and picklable)."""
-    return what_if(source, estimator, gains).as_dict()

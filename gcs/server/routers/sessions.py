@@ -9,6 +9,7 @@ reader and the live view never wait on them.
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -21,14 +22,14 @@ from starlette.background import BackgroundTask
 from gcs.core.gains import GainError
 from gcs.logs.logfile import InputError
 from gcs.runtime.facade import StationFacade
-from gcs.runtime.replay import ReplaySession
+from gcs.runtime.replay import ReplaySession, ReplaySnapshot
 from gcs.runtime.snapshots import RecordingSnapshot
 from gcs.runtime.station import StationError
 from gcs.server.deps import TOKEN, ClientDep, StationDep
 from gcs.sessions import layout
-from gcs.sessions.export import FORMATS, export_file
+from gcs.sessions.export import FORMATS
 from gcs.sessions.sources import KINDS
-from gcs.sessions.whatif import what_if_json
+from gcs.sessions.workbench import export_file, what_if_json
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -144,19 +145,19 @@ async def add_note(note: Note, station: StationDep, client: ClientDep) -> dict[s
 
 
 @router.post("/replay", dependencies=[TOKEN])
-async def load_replay(body: ReplayRequest, station: StationDep) -> dict[str, Any]:
+async def load_replay(body: ReplayRequest, station: StationDep) -> ReplaySnapshot:
     """Load a source and start playing it (replacing any replay already loaded)."""
     path = named_source(station, body.source)
     try:
         replay = await station.load_replay(path, body.speed, body.estimators, body.gains)
     except (InputError, KeyError, GainError) as exc:
         raise HTTPException(422, detail=str(exc).strip("'")) from None
-    return replay.status()
+    return replay.snapshot()
 
 
 @router.get("/replay")
-async def replay_status(station: StationDep) -> dict[str, Any]:
-    return loaded_replay(station).status()
+async def replay_status(station: StationDep) -> ReplaySnapshot:
+    return loaded_replay(station).snapshot()
 
 
 @router.get("/replay/current")
@@ -164,35 +165,35 @@ async def current_replay(station: StationDep) -> dict[str, Any]:
     """The loaded replay's status with loaded=true, or {"loaded": false}: what the page polls
     (no 404 every second while nothing is replayed)."""
     replay = station.replay
-    return {"loaded": False} if replay is None else {"loaded": True, **replay.status()}
+    return {"loaded": False} if replay is None else {"loaded": True, **dataclasses.asdict(replay.snapshot())}
 
 
 @router.post("/replay/play", dependencies=[TOKEN])
-async def play(station: StationDep) -> dict[str, Any]:
+async def play(station: StationDep) -> ReplaySnapshot:
     replay = loaded_replay(station)
     replay.play()
-    return replay.status()
+    return replay.snapshot()
 
 
 @router.post("/replay/pause", dependencies=[TOKEN])
-async def pause(station: StationDep) -> dict[str, Any]:
+async def pause(station: StationDep) -> ReplaySnapshot:
     replay = loaded_replay(station)
     replay.pause()
-    return replay.status()
+    return replay.snapshot()
 
 
 @router.post("/replay/seek", dependencies=[TOKEN])
-async def seek(body: Seek, station: StationDep) -> dict[str, Any]:
+async def seek(body: Seek, station: StationDep) -> ReplaySnapshot:
     replay = loaded_replay(station)
-    replay.seek(body.offset_s)
-    return replay.status()
+    await replay.seek(body.offset_s)
+    return replay.snapshot()
 
 
 @router.post("/replay/speed", dependencies=[TOKEN])
-async def speed(body: Speed, station: StationDep) -> dict[str, Any]:
+async def speed(body: Speed, station: StationDep) -> ReplaySnapshot:
     replay = loaded_replay(station)
     replay.set_speed(body.speed)
-    return replay.status()
+    return replay.snapshot()
 
 
 @router.delete("/replay", dependencies=[TOKEN])
