@@ -23,6 +23,7 @@ from gcs.mavlink.tlog import tlog_record
 from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
+from gcs.sessions.workbench import Workbench
 from gcs.sim import SimVehicle
 
 LOGS = Path(__file__).resolve().parents[2] / "shared" / "data" / "logs"
@@ -85,10 +86,11 @@ def main() -> list[dict]:
         tlog = Path(tmp) / "ten-minutes.tlog"
         simulated_session(tlog)
         full, imu, _ = replay(tlog, None)
-        source = open_source(tlog)
+        bench = Workbench()
+        source = bench.source(tlog)
         for estimator, gains in (("dcm", {"kp_rp": 0.4}), ("kf", {"r_roll": 0.04}), ("ekf", {"gyro_noise": 0.02})):
-            what_if(source, estimator, {})  # the original run, cached as the dashboard's first view does
-            result = what_if(source, estimator, gains)
+            what_if(source, estimator, {}, bench.run)  # the original run, cached as the dashboard's first view does
+            result = what_if(source, estimator, gains, bench.run)
             rows.append(
                 {
                     "benchmark": f"what-if {estimator} 10 min @ {RATE_HZ} Hz",

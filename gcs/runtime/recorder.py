@@ -21,11 +21,18 @@ import os
 import threading
 import time
 from pathlib import Path
+from typing import Protocol
 
 from gcs import __version__
 from gcs.mavlink.params import param_name
 from gcs.mavlink.tlog import tlog_record
+from gcs.runtime.bus import MessageBus, Subscription
+from gcs.runtime.estimation import LiveEstimation
+from gcs.runtime.events import EventLog
+from gcs.runtime.link import Link
+from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
+from gcs.runtime.vehicle import VehicleState
 from gcs.sessions import columnar, layout
 from gcs.sessions.recovery import close_session, recover_sessions, release_lock, take_lock
 from gcs.sessions.writer import SessionWriter
@@ -95,8 +102,19 @@ class Session:
         return self.meta
 
 
+class RecordedParts(Protocol):
+    """What the recorder reads of the station: the parts whose data goes to disk."""
+
+    link: Link
+    bus: MessageBus
+    events: EventLog
+    vehicle: VehicleState
+    estimation: LiveEstimation | None
+    published: Signal[[StationSnapshot]]
+
+
 class SessionRecorder:
-    def __init__(self, station, root: str | os.PathLike) -> None:
+    def __init__(self, station: RecordedParts, root: str | os.PathLike) -> None:
         self.station = station
         self.root = Path(root)
         self.session: Session | None = None
@@ -105,7 +123,7 @@ class SessionRecorder:
         self.recovered: list[dict] = []
         self.packets = {"received": 0, "sent": 0}
         self.params: dict[str, float] = {}
-        self._sub = None
+        self._sub: Subscription | None = None
         self._meta_dirty = False
         self._loop: asyncio.AbstractEventLoop | None = None
         station.link.packet_sent.connect(self._on_send)
@@ -310,7 +328,6 @@ class SessionRecorder:
     def _initial_meta(self, start: float) -> dict:
         link = self.station.link
         estimation = self.station.estimation
-        pipeline = estimation.pipeline if estimation else None
         return {
             "format": "gcs-session/1",
             "start": start,
@@ -320,14 +337,14 @@ class SessionRecorder:
             "link": {"address": str(link.address), "baud": link.baud},
             "vehicle": self._vehicle(),
             "estimation": None
-            if pipeline is None
+            if estimation is None
             else {
                 "imu_type": estimation.inputs.sampler.imu_type,
                 "system": estimation.inputs.sampler.system,
                 "detected_imu_type": None,
                 "estimators": {
                     name: {"preset": est.preset, "gains": dict(est.gains.values)}
-                    for name, est in pipeline.estimators.items()
+                    for name, est in estimation.pipeline.estimators.items()
                 },
             },
             "params": dict(self.params),
