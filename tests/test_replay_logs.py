@@ -47,9 +47,10 @@ def test_low_rate_tlog_is_flagged_unreliable(logs_dir):
 
 
 def _instance(record) -> int:
-    """New logs: the I field; old ones: the type's digit (IMU2 is the second IMU, instance 1)."""
+    """New logs: the I field; old ones: a sensor type's digit (IMU2 is the second IMU, instance 1)."""
     name = record.get_type()
-    return getattr(record, "I", int(name[-1]) - 1 if name[-1].isdigit() else 0)
+    numbered = name[:3] in ("IMU", "MAG", "GPS") and name[3:].isdigit()
+    return getattr(record, "I", int(name[3:]) - 1 if numbered else 0)
 
 
 @pytest.mark.parametrize("name", ["arducopter-sitl-hop.BIN", "ardupilot-fragment.bin"])
