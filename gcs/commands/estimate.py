@@ -116,7 +116,10 @@ def write_atomically(path: str, write: Callable[[TextIO], int]) -> int:
     non-zero row count; on an exception or no rows the temporary file is removed and path is
     untouched. Returns the row count."""
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    except OSError as exc:  # name the output the user gave, not the temporary one
+        raise OSError(exc.errno, exc.strerror, path) from None
     try:
         with os.fdopen(fd, "w", newline="") as out:
             rows = write(out)
