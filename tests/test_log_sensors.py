@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import LOGS
 from dataflash_writer import hop_in_both_formats
+from pymavlink import mavutil
 from pymavlink.DFReader import DFReader_binary
 from pyulog import ULog
 from ulog_writer import UlogWriter
@@ -235,3 +236,18 @@ def test_ulog_magnetometer_and_gps_topics(tmp_path, modern):
         with open(out) as fh:
             yaw = float(list(csv.reader(fh))[-1][7])
         assert yaw == pytest.approx(60.0, abs=1.0), name
+
+
+def test_imu_option_on_a_tlog_and_a_csv(tmp_path, capsys):
+    """A .tlog's second IMU is SCALED_IMU2 (ArduPilot sends its first as RAW_IMU); a CSV has one."""
+    path = str(LOGS / "arducopter-sitl-hop.tlog")
+    conn = mavutil.mavlink_connection(path)
+    count = 0
+    while (msg := conn.recv_match(type="SCALED_IMU2")) is not None:
+        count += msg.get_srcSystem() == 1
+    rows = estimate(path, "dcm", tmp_path / "out.csv", "--imu", "1")
+    assert len(rows) == count > 1000
+    (tmp_path / "in.csv").write_text("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n")
+    capsys.readouterr()
+    assert main(["estimate", str(tmp_path / "in.csv"), "-e", "dcm", "--imu", "1", "-o", str(tmp_path / "c.csv")]) == 2
+    assert "a CSV holds one IMU (instance 0), not instance 1" in capsys.readouterr().err
