@@ -46,13 +46,20 @@ def test_low_rate_tlog_is_flagged_unreliable(logs_dir):
     assert not reliable and "Hz" in reason
 
 
+def _instance(record) -> int:
+    """New logs: the I field; old ones: a sensor type's digit (IMU2 is the second IMU, instance 1)."""
+    name = record.get_type()
+    numbered = name[:3] in ("IMU", "MAG", "GPS") and name[3:].isdigit()
+    return getattr(record, "I", int(name[3:]) - 1 if numbered else 0)
+
+
 @pytest.mark.parametrize("name", ["arducopter-sitl-hop.BIN", "ardupilot-fragment.bin"])
 def test_dataflash_counts_and_span_match_pymavlink(logs_dir, name):
     path = str(logs_dir / name)
     log = mavutil.mavlink_connection(path)
     counts, first, last = Counter(), None, None
     while (record := log.recv_msg()) is not None:  # a full pass, as mavlogdump does
-        if record.get_type() in TYPES and getattr(record, "I", 0) == 0:
+        if record.get_type() in TYPES and _instance(record) == 0:
             counts[record.get_type()] += 1
             first = record.TimeUS if first is None else first
             last = record.TimeUS

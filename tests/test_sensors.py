@@ -97,18 +97,71 @@ def test_vehicle_clock_stamps_untimed_messages_per_system():
     assert ref.source == "ahrs2" and (ref.roll, ref.pitch, ref.yaw) == pytest.approx((0.1, 0.2, 0.3))
 
 
-def test_log_records():
-    class Record:  # DataFlash/ULog rows are plain attribute bags; this is one, not a mock of one
-        def __init__(self, **kw):
-            self.__dict__.update(kw)
+class Record:  # DataFlash rows are plain attribute bags with a type name; this is one, not a mock of one
+    def __init__(self, kind, **kw):
+        self.kind = kind
+        self.__dict__.update(kw)
 
+    def get_type(self):
+        return self.kind
+
+
+def test_log_records():
     s = dataflash.imu_from_dataflash(
-        Record(TimeUS=1_500_000, I=0, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8)
+        Record("IMU", TimeUS=1_500_000, I=0, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8)
     )
     assert s.t == 1.5 and s.gyro.tolist() == [0.1, 0.2, 0.3] and s.mag is None
     g = dataflash.gps_from_dataflash(
-        Record(TimeUS=2_000_000, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=180.0, VZ=-0.5, Status=3)
+        Record("GPS", TimeUS=2_000_000, I=0, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=180.0, VZ=-0.5, Status=3)
     )
     np.testing.assert_allclose(g.vel_ned, [-2.0, 0.0, -0.5], atol=1e-12)
     u = ulog.imu_from_ulog_sensor_combined(3_000_000, [0.0, 0.1, 0.0], [0.0, 0.0, -9.81])
     assert u.t == 3.0 and u.source == "sensor_combined"
+
+
+def test_old_dataflash_records_timems_and_instance_by_type():
+    """ArduCopter 3.2: TimeMS in ms, the second IMU is its own type IMU2, MAG in milligauss."""
+    assert samples.ms_to_usec(1234) == 1_234_000
+    mag = dataflash.mag_from_dataflash(Record("MAG2", TimeMS=1_000, MagX=224, MagY=80, MagZ=-528))
+    assert mag.t == 1.0 and mag.source == "MAG[1]"
+    np.testing.assert_allclose(mag.field, [0.224, 0.080, -0.528])
+    assert dataflash.mag_from_dataflash(Record("MAG", TimeMS=1_000, MagX=0, MagY=0, MagZ=0)) is None
+    s = dataflash.imu_from_dataflash(
+        Record("IMU2", TimeMS=1_500, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8), mag
+    )
+    assert s.t == 1.5 and s.source == "IMU[1]" and s.mag is mag.field
+    g = dataflash.gps_from_dataflash(
+        Record("GPS", TimeMS=2_000, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=90.0, VZ=0.5, Status=3)
+    )
+    assert g.t == 2.0 and g.fix_type == 3 and g.course == pytest.approx(math.pi / 2)
+    np.testing.assert_allclose(g.vel_ned, [0.0, 2.0, 0.5], atol=1e-12)
+    att = dataflash.attitude_from_dataflash(Record("ATT", TimeMS=2_500, Roll=-7.18, Pitch=2.58, Yaw=337.1), "onboard")
+    assert att.t == 2.5 and att.yaw == pytest.approx(math.radians(337.1 - 360))
+    assert dataflash.record_time_us(Record("ATT", Roll=0.0)) is None  # ArduCopter 3.1's ATT has no time
+
+
+@pytest.mark.parametrize("modern", [True, False])
+def test_ulog_gps_rows_both_generations(modern):
+    """sensor_gps since PX4 1.14 has latitude_deg/altitude_msl_m; before, lat/lon degE7 and alt mm."""
+    position = (
+        {"latitude_deg": np.array([-35.3632610]), "longitude_deg": np.array([149.1652299]), "altitude_msl_m": [584.09]}
+        if modern
+        else {"lat": np.array([-353632610]), "lon": np.array([1491652299]), "alt": np.array([584090])}
+    )
+    data = {
+        "timestamp": np.array([5_000_000]),
+        **position,
+        "vel_m_s": np.array([2.0]),
+        "vel_n_m_s": np.array([0.0]),
+        "vel_e_m_s": np.array([-2.0]),
+        "vel_d_m_s": np.array([0.1]),
+        "cog_rad": np.array([-math.pi / 2]),
+        "vel_ned_valid": np.array([1]),
+        "fix_type": np.array([3]),
+    }
+    g = ulog.gps_from_ulog(data, 0, "sensor_gps")
+    assert g.t == 5.0 and (g.lat, g.lon, g.alt) == pytest.approx((-35.363261, 149.1652299, 584.09))
+    assert g.ground_speed == 2.0 and g.course == pytest.approx(-math.pi / 2) and g.fix_type == 3
+    np.testing.assert_allclose(g.vel_ned, [0.0, -2.0, 0.1])
+    data["vel_ned_valid"] = np.array([0])
+    assert ulog.gps_from_ulog(data, 0, "sensor_gps").vel_ned is None

@@ -1,25 +1,32 @@
 """`gcs estimate`: run one attitude estimator over a log or CSV and write its attitude as CSV.
 
 Contract (other tools call this; keep it stable):
-    gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] --out OUT.csv
+    gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] [--imu N] --out OUT.csv
     gcs estimate --list
-INPUT is a .tlog or a CSV (see gcs.logs.readers). OUT has the header
-t,qw,qx,qy,qz,roll,pitch,yaw and one row per IMU sample; q rotates sensor/body → NED and the
-angles are Z-Y-X in degrees. Before the filter is valid the row holds its current (initial)
-attitude. Bad input or arguments: one line on stderr naming what and where, exit code 2.
+INPUT is a .tlog, a DataFlash .bin, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
+IMU instance (default 0, the first). OUT has the header t,qw,qx,qy,qz,roll,pitch,yaw and one row
+per IMU sample; q rotates sensor/body → NED and the angles are Z-Y-X in degrees. Before the
+filter is valid the row holds its current (initial) attitude. Bad input or arguments: one line on
+stderr naming what and where, exit code 2, and no OUT (OUT is written beside itself and renamed
+when complete, so a failed run never leaves a partial file nor clobbers an existing one). A log
+damaged part-way is estimated up to the damage, with one line on stderr saying where.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
+from collections.abc import Callable
+from typing import TextIO
 
 from gcs.core.estimation import run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
-from gcs.logs.logfile import InputError
+from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.readers import read_samples
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -32,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--estimator", "-e", help="estimator name (see --list)")
     parser.add_argument("--preset", "-p", help="gain preset (default: the estimator's default)")
     parser.add_argument("--gain", "-g", action="append", default=[], metavar="NAME=VALUE", help="override one gain")
+    parser.add_argument("--imu", type=int, default=0, metavar="N", help="IMU instance (default 0, the first)")
     parser.add_argument("--out", "-o", help="output CSV path")
     parser.add_argument("--list", action="store_true", help="list estimators, presets and gains, then exit")
 
@@ -71,13 +79,15 @@ def _parse_gains(items: list[str]) -> dict[str, float]:
     return gains
 
 
-def estimate(input_path: str, estimator, out) -> int:
-    """Feed every sample of input_path to estimator, writing one row per IMU sample to out."""
+def estimate(input_path: str, estimator, out: TextIO, imu: int = 0) -> int:
+    """Feed every sample of input_path (IMU instance imu) to estimator, writing one row per IMU
+    sample to out; afterwards one stderr line per damage or note the log reader reported."""
 
     out.write(OUT_HEADER + "\n")
     rows = 0
     deg = 57.29577951308232
-    for sample, _ in run_estimator(estimator, read_samples(input_path)):
+    samples = read_samples(input_path, imu)
+    for sample, _ in run_estimator(estimator, samples):
         if isinstance(sample, ImuSample):
             q = estimator.quaternion
             roll, pitch, yaw = quat_to_euler(q)
@@ -86,7 +96,40 @@ def estimate(input_path: str, estimator, out) -> int:
                 f"{roll * deg:.6f},{pitch * deg:.6f},{yaw * deg:.6f}\n"
             )
             rows += 1
+    if isinstance(samples, LogFile):
+        for note in samples.notes:
+            print(f"gcs estimate: note: {note}", file=sys.stderr)
+        if samples.damage:
+            print(f"gcs estimate: damage: {samples.damage}", file=sys.stderr)
     return rows
+
+
+def _default_mode() -> int:
+    """The permissions open() would give a new file (mkstemp's are 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def write_atomically(path: str, write: Callable[[TextIO], int]) -> int:
+    """Run write(file) on a temporary file beside path and rename it to path once write returns a
+    non-zero row count; on an exception or no rows the temporary file is removed and path is
+    untouched. Returns the row count."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
+    except OSError as exc:  # name the output the user gave, not the temporary one
+        raise OSError(exc.errno, exc.strerror, path) from None
+    try:
+        with os.fdopen(fd, "w", newline="") as out:
+            rows = write(out)
+        if rows:
+            os.chmod(tmp, os.stat(path).st_mode & 0o7777 if os.path.exists(path) else _default_mode())
+            os.replace(tmp, path)
+        return rows
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _fail(message: str) -> int:
@@ -106,9 +149,10 @@ def run(args: argparse.Namespace) -> int:
         estimator = registry.create(args.estimator, args.preset, **_parse_gains(args.gain))
     except (KeyError, GainError, ValueError) as exc:
         return _fail(str(exc).strip("'\""))
+    if args.imu < 0:
+        return _fail(f"--imu {args.imu}: an IMU instance is 0 or more")
     try:
-        with open(args.out, "w", newline="") as out:
-            rows = estimate(args.input, estimator, out)
+        rows = write_atomically(args.out, lambda out: estimate(args.input, estimator, out, args.imu))
     except InputError as exc:
         return _fail(str(exc))
     except OSError as exc:

@@ -52,6 +52,20 @@ class GpsSample:
 
 
 @dataclass(frozen=True, slots=True)
+class MagSample:
+    """A magnetometer reading logged on its own (DataFlash MAG, ULog vehicle_magnetometer).
+
+    t: vehicle time in s. field: gauss, body FRD. The log readers attach the latest one to each
+    following IMU sample (`ImuSample.mag`), as a live RAW_IMU message carries the latest compass
+    reading, so the estimators see the same input offline and live.
+    """
+
+    t: float
+    field: npt.NDArray[np.float64]
+    source: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class BaroSample:
     """Static pressure in Pa and temperature in deg C."""
 
@@ -78,7 +92,7 @@ def mrad_to_rads(value: float) -> float:
 
 
 def mgauss_to_gauss(value: float) -> float:
-    """Milli-gauss (RAW_IMU / SCALED_IMU* mag) → gauss."""
+    """Milli-gauss (RAW_IMU / SCALED_IMU* mag, DataFlash MAG MagX/Y/Z) → gauss."""
     return value * 1e-3
 
 
@@ -120,6 +134,12 @@ def usec_to_s(value: int) -> float:
 def ms_to_s(value: int) -> float:
     """Milliseconds (time_boot_ms) → seconds."""
     return value * 1e-3
+
+
+def ms_to_usec(value: int) -> int:
+    """Milliseconds (DataFlash TimeMS of ArduCopter 3.1-3.2) → integer microseconds, the logs'
+    common clock unit, so a TimeMS log and a TimeUS log of the same instants give equal times."""
+    return value * 1000
 
 
 @dataclass(frozen=True, slots=True)

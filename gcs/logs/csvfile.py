@@ -42,8 +42,11 @@ def _all_given(values: tuple[float | None, float | None, float | None]) -> TypeG
     return all(x is not None for x in values)
 
 
-def read_csv(path: str) -> Iterator[ImuSample | GpsSample]:
-    """IMU (and GPS velocity) samples from a CSV following the contract in the module docstring."""
+def read_csv(path: str, imu: int = 0) -> Iterator[ImuSample | GpsSample]:
+    """IMU (and GPS velocity) samples from a CSV following the contract in the module docstring;
+    a CSV holds one IMU, instance 0."""
+    if imu != 0:
+        raise InputError(f"{path}: line 1: a CSV holds one IMU (instance 0), not instance {imu}")
     with open(path, newline="") as fh:
         reader = csv.reader(fh)
         try:

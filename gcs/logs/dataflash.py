@@ -1,11 +1,17 @@
 """ArduPilot DataFlash (.bin) logs → the sample stream, through pymavlink's DFReader.
 
-DataFlash carries the IMU at the logging rate (the best data for estimator work): IMU instance
-0 → `ImuSample`, GPS instance 0 → `GpsSample`, and three references: ATT ("onboard", the
-primary EKF), AHR2 ("ahrs2", DCM) and SIM ("truth", SITL only), Roll/Pitch/Yaw in degrees.
-Only those types are decoded (DFReader skips the others by its index, so this is much faster
-than a full pass). A log cut mid-record (a crash, a partial download) is read up to the damage,
-and `damage` says at which byte offset it is.
+Two generations of the format are read alike. Logs since ArduCopter 3.3 stamp records with
+`TimeUS` (µs) and log every instance of a sensor under one record type with an instance field
+`I`; ArduCopter 3.1-3.2 (the APM 2.5 era) stamp them with `TimeMS` (ms) and give each instance
+its own type (IMU, IMU2, IMU3; MAG, MAG2; GPS, GPS2). DFReader applies the format's multipliers
+(centidegrees, 1e-7 degrees, cm), so both arrive in the units the converters below name.
+
+The chosen IMU instance → `ImuSample`, carrying the latest MAG of instance 0 (see
+gcs.logs.magnetometer); GPS instance 0 → `GpsSample`; the references ATT ("onboard", the
+primary EKF), AHR2 ("ahrs2", DCM) and SIM ("truth", SITL only). Only those types are decoded
+(DFReader skips the others by its index, so this is much faster than a full pass). A log cut
+mid-record (a crash, a partial download) is read up to the damage, and `damage` says at which
+byte offset it is.
 """
 
 from __future__ import annotations
@@ -18,35 +24,82 @@ import numpy as np
 from pymavlink.DFReader import DFMessage, DFReader_binary
 
 from gcs.core.rotation import wrap_pi
-from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, usec_to_s
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, MagSample, mgauss_to_gauss, ms_to_usec, usec_to_s
 from gcs.logs.logfile import InputError, LogFile
+from gcs.logs.magnetometer import with_latest_mag
 
+#: Record types per sensor, the first instance first (new logs use the first name only).
+IMU_TYPES = ("IMU", "IMU2", "IMU3")
+MAG_TYPES = ("MAG", "MAG2", "MAG3")
+GPS_TYPES = ("GPS", "GPS2")
 #: DataFlash reference attitude record → reference name.
 REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
-TYPES = ("IMU", "GPS", *REFERENCES)
+TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES)
 #: One decoded record. pymavlink ships no type information and creates each record's fields at
 #: run time, so this is Any to mypy: the dynamic boundary of this reader, named here once.
 DataflashRecord: TypeAlias = DFMessage
 
 
-def imu_from_dataflash(record: DataflashRecord) -> ImuSample:
-    """DataFlash IMU record: TimeUS µs, GyrX/Y/Z rad/s, AccX/Y/Z m/s² (body FRD, no magnetometer)."""
-    return ImuSample(
-        usec_to_s(record.TimeUS),
+def record_instance(record: DataflashRecord) -> int:
+    """The sensor instance: the `I` field of new logs, else the type's position (IMU2 → 1)."""
+    instance = getattr(record, "I", None)
+    if instance is not None:
+        return int(instance)
+    kind = record.get_type()
+    for types in (IMU_TYPES, MAG_TYPES, GPS_TYPES):
+        if kind in types:
+            return types.index(kind)
+    return 0
+
+
+def record_time_us(record: DataflashRecord) -> int | None:
+    """The record's time since boot in µs: TimeUS (µs), or TimeMS (ms) in ArduCopter 3.1-3.2
+    logs; None for a record type without either (ArduCopter 3.1's ATT)."""
+    time_us = getattr(record, "TimeUS", None)
+    if time_us is not None:
+        return int(time_us)
+    time_ms = getattr(record, "TimeMS", None)
+    return None if time_ms is None else ms_to_usec(int(time_ms))
+
+
+def _time_s(record: DataflashRecord) -> float:
+    time_us = record_time_us(record)
+    if time_us is None:
+        raise InputError(f"{record.get_type()} record has neither TimeUS nor TimeMS")
+    return usec_to_s(time_us)
+
+
+def imu_from_dataflash(record: DataflashRecord, mag: MagSample | None = None) -> ImuSample:
+    """IMU / IMU2 / IMU3 record: TimeUS µs or TimeMS ms, GyrX/Y/Z rad/s, AccX/Y/Z m/s² (body
+    FRD); `mag` is the latest MAG reading, attached as a live RAW_IMU carries it."""
+    sample = ImuSample(
+        _time_s(record),
         np.array([record.GyrX, record.GyrY, record.GyrZ], dtype=float),
         np.array([record.AccX, record.AccY, record.AccZ], dtype=float),
         None,
-        f"IMU[{getattr(record, 'I', 0)}]",
+        f"IMU[{record_instance(record)}]",
     )
+    return with_latest_mag(sample, mag)
+
+
+def mag_from_dataflash(record: DataflashRecord) -> MagSample | None:
+    """MAG / MAG2 / MAG3 record: TimeUS µs or TimeMS ms, MagX/Y/Z milligauss, body FRD, offsets
+    applied (what RAW_IMU carries). None for an all-zero field: no compass, as on the live path."""
+    field = np.array([mgauss_to_gauss(record.MagX), mgauss_to_gauss(record.MagY), mgauss_to_gauss(record.MagZ)])
+    if not field.any():
+        return None
+    return MagSample(_time_s(record), field, f"MAG[{record_instance(record)}]")
 
 
 def gps_from_dataflash(record: DataflashRecord) -> GpsSample:
-    """DataFlash GPS record: TimeUS µs, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg, VZ m/s (down), Status."""
+    """GPS / GPS2 record: TimeUS µs or TimeMS ms, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg,
+    VZ m/s (down; 0 where the format lacks it, as GPS_RAW_INT), Status (AP_GPS fix status, whose
+    values are MAVLink's GPS_FIX_TYPE)."""
     speed = float(record.Spd)
     course = math.radians(record.GCrs)
     vel_ned = np.array([speed * math.cos(course), speed * math.sin(course), float(getattr(record, "VZ", 0.0))])
     return GpsSample(
-        usec_to_s(record.TimeUS),
+        _time_s(record),
         float(record.Lat),
         float(record.Lng),
         float(record.Alt),
@@ -54,14 +107,15 @@ def gps_from_dataflash(record: DataflashRecord) -> GpsSample:
         course,
         vel_ned,
         int(record.Status),
-        "GPS",
+        f"GPS[{record_instance(record)}]",
     )
 
 
 def attitude_from_dataflash(record: DataflashRecord, source: str) -> AttitudeSample:
-    """ATT / AHR2 / SIM record: TimeUS µs, Roll/Pitch/Yaw in degrees (yaw 0..360) → rad, yaw wrapped."""
+    """ATT / AHR2 / SIM record: TimeUS µs or TimeMS ms, Roll/Pitch/Yaw in degrees (yaw 0..360;
+    centidegrees in 3.2 logs, scaled by DFReader) → rad, yaw wrapped."""
     return AttitudeSample(
-        usec_to_s(record.TimeUS),
+        _time_s(record),
         math.radians(record.Roll),
         math.radians(record.Pitch),
         wrap_pi(math.radians(record.Yaw)),
@@ -70,14 +124,17 @@ def attitude_from_dataflash(record: DataflashRecord, source: str) -> AttitudeSam
 
 
 class DataflashLog(LogFile):
-    """Iterates the samples of a .bin log in file order (see LogFile for what it reports);
-    IMU and GPS records of instance 0 only."""
+    """Iterates the samples of a .bin log in file order (see LogFile for what it reports): IMU
+    instance `imu`, MAG and GPS instance 0, every reference."""
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
         try:
             log = DFReader_binary(self.path)  # never mavlink_connection: it treats some paths as devices
         except Exception as exc:  # DFReader raises bare Exceptions on a bad header
             raise InputError(f"{self.path}: offset 0: not a DataFlash log ({exc})") from None
+        mag: MagSample | None = None
+        imu_instances: set[int] = set()
+        untimed: set[str] = set()
         while True:
             try:
                 record = log.recv_match(type=list(TYPES))
@@ -87,19 +144,44 @@ class DataflashLog(LogFile):
             if record is None:
                 break
             kind = record.get_type()
-            if getattr(record, "I", 0) != 0:
-                continue  # second IMU / GPS: the first instance is the one estimators use
-            self._seen(kind, record.TimeUS)
-            if kind == "IMU":
-                yield imu_from_dataflash(record)
-            elif kind == "GPS":
+            instance = record_instance(record)
+            time_us = record_time_us(record)
+            if time_us is None:
+                untimed.add(kind)
+                continue
+            if kind in IMU_TYPES:
+                imu_instances.add(instance)
+                if instance == self.imu:
+                    self._seen(kind, time_us)
+                    yield imu_from_dataflash(record, mag)
+            elif instance != 0:
+                continue  # second compass / GPS: the first is the one the autopilot uses
+            elif kind in MAG_TYPES:
+                self._seen(kind, time_us)
+                mag = mag_from_dataflash(record)
+            elif kind in GPS_TYPES:
+                self._seen(kind, time_us)
                 yield gps_from_dataflash(record)
             else:
+                self._seen(kind, time_us)
                 yield attitude_from_dataflash(record, REFERENCES[kind])
         if self.damage is None and log.offset < log.data_len:
             self.damage = (
                 f"{self.path}: offset {log.offset}: log ends inside a record "
                 f"({log.data_len - log.offset} bytes of {log.data_len} unread)"
             )
-        if self.counts["IMU"] == 0:
-            raise InputError(f"{self.path}: offset {log.offset}: no IMU records; is this a DataFlash log?")
+        self._note_missing(untimed)
+        if not any(self.counts[kind] for kind in IMU_TYPES):
+            found = f"instances in the log: {', '.join(map(str, sorted(imu_instances)))}" if imu_instances else "none"
+            raise InputError(
+                f"{self.path}: offset {log.offset}: no IMU records of instance {self.imu} ({found}); "
+                "is this a DataFlash log?"
+            )
+
+    def _note_missing(self, untimed: set[str]) -> None:
+        if untimed:
+            self.notes.append(f"{self.path}: {', '.join(sorted(untimed))} records carry no time field; not used")
+        if not any(self.counts[kind] for kind in MAG_TYPES):
+            self.notes.append(f"{self.path}: no MAG records: heading from the gyro (and GPS course) only")
+        if not any(self.counts[kind] for kind in GPS_TYPES):
+            self.notes.append(f"{self.path}: no GPS records: no GPS aiding")

@@ -14,15 +14,19 @@ class InputError(ValueError):
 
 class LogFile:
     """Base of the log readers: iterate it for samples; afterwards `counts` per record type or
-    topic used, `first_us` / `last_us` (the time span of those records, µs) and `damage` (None,
-    or where and why reading stopped early or skipped data)."""
+    topic used, `first_us` / `last_us` (the time span of those records, µs), `damage` (None,
+    or where and why reading stopped early or skipped data) and `notes` (sensors the log lacks,
+    so a gyro-only heading is explained rather than hidden). `imu` selects the IMU instance
+    (0: the first, the one the autopilot uses by default)."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, imu: int = 0) -> None:
         self.path = path
+        self.imu = imu
         self.counts: Counter[str] = Counter()
         self.first_us: int | None = None
         self.last_us: int | None = None
         self.damage: str | None = None
+        self.notes: list[str] = []
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
         raise NotImplementedError  # each reader yields its samples in time order

@@ -1,5 +1,6 @@
 """Every log format → one time-ordered stream of samples (`ImuSample`, `GpsSample`,
-`AttitudeSample`) on the vehicle clock: `read_samples(path)` picks the reader by suffix.
+`AttitudeSample`) on the vehicle clock: `read_samples(path, imu)` picks the reader by suffix;
+`imu` is the IMU instance to use (0: the first).
 Bad input raises `InputError` naming the file, the line or byte offset, the field and the value.
 """
 
@@ -19,7 +20,7 @@ __all__ = ["READERS", "InputError", "Sample", "read_samples"]
 
 Sample = ImuSample | GpsSample | AttitudeSample
 
-READERS: dict[str, Callable[[str], Iterable[Sample]]] = {
+READERS: dict[str, Callable[[str, int], Iterable[Sample]]] = {
     ".csv": read_csv,
     ".tlog": read_tlog,
     ".bin": DataflashLog,
@@ -27,12 +28,13 @@ READERS: dict[str, Callable[[str], Iterable[Sample]]] = {
 }
 
 
-def read_samples(path: str) -> Iterable[Sample]:
-    """The sample stream of a log file, by suffix; InputError for a missing file or unknown format."""
+def read_samples(path: str, imu: int = 0) -> Iterable[Sample]:
+    """The sample stream of a log file, by suffix, with IMU instance `imu`; InputError for a
+    missing file or unknown format. A `LogFile` reader reports damage and notes afterwards."""
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file")
     suffix = os.path.splitext(path)[1].lower()
     reader = READERS.get(suffix)
     if reader is None:
         raise InputError(f"{path}: unknown input format {suffix!r}; known: {', '.join(READERS)}")
-    return reader(path)
+    return reader(path, imu)

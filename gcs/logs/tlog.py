@@ -11,28 +11,38 @@ from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.sampling import IMU_TYPES, MessageSampler
 from gcs.mavlink.tlog import read_tlog_records
 
+#: IMU instance → message type (ArduPilot sends its first IMU as RAW_IMU, the others scaled).
+IMU_INSTANCES = ("", "SCALED_IMU2", "SCALED_IMU3")
 
-def _imu_stream(path: str) -> tuple[str, int]:
-    """The IMU message type to use (RAW_IMU first) and the system that sends it."""
+
+def _imu_stream(path: str, imu: int) -> tuple[str, int]:
+    """The IMU message type to use (instance 0: RAW_IMU, else the first IMU type present; then
+    SCALED_IMU2, SCALED_IMU3) and the system that sends it."""
+    if not 0 <= imu < len(IMU_INSTANCES):
+        last = len(IMU_INSTANCES) - 1
+        raise InputError(f"{path}: offset 0: IMU instance {imu}: a .tlog carries instances 0 to {last}")
+    wanted = IMU_INSTANCES[imu] or "RAW_IMU"
     decoder = MavlinkDecoder()
     seen: dict[str, int] = {}
     for _, packet in read_tlog_records(path):
         for msg in decoder.feed(packet, final=True):
             if msg.get_type() in IMU_TYPES:
                 seen.setdefault(msg.get_type(), msg.get_srcSystem())
-        if "RAW_IMU" in seen:
+        if wanted in seen:
             break
-    for kind in IMU_TYPES:
+    for kind in IMU_TYPES if imu == 0 else (wanted,):
         if kind in seen:
             return kind, seen[kind]
-    raise InputError(f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES)}) found; is this a .tlog?")
+    raise InputError(
+        f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES if imu == 0 else (wanted,))}) found; is this a .tlog?"
+    )
 
 
-def read_tlog(path: str) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
-    """Samples of one vehicle in arrival order: IMU from RAW_IMU (or the first IMU type present),
+def read_tlog(path: str, imu: int = 0) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+    """Samples of one vehicle in arrival order: IMU instance `imu` (see `_imu_stream`),
     GPS from GPS_RAW_INT, references from ATTITUDE, AHRS2 and SIMSTATE. Packets the ground
     station sent (link bits 3 in the timestamp) are skipped."""
-    imu_type, system = _imu_stream(path)
+    imu_type, system = _imu_stream(path, imu)
     sampler = MessageSampler(imu_type, system)
     decoder = MavlinkDecoder()
     for usec, packet in read_tlog_records(path):
