@@ -11,6 +11,7 @@ import httpx
 import pyarrow.parquet as pq
 from live import running_sim, running_station, wait_for
 
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
 
@@ -58,7 +59,11 @@ async def scenario(udp_port: int, root) -> None:
                     await asyncio.sleep(0.05)
                 assert (await api.get("/api/replay")).json()["finished"]
                 seeked = (await api.post("/api/replay/seek", json={"offset_s": 1.0})).json()
-                assert 0.9 <= seeked["position_s"] <= 1.2
+                # the first record at least 1 s after the first (the tlog read independently of the replay)
+                times = [(usec & ~3) / 1e6 for usec, _ in read_tlog_records(root / name / layout.TLOG)]
+                first = next(k for k, t in enumerate(times) if t >= times[0] + 1.0)
+                assert (seeked["frame"], seeked["position_s"]) == (first, round(times[first] - times[0], 3))
+                assert not seeked["seeking"]
                 assert (await api.post("/api/replay/speed", json={"speed": 2})).json()["speed"] == 2
                 assert (await api.post("/api/replay/pause")).json()["playing"] is False
 

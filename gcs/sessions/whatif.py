@@ -69,37 +69,65 @@ class WhatIf:
     new: EstimatorRun
     elapsed_s: float  # time to produce the new run (the old one is usually cached)
 
-    def table(self) -> list[dict]:
+    def table(self) -> list[ErrorRow]:
         """RMS / max error per reference, old and new, degrees (roll, pitch, yaw)."""
+        old, new = self.old.errors, self.new.errors
         return [
-            {
-                "reference": ref,
-                "old_rms": self.old.errors[ref]["rms"],
-                "new_rms": self.new.errors[ref]["rms"],
-                "old_max": self.old.errors[ref]["max"],
-                "new_max": self.new.errors[ref]["max"],
-            }
-            for ref in self.old.errors
-            if ref in self.new.errors
+            ErrorRow(ref, old[ref]["rms"], new[ref]["rms"], old[ref]["max"], new[ref]["max"])
+            for ref in old
+            if ref in new
         ]
 
-    def as_dict(self, max_points: int = 4000) -> dict:
-        """JSON for the dashboard: decimated series in degrees and the table."""
+    def view(self, max_points: int = 4000) -> WhatIfView:
+        """What the dashboard draws: series decimated to max_points, in degrees, and the table."""
         step = max(1, math.ceil(len(self.old.t) / max_points))
-        deg = 180.0 / math.pi
 
-        def series(run: EstimatorRun) -> dict:
-            return {axis: (run.euler[::step, k] * deg).tolist() for k, axis in enumerate(("roll", "pitch", "yaw"))}
+        def series(run: EstimatorRun) -> AxisSeries:
+            roll, pitch, yaw = (np.degrees(run.euler[::step, k]).tolist() for k in range(3))
+            return AxisSeries(roll, pitch, yaw)
 
-        return {
-            "estimator": self.estimator,
-            "gains": self.gains,
-            "t": self.old.t[::step].tolist(),
-            "old": series(self.old),
-            "new": series(self.new),
-            "table": self.table(),
-            "elapsed_s": self.elapsed_s,
-        }
+        return WhatIfView(
+            self.estimator,
+            self.gains,
+            self.old.t[::step].tolist(),
+            series(self.old),
+            series(self.new),
+            self.table(),
+            self.elapsed_s,
+        )
+
+
+@dataclass(frozen=True)
+class ErrorRow:
+    """One reference in the what-if table: RMS and max |error|, degrees (roll, pitch, yaw)."""
+
+    reference: str
+    old_rms: list[float]
+    new_rms: list[float]
+    old_max: list[float]
+    new_max: list[float]
+
+
+@dataclass(frozen=True)
+class AxisSeries:
+    """Z-Y-X angles in degrees, one per time of the view."""
+
+    roll: list[float]
+    pitch: list[float]
+    yaw: list[float]
+
+
+@dataclass(frozen=True)
+class WhatIfView:
+    """A what-if as the dashboard gets it (small and picklable: it comes from a worker process)."""
+
+    estimator: str
+    gains: dict[str, float]
+    t: list[float]
+    old: AxisSeries
+    new: AxisSeries
+    table: list[ErrorRow]
+    elapsed_s: float
 
 
 #: (source, estimator, pinned gains) → that estimator's run; a Workbench caches it.

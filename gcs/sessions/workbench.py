@@ -15,7 +15,7 @@ from functools import cache, lru_cache
 
 from gcs.sessions.export import attitude_table, write_table
 from gcs.sessions.sources import ReplaySource, SourceKey, open_source, source_key
-from gcs.sessions.whatif import EstimatorRun, run_estimator, what_if
+from gcs.sessions.whatif import EstimatorRun, WhatIfView, run_estimator, what_if
 
 #: Sources kept decoded (a flight-hour at 400 Hz is about 170 MB) and estimator runs kept.
 SOURCES = 2
@@ -62,10 +62,10 @@ def load_source(path: str | os.PathLike) -> ReplaySource:
     return workbench().source(path)
 
 
-def what_if_json(path: str | os.PathLike, estimator: str, gains: dict[str, float]) -> dict:
-    """`what_if(...).as_dict()` over the source at path: small and picklable."""
+def what_if_view(path: str | os.PathLike, estimator: str, gains: dict[str, float]) -> WhatIfView:
+    """`what_if(...).view()` over the source at path."""
     bench = workbench()
-    return what_if(bench.source(path), estimator, gains, bench.run).as_dict()
+    return what_if(bench.source(path), estimator, gains, bench.run).view()
 
 
 def export_file(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> int:

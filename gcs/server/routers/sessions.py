@@ -29,7 +29,8 @@ from gcs.server.deps import TOKEN, ClientDep, StationDep
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS
 from gcs.sessions.sources import KINDS
-from gcs.sessions.workbench import export_file, what_if_json
+from gcs.sessions.whatif import WhatIfView
+from gcs.sessions.workbench import export_file, what_if_view
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -203,11 +204,11 @@ async def unload_replay(station: StationDep) -> dict[str, bool]:
 
 
 @router.post("/whatif")
-async def whatif(body: WhatIfRequest, station: StationDep) -> dict[str, Any]:
+async def whatif(body: WhatIfRequest, station: StationDep) -> WhatIfView:
     """Old and new output of one estimator over a whole session with other gains, and the RMS table."""
     path = named_source(station, body.source)
     try:
-        return await station.in_worker(what_if_json, path, body.estimator, body.gains)
+        return await station.in_worker(what_if_view, path, body.estimator, body.gains)
     except KeyError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=exc.args[0]) from None
     except (InputError, GainError) as exc:
