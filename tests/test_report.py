@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import pty
 import re
+import select
+import struct
+import subprocess
+import sys
+import termios
+import time
 
 import numpy as np
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
 from gcs.commands.cli import main
+from gcs.provenance import provenance
 
 
 def test_report_of_dataflash_log(logs_dir, tmp_path, capsys):
@@ -22,7 +32,8 @@ def test_report_of_dataflash_log(logs_dir, tmp_path, capsys):
         assert re.search(rf"<td>{estimator}</td><td>truth</td><td>980</td>", page)
     assert "<td>IMU</td><td>2450</td><td>25.0</td>" in page  # rates table
     assert "src='http" not in page and "<script" not in page  # self-contained
-    assert "100.0 %" in capsys.readouterr().err  # progress bar
+    assert capsys.readouterr().err == f"wrote {out}\n"  # no progress bar when stderr is not a terminal
+    assert provenance().commit and provenance().commit.split("+")[0] in page  # which code made it
 
 
 def test_report_of_tlog_shows_packet_loss(logs_dir, tmp_path):
@@ -48,3 +59,31 @@ def test_export_csv_and_parquet(logs_dir, tmp_path):
 def test_export_of_missing_session_is_a_clear_error(tmp_path, capsys):
     assert main(["export", str(tmp_path / "nope"), "--out", str(tmp_path / "x.csv")]) == 2
     assert "nope: no such file or session folder" in capsys.readouterr().err
+
+
+def test_progress_bar_on_a_terminal(logs_dir):
+    """On a terminal (a pseudo-terminal here) replay shows a tqdm bar that reaches 100%."""
+    main_fd, terminal = pty.openpty()
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a real terminal's size
+    process = subprocess.Popen(
+        [sys.executable, "-m", "gcs", "replay", str(logs_dir / "arducopter-sitl-hop.BIN"), "--fast", "-e", "dcm"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=terminal,
+    )
+    os.close(terminal)
+    seen = b""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([main_fd], [], [], 1.0)
+        if ready:
+            try:
+                chunk = os.read(main_fd, 4096)
+            except OSError:  # the terminal closed: the process has ended
+                break
+            if not chunk:
+                break
+            seen += chunk
+    os.close(main_fd)
+    assert process.wait(30) == 0
+    assert b"replay: 100%" in seen, seen[-300:]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import importlib.metadata
 import json
 import resource
 import signal
@@ -19,6 +20,7 @@ from conftest import ROOT, free_port
 from live import running_sim, running_station, wait_for
 from pymavlink import mavutil
 
+from gcs import __version__ as GCS_VERSION
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import columnar, layout
 
@@ -90,6 +92,10 @@ def test_kill9_loses_under_a_second_and_session_is_recovered(tmp_path):
     meta = layout.read_meta(folder)
     assert meta["recovered"] is True
     assert meta["end"] == pytest.approx(last, abs=1e-6)
+    made = meta["provenance"]  # which code recorded it, checked against git itself
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    assert made["version"] == GCS_VERSION and made["commit"].startswith(head)
+    assert made["dependencies"]["pymavlink"] == importlib.metadata.version("pymavlink")
     assert columnar.read_table(folder, "attitude").num_rows > 0
     assert not layout.stream_path(folder, "attitude").exists()
     events = [json.loads(line) for line in (folder / layout.EVENTS).read_text().splitlines()]

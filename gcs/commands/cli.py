@@ -7,7 +7,7 @@ import argparse
 import importlib
 import sys
 
-from gcs import __version__
+from gcs.provenance import provenance
 
 #: subcommand -> (module, one-line help). Modules are imported only when their command runs.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="gcs",
         description="MAVLink ground station and telemetry server for flight tests.",
     )
-    parser.add_argument("--version", action="version", version=f"gcs {__version__}")
+    parser.add_argument("--version", action="version", version=str(provenance()))
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
+from tqdm import tqdm
+
 from gcs.logs.logfile import InputError
 
 
@@ -24,17 +26,17 @@ def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int
 
 
 def progress_bar(label: str) -> Callable[[int, int], None]:
-    """A one-line progress bar on stderr for long runs."""
+    """A progress bar on stderr (tqdm) for long runs, told (done, total); nothing at all when
+    stderr is not a terminal (CI logs, pipes). The bar closes when done reaches total."""
+    bar: tqdm[None] | None = None
 
     def show(done: int, total: int) -> None:
-        width = 30
-        filled = int(width * done / max(total, 1))
-        end = "\n" if done >= total else ""
-        print(
-            f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {100 * done / max(total, 1):5.1f} %",
-            end=end,
-            file=sys.stderr,
-            flush=True,
-        )
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(total=total, desc=label, unit="", disable=not sys.stderr.isatty(), leave=True)
+        bar.total = total
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
 
     return show

@@ -26,6 +26,7 @@ from typing import Protocol
 from gcs import __version__
 from gcs.mavlink.params import param_name
 from gcs.mavlink.tlog import tlog_record
+from gcs.provenance import provenance
 from gcs.runtime.bus import MessageBus, Subscription
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
@@ -334,6 +335,7 @@ class SessionRecorder:
             "end": None,
             "pid": os.getpid(),
             "gcs_version": __version__,
+            "provenance": provenance().as_json(),
             "link": {"address": str(link.address), "baud": link.baud},
             "vehicle": self._vehicle(),
             "estimation": None

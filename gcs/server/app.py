@@ -1,11 +1,10 @@
 """The FastAPI application: REST routers (every module in routers.ROUTERS), the live WebSocket,
-the dashboard page (web/public) and uPlot, served from web/node_modules (installed by .ci/setup
-from the npm registry; nothing is fetched from a CDN, so the page works with no internet)."""
+the dashboard page and uPlot (from the package, or the checkout: `assets.web_assets`; nothing is
+fetched from a CDN, so the page works with no internet)."""
 
 from __future__ import annotations
 
 import importlib
-from pathlib import Path
 
 from fastapi import FastAPI, Response
 from fastapi.staticfiles import StaticFiles
@@ -15,12 +14,10 @@ from gcs import __version__
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
+from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
-
-WEB_DIR = Path(__file__).resolve().parents[2] / "web"
-UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 
 
 def create_app(
@@ -28,8 +25,7 @@ def create_app(
 ) -> FastAPI:
     """The app for one running station. `token`: required on state-changing requests (None when
     only this machine can connect). The hub follows the station's estimation, replays and events."""
-    if not (UPLOT_DIR / "uPlot.iife.min.js").is_file():
-        raise FileNotFoundError(f"uPlot missing in {UPLOT_DIR}: run `npm ci` in {WEB_DIR} (bash .ci/setup does)")
+    assets = web_assets()
     hub = hub or LiveHub()
     app = FastAPI(
         title="gcs",
@@ -47,8 +43,8 @@ def create_app(
     for module in ROUTERS:
         app.include_router(importlib.import_module(module).router)
     app.add_api_route("/colors.js", colors_js, include_in_schema=False)
-    app.mount("/vendor/uplot", StaticFiles(directory=UPLOT_DIR), name="uplot")
-    app.mount("/", StaticFiles(directory=WEB_DIR / "public", html=True), name="page")
+    app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
+    app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")
     return app
 
 

@@ -13,13 +13,14 @@ from __future__ import annotations
 import base64
 import html
 import io
+import os
 import time
 
 import numpy as np
 
-from gcs import __version__
 from gcs.core.attitude_errors import errors_against
 from gcs.core.estimation import AttitudePoint
+from gcs.provenance import provenance
 from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
@@ -163,11 +164,12 @@ def render(source, series: dict[str, np.ndarray], pipeline) -> str:
     if source.framing is not None:
         sections.append("<h2>Packets and loss</h2>" + _table(["", ""], loss_rows(source)))
     title = f"gcs report: {source.path}"
+    deps = ", ".join(f"{name} {version}" for name, version in provenance().dependencies.items())
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse;margin:8px 0}}
 td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:100%}}.warn{{color:#a40}}</style>
 </head><body><h1>{html.escape(title)}</h1>
-<p>generated {time.strftime("%Y-%m-%d %H:%M:%S")} by gcs {__version__}</p>
+<p>generated {time.strftime("%Y-%m-%d %H:%M:%S")} by {html.escape(str(provenance()))}; {html.escape(deps)}</p>
 {"".join(sections)}</body></html>"""
 
 
@@ -175,5 +177,11 @@ def write_report(path: str, out: str, progress=None) -> None:
     source = open_source(path)
     series, pipeline = collect(source, progress)
     text = render(source, series, pipeline)
-    with open(out, "w") as fh:
-        fh.write(text)
+    partial = f"{out}.partial"  # a failed write leaves any earlier report as it was
+    try:
+        with open(partial, "w") as fh:
+            fh.write(text)
+        os.replace(partial, out)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
