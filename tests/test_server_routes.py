@@ -32,6 +32,7 @@ from gcs.runtime.snapshots import (
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
+from gcs.server.guard import MAX_BODY
 
 RECORDING_OFF = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
 
@@ -145,7 +146,7 @@ def station() -> FakeStation:
 
 @pytest.fixture
 def api(station: FakeStation) -> TestClient:
-    return TestClient(create_app(station))  # type: ignore[arg-type]
+    return TestClient(create_app(station), base_url="http://127.0.0.1")  # type: ignore[arg-type]
 
 
 def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation):
@@ -195,7 +196,7 @@ def test_gain_listing_change_and_refusals(api: TestClient, station: FakeStation)
 
 
 def test_changes_need_the_token_when_one_is_set(station: FakeStation):
-    api = TestClient(create_app(station, token="s3cret"))  # type: ignore[arg-type]
+    api = TestClient(create_app(station, token="s3cret"), base_url="http://127.0.0.1")  # type: ignore[arg-type]
     url = "/api/estimators/dcm/gains/kp_rp"
     assert api.put(url, json={"value": 0.3}).status_code == 401
     assert api.put(url, json={"value": 0.3}, headers={TOKEN_HEADER: "wrong"}).status_code == 401
@@ -203,6 +204,9 @@ def test_changes_need_the_token_when_one_is_set(station: FakeStation):
     assert api.put(url, json={"value": 0.4}, params={"token": "s3cret"}).status_code == 200
     assert api.get("/api/status").json()["token_required"] is True  # reading needs no token
     assert station.estimators["dcm"].gains["kp_rp"] == 0.4
+    refused = [e.data for e in station.events.recent if e.kind == "refused"]
+    assert refused == [{"reason": "token", "path": url}] * 2  # every refused change is in the audit log
+    assert api.put(url, json={"value": 0.3}, params={"token": "sécret"}).status_code == 401  # not a 500
 
 
 def test_page_and_its_scripts_are_served_locally(api: TestClient):
@@ -223,3 +227,54 @@ def test_points_reach_the_history(api: TestClient, station: FakeStation):
     t, roll, _, yaw = history["dcm"]
     assert t == [1.0, 1.02] and np.allclose(roll, np.degrees(0.1), atol=1e-3)  # degrees, 3 decimals
     assert np.isclose(yaw[-1], np.degrees(0.31), atol=1e-3)
+
+
+def test_foreign_host_and_origin_are_refused_and_logged(station: FakeStation):
+    api = TestClient(create_app(station, allow_origins=("http://laptop.local:9000",)), base_url="http://127.0.0.1")  # type: ignore[arg-type]
+    url = "/api/estimators/dcm/gains/kp_rp"
+    # DNS rebinding: a foreign name that resolves to loopback
+    rebound = api.put(url, json={"value": 0.3}, headers={"Host": "evil.example:8000"})
+    assert rebound.status_code == 403 and "Host" in rebound.text
+    assert api.get("/api/status", headers={"Host": "evil.example"}).status_code == 403
+    # another page's scripts, whatever the content type
+    for origin in ("http://evil.example", "http://127.0.0.1:9999", "null"):
+        for body in (
+            {"json": {"value": 0.3}},
+            {"content": b'{"value": 0.3}', "headers": {"content-type": "text/plain"}},
+        ):
+            headers = {**body.pop("headers", {}), "Origin": origin} if "headers" in body else {"Origin": origin}
+            refused = api.put(url, headers=headers, **body)
+            assert refused.status_code == 403 and "origin" in refused.text
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.2  # nothing changed
+    refusals = [e for e in station.events.recent if e.kind == "refused"]
+    assert {e.data["origin"] for e in refusals} >= {"http://evil.example", "http://127.0.0.1:9999", "null"}
+    assert {e.data["reason"] for e in refusals} == {"host", "origin"} and refusals[0].data["path"] == url
+    # the page's own origin, the allowed one, and a client that sends none (curl, scripts)
+    assert api.put(url, json={"value": 0.3}, headers={"Origin": "http://127.0.0.1"}).status_code == 200
+    assert api.put(url, json={"value": 0.4}, headers={"Origin": "http://laptop.local:9000"}).status_code == 200
+    assert api.put(url, json={"value": 0.5}).status_code == 200
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.5
+
+
+def test_every_response_forbids_framing_and_sniffing(api: TestClient):
+    for path in ("/", "/api/status", "/api/nope"):
+        headers = api.get(path).headers
+        assert headers["x-frame-options"] == "DENY" and "frame-ancestors 'none'" in headers["content-security-policy"]
+        assert headers["x-content-type-options"] == "nosniff" and headers["referrer-policy"] == "no-referrer"
+    assert api.get("/docs").status_code == 404 and api.get("/redoc").status_code == 404  # they load a CDN
+
+
+def test_large_bodies_are_refused_with_413(api: TestClient, station: FakeStation):
+    url = "/api/estimators/dcm/gains/kp_rp"
+    big = b'{"value": 0.3, "pad": "' + b"x" * (MAX_BODY + 1) + b'"}'
+    assert api.put(url, content=big, headers={"content-type": "application/json"}).status_code == 413
+
+    def chunks():
+        yield b'{"value": 0.3, "pad": "'
+        for _ in range(100):
+            yield b"x" * 1024
+        yield b'"}'
+
+    assert api.put(url, content=chunks(), headers={"content-type": "application/json"}).status_code == 413
+    assert station.estimators["dcm"].gains["kp_rp"] == 0.2
+    assert [e.data["reason"] for e in station.events.recent if e.kind == "refused"] == ["size", "size"]

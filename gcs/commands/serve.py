@@ -26,6 +26,13 @@ def add_server_arguments(parser: argparse.ArgumentParser) -> None:
         "--viser-port", type=int, default=None, help="3-D view port (default: dashboard port + 1, or the next free one)"
     )
     parser.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also accept requests from pages of this origin, e.g. http://laptop.local:8080 (repeatable)",
+    )
+    parser.add_argument(
         "--history", type=float, default=600.0, help="seconds of every source kept for newly opened pages (default 600)"
     )
 
@@ -52,7 +59,14 @@ def run(args: argparse.Namespace) -> int:
 def dashboard(station, args: argparse.Namespace):
     """A DashboardServer for the parsed options (not started)."""
 
-    return DashboardServer(station, args.host, args.port, viser_port=args.viser_port, hub=LiveHub(seconds=args.history))
+    return DashboardServer(
+        station,
+        args.host,
+        args.port,
+        viser_port=args.viser_port,
+        hub=LiveHub(seconds=args.history),
+        allow_origins=tuple(args.allow_origin),
+    )
 
 
 async def _serve(config, args: argparse.Namespace) -> None:

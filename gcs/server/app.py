@@ -8,7 +8,6 @@ import importlib
 
 from fastapi import FastAPI, Response
 from fastapi.staticfiles import StaticFiles
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from gcs import __version__
 from gcs.runtime.events import Event
@@ -16,27 +15,42 @@ from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
 from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
+from gcs.server.guard import Refusal, RequestGuard
 from gcs.server.live import LiveHub
 from gcs.server.routers import ROUTERS
 
 
 def create_app(
-    station: StationFacade, hub: LiveHub | None = None, *, token: str | None = None, viser_port: int | None = None
+    station: StationFacade,
+    hub: LiveHub | None = None,
+    *,
+    token: str | None = None,
+    viser_port: int | None = None,
+    bound_host: str = "127.0.0.1",
+    allow_origins: tuple[str, ...] = (),
 ) -> FastAPI:
     """The app for one running station. `token`: required on state-changing requests (None when
-    only this machine can connect). The hub follows the station's estimation, replays and events."""
+    only this machine can connect). `bound_host` and `allow_origins` set which Host and Origin
+    headers the guard accepts. The hub follows the station's estimation, replays and events."""
     assets = web_assets()
     hub = hub or LiveHub()
     app = FastAPI(
         title="gcs",
         version=__version__,
         description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.",
+        docs_url=None,  # Swagger UI and ReDoc load their scripts from a CDN; /openapi.json stays
+        redoc_url=None,
     )
     app.state.station = station
     app.state.hub = hub
     app.state.token = token
     app.state.viser_port = viser_port
-    app.add_middleware(OriginAgentCluster)
+    app.add_middleware(
+        RequestGuard,
+        bound_host=bound_host,
+        allow_origins=allow_origins,
+        on_refused=lambda r: record_refusal(station, r),
+    )
     station.points.connect(hub.on_points)
     station.replay_loaded.connect(lambda replay: follow_replay(hub, replay))
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
@@ -57,30 +71,19 @@ def follow_replay(hub: LiveHub, replay: ReplaySession) -> None:
     replay.points.connect(hub.on_points)
 
 
+def record_refusal(station: StationFacade, refusal: Refusal) -> None:
+    """Every refused request goes to the event log, with where it came from."""
+    station.events.record(
+        "refused",
+        f"api:{refusal.client}",
+        reason=refusal.reason,
+        origin=refusal.origin,
+        host=refusal.host,
+        path=refusal.path,
+    )
+
+
 def forward_gain_event(hub: LiveHub, event: Event) -> None:
     """Every page learns of a gain change, whichever UI made it."""
     if event.kind == "gain":
         hub.broadcast({"type": "gain", **event.as_dict()})
-
-
-class OriginAgentCluster:
-    """ASGI middleware: `Origin-Agent-Cluster: ?1` on every HTTP response, so Chromium gives the
-    page's origin a renderer process of its own. The viser 3-D view (an iframe from the same host,
-    another port) is same-site and would otherwise share the page's main thread: with software
-    WebGL its shader compiles and canvas read-backs froze that thread for 0.3-20 s at a time on a
-    loaded machine, and the live plots' WebSocket messages waited that long."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def send_with_header(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                message["headers"] = [*message.get("headers", []), (b"origin-agent-cluster", b"?1")]
-            await send(message)
-
-        await self.app(scope, receive, send_with_header)

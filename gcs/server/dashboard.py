@@ -5,7 +5,6 @@ the 30 Hz pose update. `gcs serve`, `gcs demo`, the tests and the benchmarks all
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import secrets
 import socket
 from typing import TYPE_CHECKING
@@ -14,6 +13,7 @@ import uvicorn
 
 from gcs.runtime.facade import StationFacade
 from gcs.server.app import create_app
+from gcs.server.guard import is_loopback
 from gcs.server.live import LiveHub
 
 if TYPE_CHECKING:
@@ -23,16 +23,6 @@ if TYPE_CHECKING:
 
 #: Pose view refresh, Hz (the eye does not need the 200 Hz the plots get).
 POSE_HZ = 30.0
-
-
-def is_loopback(host: str) -> bool:
-    """True when only this machine can reach host ("localhost", 127.x, ::1)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class DashboardServer:
@@ -50,6 +40,7 @@ class DashboardServer:
         viser: bool = True,
         hub: LiveHub | None = None,
         send_buffer: int = 256 * 1024,
+        allow_origins: tuple[str, ...] = (),
     ) -> None:
         self.station = station
         self.host = host
@@ -58,6 +49,7 @@ class DashboardServer:
         self.use_viser = viser
         self.hub = hub or LiveHub()
         self.send_buffer = send_buffer
+        self.allow_origins = allow_origins
         self.token = None if is_loopback(host) else secrets.token_urlsafe(16)
         self.viser: ViserServer | None = None
         self._server: uvicorn.Server | None = None
@@ -77,7 +69,9 @@ class DashboardServer:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
         sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
         self.port = sock.getsockname()[1]
-        app = create_app(self.station, self.hub, token=self.token)
+        app = create_app(
+            self.station, self.hub, token=self.token, bound_host=self.host, allow_origins=self.allow_origins
+        )
         if self.use_viser:
             self._start_viser()
             app.state.viser_port = self.viser_port

@@ -52,7 +52,9 @@ async def require_token(request: Request) -> None:
     if expected is None:
         return
     given = presented_token(request)
-    if given is None or not secrets.compare_digest(given, expected):
+    if given is None or not secrets.compare_digest(given.encode(), expected.encode()):
+        station: StationFacade = request.app.state.station
+        station.events.record("refused", await get_client(request), reason="token", path=request.url.path)
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,
             detail=f"this server is reachable from other machines: changes need the token printed at "
