@@ -1,0 +1,119 @@
+"""Another web page the engineer has open cannot change anything: a page served from a second
+origin on loopback, in real Chromium, tries every state-changing endpoint (fetch with text/plain
+and no-cors, with and without credentials; form posts) and the live WebSocket. Nothing changes,
+and each attempt is refused and logged with its origin."""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import http.server
+import importlib
+import json
+import os
+import threading
+
+import pytest
+from fastapi.routing import APIRoute
+from live import running_sim, running_station, wait_for
+from playwright.async_api import async_playwright
+from test_browser import CHROMIUM, CHROMIUM_ARGS
+
+from gcs.server.dashboard import DashboardServer
+from gcs.server.routers import ROUTERS
+
+ATTACK = """<!doctype html><html><body><iframe name="sink"></iframe><script>
+const targets = %s;
+window.done = (async () => {
+  for (const [method, url] of targets) {
+    for (const credentials of ["include", "omit"]) {
+      for (const mode of ["no-cors", "cors"]) {
+        try {
+          await fetch(url, {method, mode, credentials, headers: {"content-type": "text/plain"},
+                            body: method === "GET" ? undefined : '{"value": 1.5, "text": "x", "source": "x"}'});
+        } catch (e) {}
+      }
+    }
+    if (method === "POST") {
+      const form = document.createElement("form");
+      form.method = "POST"; form.action = url; form.target = "sink"; form.enctype = "text/plain";
+      const field = document.createElement("input"); field.name = '{"value": 1.5, "x": "'; field.value = '"}';
+      form.appendChild(field); document.body.appendChild(form); form.submit();
+      await new Promise(r => setTimeout(r, 50));
+    }
+  }
+  window.socket = await new Promise(resolve => {
+    const ws = new WebSocket(%s);
+    ws.onopen = () => resolve("open"); ws.onerror = () => resolve("refused"); ws.onclose = () => resolve("refused");
+  });
+  return true;
+})();
+</script></body></html>"""
+
+
+def state_changing() -> list[tuple[str, str]]:
+    """(method, path) of every route that changes state, path parameters filled in."""
+    out = []
+    routes = [r for module in ROUTERS for r in importlib.import_module(module).router.routes]
+    for route in routes:
+        if isinstance(route, APIRoute):
+            for method in route.methods - {"GET", "HEAD"}:
+                path = (
+                    route.path.replace("{name}", "dcm").replace("{gain}", "kp_rp").replace("{param}", "ATC_RAT_RLL_P")
+                )
+                out.append((method, path))
+    return sorted(set(out))
+
+
+@pytest.fixture
+def attacker_site(tmp_path):
+    """A plain static server on another loopback port: another origin."""
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
+    handler.log_message = lambda *args: None  # type: ignore[attr-defined]
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield tmp_path, f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+
+
+def test_a_page_of_another_origin_changes_nothing(udp_port, tmp_path, attacker_site):
+    if not os.path.exists(CHROMIUM):
+        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
+    site_dir, site = attacker_site
+    asyncio.run(scenario(udp_port, tmp_path / "sessions", site_dir, site))
+
+
+async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(record_dir)) as station,
+        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+    ):
+        server = DashboardServer(station, port=0, viser=False)
+        await server.start()
+        try:
+            await wait_for(lambda: station.estimation.pipeline.imu_samples > 50, 30, "IMU samples")
+            base = f"http://127.0.0.1:{server.port}"
+            targets = [(method, base + path) for method, path in state_changing()]
+            assert len(targets) >= 15
+            (site_dir / "attack.html").write_text(
+                ATTACK % (json.dumps(targets), json.dumps(f"ws://127.0.0.1:{server.port}/ws/live"))
+            )
+            gains = {n: dict(e.gains.values) for n, e in station.estimation.pipeline.estimators.items()}
+            recording = station.recorder.snapshot().state
+            async with async_playwright() as pw:
+                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                page = await browser.new_page()
+                await page.goto(f"{site}/attack.html")
+                assert await page.evaluate("window.done") is True
+                assert await page.evaluate("window.socket") == "refused"
+                await browser.close()
+            assert {n: dict(e.gains.values) for n, e in station.estimation.pipeline.estimators.items()} == gains
+            assert station.recorder.snapshot().state == recording == "recording"
+            assert station.replay is None and not server.hub.clients
+            assert not [e for e in station.events.recent if e.kind in ("gain", "note", "param")]
+            refused = [e for e in station.events.recent if e.kind == "refused"]
+            assert {e.data["origin"] for e in refused} == {site}
+            assert {e.data["path"] for e in refused} >= {path for _, path in state_changing()} | {"/ws/live"}
+        finally:
+            await server.stop()
