@@ -180,3 +180,25 @@ def test_unwritable_folder_is_reported_not_raised(tmp_path):
     status = asyncio.run(run())
     assert status["state"] == "failed"
     assert str(blocked) in status["error"]
+
+
+@pytest.mark.parametrize("bad", [b"{bad", b"[1]", b"null", b'{"start": "abc", "end": [], "vehicle": 5}'])
+def test_a_malformed_meta_json_does_not_stop_start_up(tmp_path, bad):
+    damaged = tmp_path / "2026-01-01_00-00-00_x"
+    damaged.mkdir()
+    (damaged / layout.META).write_bytes(bad)
+    listing = subprocess.run(
+        [PY, "-m", "gcs", "sessions", "--dir", str(tmp_path), "--json"], capture_output=True, text=True, timeout=60
+    )
+    assert listing.returncode == 0 and json.loads(listing.stdout)[0]["name"] == damaged.name, listing.stderr
+
+    async def start() -> str:
+        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(tmp_path)) as station:
+            return station.recorder.snapshot().state
+
+    assert asyncio.run(start()) == "recording"
+    if bad.startswith(b'{"'):  # an object: recovered (closed), every field it had kept as it was
+        meta = json.loads((damaged / layout.META).read_bytes())
+        assert meta["vehicle"] == 5 and meta["recovered"] is True and meta["end"] is None
+    else:  # not an object: reported, left as it was
+        assert (damaged / layout.META).read_bytes() == bad

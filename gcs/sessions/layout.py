@@ -61,9 +61,12 @@ def is_session(path: Path) -> bool:
 def read_meta(folder: Path) -> dict:
     """meta.json of a session; an unreadable one is reported as such, not raised."""
     try:
-        return json.loads((folder / META).read_text())
+        meta = json.loads((folder / META).read_text())
     except (OSError, ValueError) as exc:
         return {"error": f"{folder / META}: unreadable meta.json ({exc})"}
+    if not isinstance(meta, dict):
+        return {"error": f"{folder / META}: meta.json holds a {type(meta).__name__}, not an object"}
+    return meta
 
 
 def write_meta(folder: Path, meta: dict) -> None:
@@ -95,8 +98,8 @@ class SessionInfo:
 
 def session_info(folder: Path) -> SessionInfo:
     meta = read_meta(folder)
-    start, end = meta.get("start"), meta.get("end")
-    size = sum(f.stat().st_size for f in folder.iterdir() if f.is_file())
+    start, end = meta_time(meta.get("start")), meta_time(meta.get("end"))
+    size = sum(f.lstat().st_size for f in folder.iterdir() if f.is_file() and not f.is_symlink())
     return SessionInfo(
         name=folder.name,
         path=str(folder),
@@ -108,6 +111,11 @@ def session_info(folder: Path) -> SessionInfo:
         open=end is None,
         recovered=bool(meta.get("recovered")),
     )
+
+
+def meta_time(value: object) -> float | None:
+    """A UNIX time from meta.json, or None when it is missing or not a number."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
 def list_sessions(root: str | Path) -> list[SessionInfo]:

@@ -54,7 +54,7 @@ def close_session(folder: Path, meta: dict, recovered: bool) -> dict:
     meta = dict(meta, tables=tables)
     if recovered:
         end, found = last_tlog_time(folder / layout.TLOG)
-        meta.update(end=end if end is not None else meta.get("start"), recovered=True, recovery=found)
+        meta.update(end=end if end is not None else layout.meta_time(meta.get("start")), recovered=True, recovery=found)
     layout.write_meta(folder, meta)
     return meta
 
