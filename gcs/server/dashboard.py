@@ -15,6 +15,7 @@ from gcs.runtime.facade import StationFacade
 from gcs.server.app import create_app
 from gcs.server.guard import is_loopback
 from gcs.server.live import LiveHub
+from gcs.sessions.workbench import warm_up
 
 if TYPE_CHECKING:
     from viser import ViserServer
@@ -83,6 +84,7 @@ class DashboardServer:
             await asyncio.sleep(0.01)
         if self.viser is not None:
             self._tasks.append(asyncio.create_task(self._pose_loop()))
+        self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
 
     def _start_viser(self) -> None:
         import viser  # noqa: PLC0415 - heavy (three.js server); not imported when the 3-D view is off

@@ -58,6 +58,12 @@ def workbench() -> Workbench:
     return Workbench()
 
 
+def warm_up() -> None:
+    """Nothing but this module's imports: sent once at server start, so the first replay or
+    what-if does not wait for the worker process to spawn and import gcs."""
+    workbench()
+
+
 def load_source(path: str | os.PathLike) -> ReplaySource:
     return workbench().source(path)
 
