@@ -20,9 +20,11 @@ from gcs.server.live import LiveHub
 READERS = 19
 # Only a ceiling: the readers stop once they hold the measured window's end (the test tells them).
 READER_SECONDS = 240.0
-# Deadline for the stuck client's queue to overflow: seconds normally; a loaded 2-core machine
-# makes frames (and so the overflow) slower, which is not what this test is about.
-OVERFLOW_DEADLINE_S = 90.0
+# Deadline for the stuck client's queue to overflow. It overflows once its socket and transport
+# buffers (~140 kB) are full: seconds at the normal ~40 kB/s of points, but on a loaded 2-core
+# machine the station made ~3 kB/s (measured), so filling them took ~45 s; how fast the machine
+# is, is not what this test is about.
+OVERFLOW_DEADLINE_S = 120.0
 
 
 def test_twenty_clients_one_stuck(udp_port):
@@ -68,7 +70,9 @@ async def twenty_clients(udp_port: int, seconds: float = 8.0) -> dict:
             await server.start()
             url = f"ws://127.0.0.1:{server.port}/ws/live"
             try:
-                await wait_for(lambda: station.link.stats.rates().get("ATTITUDE", 0) > 150, 60, "ATTITUDE at 200 Hz")
+                await wait_for(
+                    lambda: station.link.stats.rates().get("ATTITUDE", 0) > 50, 60, "ATTITUDE at its requested rate"
+                )
                 stuck = await stuck_client(server.port)
                 await wait_for(lambda: len(server.hub.clients) == 1, 10, "the stuck client connected")
                 stuck_feed = next(iter(server.hub.clients.values()))
