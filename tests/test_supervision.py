@@ -39,7 +39,9 @@ async def scenario(udp_port: int, root) -> dict:
                 await wait_for(lambda: pipeline.imu_samples > 100, 60, "IMU samples")
                 # the page is up and polling the status before the fault
                 await page.wait_for_function(
-                    "document.querySelector('#link-state').textContent === 'link connected'", timeout=30_000
+                    "document.querySelector('#link-state').textContent === 'link connected'",
+                    polling=POLL_MS,
+                    timeout=30_000,
                 )
 
                 def broken(item):
