@@ -50,7 +50,7 @@ async def set_number(page, selector: str, value: float) -> None:
 
 # ---- tuning --------------------------------------------------------------------------------
 def test_tuning_panel(udp_port, artifacts_dir):
-    asyncio.run(asyncio.wait_for(tuning_scenario(udp_port, artifacts_dir), 90))
+    asyncio.run(asyncio.wait_for(tuning_scenario(udp_port, artifacts_dir), 240))
 
 
 async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
@@ -64,13 +64,13 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
         # As if reachable from other machines: every change needs the token the page got in its URL.
         server.token = server._server.config.app.state.token = TOKEN
         try:
-            await wait_for(lambda: station.link.target_system is not None, 10, "the vehicle's heartbeat")
+            await wait_for(lambda: station.link.target_system is not None, 30, "the vehicle's heartbeat")
             before = sim.params.as_dict()
             async with async_playwright() as pw:
                 browser, page = await open_page(pw, server.url, errors)
                 await page.click("#tabs button[data-tab=tuning]")
                 download = page.locator("#param-download-btn")
-                await download.wait_for(state="visible", timeout=10_000)
+                await download.wait_for(state="visible", timeout=30_000)
                 await download.click()
                 current = page.locator("#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur")
                 await page.wait_for_function(
@@ -95,14 +95,14 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 result = page.locator("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result")
                 await set_number(page, "tr.tune-edit[data-param=ATC_RAT_RLL_P] input[type=number]", new)
                 await page.wait_for_selector(
-                    "tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.verified", timeout=10_000
+                    "tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.verified", timeout=30_000
                 )
                 assert "verified" in await result.text_content()
                 assert abs(sim.params["ATC_RAT_RLL_P"] - new) < 1e-6
                 await page.wait_for_function(
                     f"Math.abs(Number(document.querySelector('#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur')"
                     f".textContent) - {new}) < 1e-5",
-                    timeout=5_000,
+                    timeout=20_000,
                 )
                 assert await page.locator("#tuning-table tr.tune[data-param=ATC_RAT_RLL_P].changed").count() == 1
 
@@ -110,7 +110,7 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 await set_number(
                     page, "tr.tune-edit[data-param=ATC_RAT_RLL_P] input[type=number]", round(new + 0.15, 4)
                 )
-                await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.refused", timeout=10_000)
+                await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_RLL_P] td.result.refused", timeout=30_000)
                 text = await result.text_content()
                 assert "refused" in text and "more than the largest step 0.02" in text, text
                 assert "more than the largest step" in await page.text_content("#tuning-message")
@@ -126,7 +126,7 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 )
                 assert sent > before["ATC_RAT_PIT_P"] + 0.015
                 await page.wait_for_selector(
-                    "tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=10_000
+                    "tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=30_000
                 )
                 assert abs(sim.params["ATC_RAT_PIT_P"] - sent) < 1e-6
                 await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning.png"))
@@ -135,13 +135,13 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
                 await page.click("#tuning-revert")
                 try:
                     await page.wait_for_function(
-                        "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=15_000
+                        "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=30_000
                     )
                 except Exception:
                     raise AssertionError(f"revert: page says {await page.text_content('#tuning-message')!r}") from None
                 assert sim.params.as_dict() == before
                 await page.wait_for_function(
-                    "document.querySelectorAll('#tuning-table tr.tune.changed').length === 0", timeout=5_000
+                    "document.querySelectorAll('#tuning-table tr.tune.changed').length === 0", timeout=20_000
                 )
                 assert abs(float(await current.text_content()) - start) < 1e-4
                 await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning-reverted.png"))
@@ -153,7 +153,7 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
 
 # ---- sessions, replay, what-if -------------------------------------------------------------
 def test_sessions_panel(udp_port, tmp_path, artifacts_dir, logs_dir):
-    asyncio.run(asyncio.wait_for(sessions_scenario(udp_port, tmp_path, artifacts_dir, logs_dir), 100))
+    asyncio.run(asyncio.wait_for(sessions_scenario(udp_port, tmp_path, artifacts_dir, logs_dir), 240))
 
 
 async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> None:
@@ -167,19 +167,19 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0):
                     await page.click("#tabs button[data-tab=sessions]")
                     await page.wait_for_function(
-                        "document.querySelector('#rec-status').textContent.includes('recording')", timeout=10_000
+                        "document.querySelector('#rec-status').textContent.includes('recording')", timeout=30_000
                     )
                     assert str(root) in await page.text_content("#rec-status")
                     assert "REC" in await page.text_content("#rec-pill")
                     await page.fill("#rec-note", "gusty, swapped props")
                     await page.click("#rec-note-btn")
                     await page.wait_for_function(
-                        "document.querySelector('#rec-message').textContent.includes('note added')", timeout=5_000
+                        "document.querySelector('#rec-message').textContent.includes('note added')", timeout=20_000
                     )
-                    await wait_for(lambda: station.estimation.pipeline.imu_samples > 600, 20, "IMU samples")
+                    await wait_for(lambda: station.estimation.pipeline.imu_samples > 600, 60, "IMU samples")
                     await page.wait_for_function(
                         "document.querySelector('#rec-status').textContent.match(/[1-9][0-9.]* (KiB|MiB)/)",
-                        timeout=10_000,
+                        timeout=30_000,
                     )
                     await page.locator("#tab-sessions").screenshot(
                         path=str(artifacts_dir / "panel-sessions-recording.png")
@@ -188,10 +188,10 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                     await page.wait_for_function(  # listed, closed (the open session was listed while recording)
                         "(() => { const r = document.querySelectorAll('#sessions-table tr[data-session]');"
                         " return r.length === 1 && !r[0].textContent.includes('(open)'); })()",
-                        timeout=15_000,
+                        timeout=30_000,
                     )
                 await page.wait_for_function(
-                    "document.querySelector('#rec-status').textContent.includes('stopped')", timeout=5_000
+                    "document.querySelector('#rec-status').textContent.includes('stopped')", timeout=20_000
                 )
                 assert await page.locator("#rec-stop").is_disabled()
                 assert await page.locator("#sessions-table tr[data-session]").count() == 1
@@ -218,7 +218,7 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 os.symlink(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")
                 await page.click("#sessions-refresh")
                 await page.wait_for_selector(
-                    "#replay-source option[value='fragment.bin']", state="attached", timeout=5_000
+                    "#replay-source option[value='fragment.bin']", state="attached", timeout=20_000
                 )
                 assert await page.locator("#whatif-source option[value='fragment.bin']").count() == 1
 
@@ -229,18 +229,18 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 await page.select_option("#replay-speed", "2")
                 received = await page.evaluate("gcsStats.received.onboard || 0")
                 await page.click("#replay-load")
-                await page.wait_for_selector("#replay-banner", state="visible", timeout=5_000)
+                await page.wait_for_selector("#replay-banner", state="visible", timeout=20_000)
                 assert "REPLAY" in await page.text_content("#replay-pill")
-                await page.wait_for_function(f"(gcsStats.received.onboard || 0) > {received} + 50", timeout=10_000)
-                await page.wait_for_function("(gcsStats.received.dcm || 0) > 50", timeout=10_000)
+                await page.wait_for_function(f"(gcsStats.received.onboard || 0) > {received} + 50", timeout=30_000)
+                await page.wait_for_function("(gcsStats.received.dcm || 0) > 50", timeout=30_000)
                 await page.click("#replay-pause")
                 await page.wait_for_function(
-                    "document.querySelector('#replay-pill').textContent.includes('paused')", timeout=5_000
+                    "document.querySelector('#replay-pill').textContent.includes('paused')", timeout=20_000
                 )
                 await page.screenshot(path=str(artifacts_dir / "dashboard-replay.png"))
                 await page.locator("#tab-sessions").screenshot(path=str(artifacts_dir / "panel-sessions.png"))
                 await page.click("#replay-close")
-                await page.wait_for_selector("#replay-banner", state="hidden", timeout=5_000)
+                await page.wait_for_selector("#replay-banner", state="hidden", timeout=20_000)
 
                 # What-if: a table of old vs new RMS and the new output over the old one.
                 await page.click("#tabs button[data-tab=whatif]")
@@ -263,7 +263,7 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 # A recording failure (a full disk) is shown on the page, whichever tab is open.
                 station.recorder.report_error("cannot write session: No space left on device")
                 await page.wait_for_function(
-                    "document.querySelector('#panel-warnings').textContent.includes('No space left')", timeout=5_000
+                    "document.querySelector('#panel-warnings').textContent.includes('No space left')", timeout=20_000
                 )
                 await page.click("#tabs button[data-tab=sessions]")
                 assert "No space left" in await page.text_content("#rec-error")

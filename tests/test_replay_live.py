@@ -27,12 +27,12 @@ def test_replay_of_recorded_session_equals_live(tmp_path):
             async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0):
                 station.estimation.points.connect(live.extend)
                 pipeline = station.estimation.pipeline
-                await wait_for(lambda: pipeline.imu_samples > 200, 20, "IMU samples")
+                await wait_for(lambda: pipeline.imu_samples > 200, 60, "IMU samples")
                 # changed mid-flight: replay must apply it at the same point
                 station.set_gain("dcm", "kp_rp", 0.8, "test")
-                await wait_for(lambda: pipeline.imu_samples > 400, 20, "more IMU samples")
+                await wait_for(lambda: pipeline.imu_samples > 400, 60, "more IMU samples")
                 station.set_gain("ekf", "gyro_noise", 2 * pipeline.estimators["ekf"].gains["gyro_noise"], "test")
-                await wait_for(lambda: pipeline.imu_samples > 600, 20, "more IMU samples")
+                await wait_for(lambda: pipeline.imu_samples > 600, 60, "more IMU samples")
             return station.recorder.session.folder
 
     folder = asyncio.run(record())

@@ -10,14 +10,14 @@ import time
 import httpx
 from live import running_sim, running_station, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
+from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
 
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
 
 
 def test_failed_part_is_reported_and_the_rest_keeps_running(udp_port, tmp_path):
-    report = asyncio.run(scenario(udp_port, tmp_path))
+    report = asyncio.run(asyncio.wait_for(scenario(udp_port, tmp_path), 240))
     assert report["status_delay_s"] < 2.0, report
     assert report["page_delay_s"] < 2.0, report
 
@@ -36,10 +36,12 @@ async def scenario(udp_port: int, root) -> dict:
                 page = await browser.new_page()
                 await page.goto(server.url)
                 pipeline = station.estimation.pipeline
-                await wait_for(lambda: pipeline.imu_samples > 100, 20, "IMU samples")
+                await wait_for(lambda: pipeline.imu_samples > 100, 60, "IMU samples")
                 # the page is up and polling the status before the fault
                 await page.wait_for_function(
-                    "document.querySelector('#link-state').textContent === 'link connected'", timeout=30_000
+                    "document.querySelector('#link-state').textContent === 'link connected'",
+                    polling=POLL_MS,
+                    timeout=30_000,
                 )
 
                 def broken(item):
@@ -47,6 +49,7 @@ async def scenario(udp_port: int, root) -> dict:
 
                 pipeline.feed = broken  # the next input makes the estimation part raise
                 failed_at = time.monotonic()
+                failed_wall_ms = time.time() * 1000
                 deadline = failed_at + 10
                 while True:
                     parts = {p["name"]: p for p in (await api.get("/api/status")).json()["parts"]}
@@ -58,11 +61,16 @@ async def scenario(udp_port: int, root) -> dict:
                 assert "injected fault" in parts["estimation"]["error"]
                 assert {p["state"] for name, p in parts.items() if name != "estimation"} == {"running"}
 
+                # The page notes (on the machine's wall clock, shared with this process) when it
+                # first shows the warning, so Playwright's round trips, slow on a loaded machine,
+                # are not counted: what is timed is the page's own status poll and drawing.
                 await page.wait_for_function(
-                    "document.querySelector('#warnings').textContent.includes('station part estimation failed')",
-                    timeout=10_000,
+                    "document.querySelector('#warnings').textContent.includes('station part estimation failed')"
+                    " && (window.gcsSeenAt = Date.now())",
+                    polling=POLL_MS,
+                    timeout=30_000,
                 )
-                report["page_delay_s"] = time.monotonic() - failed_at
+                report["page_delay_s"] = (await page.evaluate("window.gcsSeenAt") - failed_wall_ms) / 1000
                 await browser.close()
 
                 events = [e for e in station.events.recent if e.kind == "part"]

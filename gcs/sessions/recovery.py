@@ -35,17 +35,21 @@ def release_lock(fd: int | None) -> None:
 
 
 def last_tlog_time(path: Path) -> tuple[float | None, dict]:
-    """UNIX time of the last complete record (link bits cleared) and what the scan found."""
+    """UNIX time of the newest complete record (link bits cleared) and what the scan found.
+    The newest, not the last in the file: packets we send are written when sent, received ones
+    when the recorder drains the bus, so on a loaded machine a received packet stamped earlier
+    can follow a sent one stamped later."""
     if not path.exists():
         return None, {"records": 0}
     records = read_tlog_records(path)
     last, count = None, 0
     for usec, _ in records:
-        last, count = usec, count + 1
+        stamp = usec & ~3
+        last, count = stamp if last is None else max(last, stamp), count + 1
     found = {"records": count, "skipped_bytes": records.skipped}
     if records.truncated_at is not None:
         found["truncated_at"] = records.truncated_at
-    return (None if last is None else (last & ~3) / 1e6), found
+    return (None if last is None else last / 1e6), found
 
 
 def close_session(folder: Path, meta: dict, recovered: bool) -> dict:

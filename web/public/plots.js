@@ -141,7 +141,7 @@ class Plots {
     for (const e of estimators) for (const r of ERROR_REFERENCES)
       this.errors.push({ name: `${e} − ${r}`, e, r, series: new ErrorSeries(this.sources[e], this.sources[r]) });
     this.window = 30; this.paused = false; this.view = null;  // view: {t0, t1} when zoomed or paused
-    this.dirty = true; this.frames = 0; this.fps = 0;
+    this.dirty = true; this.frames = 0; this.fps = 0; this.nextDraw = 0; this.drawStart = null;
     this.build();
     addEventListener("resize", () => { for (const c of this.charts) c.resize(this.parent.clientWidth); this.dirty = true; });
     requestAnimationFrame((ts) => this.frame(ts));
@@ -209,9 +209,20 @@ class Plots {
     document.getElementById("pause").textContent = "live";
   }
   setWindow(seconds) { this.window = seconds; if (this.view && this.paused) this.view.t0 = this.view.t1 - seconds; this.dirty = true; }
+  // Drawing takes at most about a third of the page's main thread: a draw's cost is measured up
+  // to the next animation frame, so it includes the style, layout and paint it caused (beyond a
+  // normal 60 Hz frame), and the next draw waits twice that. On a slow or loaded machine the plots
+  // draw less often while the WebSocket frames, the status poll and the controls still get their
+  // turn (nothing is skipped: the next draw shows every sample that arrived meanwhile).
   frame() {
-    if (this.dirty) {
+    const now = performance.now();
+    if (this.drawStart !== null) {
+      this.nextDraw = now + 2 * Math.max(0, now - this.drawStart - 1000 / 60);
+      this.drawStart = null;
+    }
+    if (this.dirty && now >= this.nextDraw) {
       this.dirty = false;
+      this.drawStart = now;
       for (const x of this.errors) x.series.update();
       const live = !this.view, t1 = live ? this.newest() : this.view.t1, t0 = live ? t1 - this.window : this.view.t0;
       if (Number.isFinite(t1)) { for (const c of this.charts) c.draw(t0, t1, live); this.frames++; }
