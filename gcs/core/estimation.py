@@ -8,6 +8,7 @@ they were applied) in the same order and get the same numbers.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Collection, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TypedDict
@@ -15,6 +16,7 @@ from typing import TypedDict
 from gcs.core.comparison import Comparison, ComparisonSummary
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
+from gcs.core.plausibility import refusal
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
@@ -82,10 +84,18 @@ class EstimationPipeline:
         self.latest: dict[str, AttitudePoint] = {}
         self.imu_samples = 0
         self.declination: float | None = None  # the vehicle's, once a GainChange for every estimator set it
+        self.refused: Counter[str] = Counter()  # implausible inputs, by reason
+        self.restarts: Counter[str] = Counter()  # estimators restarted after their state went non-finite
 
     def feed(self, item: EstimationInput) -> list[AttitudePoint]:
         """Fuse one input; returns the attitudes it produced (none, one reference, or one per
-        valid estimator after an IMU sample)."""
+        valid estimator after an IMU sample). An implausible sample (gcs.core.plausibility) is
+        counted in `refused` and goes nowhere."""
+        if not isinstance(item, GainChange):
+            reason = refusal(item)
+            if reason is not None:
+                self.refused[reason] += 1
+                return []
         if isinstance(item, ImuSample):
             return self._imu(item)
         if isinstance(item, GpsSample):
@@ -114,15 +124,23 @@ class EstimationPipeline:
     def _imu(self, sample: ImuSample) -> list[AttitudePoint]:
         self.imu_samples += 1
         points = []
-        for name, est in self.estimators.items():
+        for name, est in list(self.estimators.items()):
             valid = est.update_imu(sample)
             q = est.quaternion
+            if not all(math.isfinite(v) for v in q.tolist()):
+                self._restart(name, est)
+                continue
             self.comparisons[name].add_estimate(sample.t, q)
             if valid:
                 point = AttitudePoint(sample.t, name, *quat_to_euler(q))
                 self.latest[name] = point
                 points.append(point)
         return points
+
+    def _restart(self, name: str, broken: AttitudeEstimator) -> None:
+        """A filter whose state went non-finite starts again, same preset and gains, from the next sample."""
+        self.estimators[name] = registry.create(name, broken.preset, **broken.gains.values)
+        self.restarts[name] += 1
 
     def _reference(self, ref: AttitudeSample) -> AttitudePoint:
         for comparison in self.comparisons.values():
@@ -172,9 +190,12 @@ def run_estimator(
     """Feed `inputs` in order to one estimator and yield each with whether the attitude is valid
     after it (read the estimator's state then). IMU and GPS samples are fused; a GainChange for
     estimator `name` (or for every estimator) is applied unless its gain is `pinned`; references
-    pass through. The one loop behind `gcs estimate`, what-if and `compare_stream`."""
+    pass through; implausible samples are dropped, as the pipeline drops them. The one loop behind
+    `gcs estimate`, what-if and `compare_stream`."""
     valid = False
     for item in inputs:
+        if not isinstance(item, GainChange) and refusal(item) is not None:
+            continue  # as the pipeline refuses it
         if isinstance(item, ImuSample):
             valid = estimator.update_imu(item)
         elif isinstance(item, GpsSample):

@@ -157,6 +157,8 @@ class EstimationSnapshot:
     declination_rad: float | None
     estimators: dict[str, EstimatorSnapshot]
     latest: dict[str, SourceAttitude]
+    refused_inputs: dict[str, int] = field(default_factory=dict)  # implausible samples, by reason
+    restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state
 
 
 @dataclass(frozen=True, slots=True)

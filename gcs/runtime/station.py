@@ -374,4 +374,12 @@ def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
         )
         for source, p in pipeline.latest.items()
     }
-    return EstimationSnapshot(estimation.imu_type, pipeline.imu_samples, pipeline.declination, estimators, latest)
+    return EstimationSnapshot(
+        estimation.imu_type,
+        pipeline.imu_samples,
+        pipeline.declination,
+        estimators,
+        latest,
+        dict(pipeline.refused),
+        dict(pipeline.restarts),
+    )

@@ -62,6 +62,11 @@ class StatusResponse(BaseModel):
     data_age_ms: float | None = Field(description="how old the newest attitude sample is at the server")
     imu_type: str | None
     estimators: dict[str, EstimatorStatus]
+    refused_inputs: dict[str, int] = Field(
+        default_factory=dict,
+        description="samples kept from the estimators as implausible (inf, NaN, beyond any sensor), by reason",
+    )
+    estimator_restarts: dict[str, int] = Field(default_factory=dict, description="restarts after a non-finite state")
     parts: list[PartStatus] = Field(description="the station's supervised parts; a failed one carries its error")
     clients: list[ClientSnapshot]
     viser_port: int | None

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from gcs.core.attitude_errors import errors_against
-from gcs.core.estimation import GainChange
+from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.rotation import quat_to_euler
-from gcs.core.samples import GpsSample, ImuSample
+from gcs.core.samples import ImuSample
 from gcs.sessions.sources import ReplaySource
 
 
@@ -35,20 +35,15 @@ class EstimatorRun:
 
 
 def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> EstimatorRun:
-    """Run estimator `name` alone over the source's inputs, with `pinned` gains held fixed. The loop
-    does only the estimator's own work; errors are computed on whole arrays afterwards."""
+    """Run estimator `name` alone over the source's inputs, with `pinned` gains held fixed (the
+    loop of gcs.core.estimation.run_estimator); errors are computed on whole arrays afterwards."""
     preset, gains = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**gains, **pinned})
     t, euler = [], []
-    for item in source.inputs():  # one pass over the columns
-        if isinstance(item, ImuSample):
-            if estimator.update_imu(item):
-                t.append(item.t)
-                euler.append(quat_to_euler(estimator.quaternion.tolist()))  # floats: same angles, faster
-        elif isinstance(item, GpsSample):
-            estimator.update_gps(item)
-        elif isinstance(item, GainChange) and item.estimator in (None, name) and item.name not in pinned:
-            estimator.set_gain(item.name, item.value)
+    for item, valid in core_run_estimator(estimator, source.inputs(), name, pinned):
+        if valid and isinstance(item, ImuSample):
+            t.append(item.t)
+            euler.append(quat_to_euler(estimator.quaternion.tolist()))  # floats: same angles, faster
     series = np.column_stack([t, np.array(euler).reshape(-1, 3)]) if t else np.empty((0, 4))
     errors = {}
     for ref, data in source.references.items():

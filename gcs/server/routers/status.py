@@ -46,6 +46,8 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
             )
             for name, e in (estimation.estimators.items() if estimation else ())
         },
+        refused_inputs=estimation.refused_inputs if estimation else {},
+        estimator_restarts=estimation.restarts if estimation else {},
         parts=snap.parts,
         clients=[c.snapshot() for c in hub.clients.values()],
         viser_port=request.app.state.viser_port,

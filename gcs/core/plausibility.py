@@ -1,0 +1,50 @@
+"""Which inputs an estimator may be given at all.
+
+One `inf` gyro reading used to leave a filter NaN for the rest of the flight, and one NaN
+roll made every JSON answer invalid. A sample with a non-finite value, or one no sensor can
+produce (faster than any MEMS gyro's full scale, harder than any accelerometer's, a field no
+magnetometer reads), is refused before it reaches an estimator, and counted by its reason.
+"""
+
+from __future__ import annotations
+
+import math
+
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+
+#: Largest magnitudes accepted: 4000 °/s (twice the usual 2000 °/s full scale), 160 g, 20 gauss
+#: (Earth's field is 0.25-0.65 gauss; a magnet on the sensor reaches a few).
+MAX_RATE = 70.0  # rad/s
+MAX_ACCEL = 1600.0  # m/s²
+MAX_FIELD = 20.0  # gauss
+MAX_SPEED = 1000.0  # m/s, GPS
+
+
+def _bounded(values: object, limit: float) -> bool:
+    """Every value finite and within ±limit (NaN fails every comparison)."""
+    return all(-limit <= v <= limit for v in values)  # type: ignore[attr-defined]
+
+
+def refusal(item: ImuSample | GpsSample | AttitudeSample) -> str | None:
+    """Why item must not reach an estimator ("imu:gyro" ...), or None when it may."""
+    if not math.isfinite(item.t) or item.t < 0:
+        return f"{type(item).__name__}:time"
+    if isinstance(item, ImuSample):
+        if not _bounded(item.gyro.tolist(), MAX_RATE):
+            return "imu:gyro"
+        if not _bounded(item.accel.tolist(), MAX_ACCEL):
+            return "imu:accel"
+        if item.mag is not None and not _bounded(item.mag.tolist(), MAX_FIELD):
+            return "imu:mag"
+        return None
+    if isinstance(item, GpsSample):
+        if not (-90 <= item.lat <= 90 and -180 <= item.lon <= 180 and -1e5 <= item.alt <= 1e6):
+            return "gps:position"
+        if not (0 <= item.ground_speed <= MAX_SPEED and math.isfinite(item.course)):
+            return "gps:speed"
+        if item.vel_ned is not None and not _bounded(item.vel_ned.tolist(), MAX_SPEED):
+            return "gps:velocity"
+        return None
+    if not _bounded((item.roll, item.pitch, item.yaw), 2 * math.pi):
+        return "attitude:angles"
+    return None
