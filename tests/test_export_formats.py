@@ -252,3 +252,35 @@ def test_estimate_reproduces_the_live_estimator(recorded):
     other = gcs.estimate(folder, estimator="dcm", gains={"kp_rp": 0.05})
     assert other.num_rows == again.num_rows
     assert not np.allclose(other["roll"].to_numpy(), again["roll"].to_numpy())
+
+
+def test_matlab_names_are_valid_identifiers():
+    from gcs.sessions.matfile import NAME_MAX, matlab_name
+
+    taken: set[str] = {"info"}
+    names = [matlab_name(n, taken) for n in ("dcm", "mag-test", "2nd imu", "info", "", "x" * 80, "x" * 80)]
+    assert names[:5] == ["dcm", "mag_test", "x2nd_imu", "info_2", "x"]
+    assert len(set(names)) == len(names) and all(len(n) <= NAME_MAX for n in names)
+    assert all(n[0].isalpha() and n.replace("_", "").isalnum() for n in names)
+
+
+def test_import_gcs_stays_cheap_and_pandas_is_optional(logs_dir, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    code = "import sys, gcs; print(gcs.__version__, 'pyarrow' in sys.modules, 'gcs.api' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out[1:] == ["False", "False"] and out[0]
+    # Without pandas (a pandas that cannot be imported shadows the installed one) the tables still
+    # work and a DataFrame asks for pandas by name.
+    (tmp_path / "pandas").mkdir()
+    (tmp_path / "pandas" / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'pandas'\")\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    log = str(logs_dir / "ardupilot-fragment.bin")
+    code = f"import gcs; s = gcs.open_session({log!r}); print(s.attitude.num_rows); s.attitude_df()"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert run.returncode == 1 and int(run.stdout) > 0, run.stderr
+    assert run.stderr.strip().splitlines()[-1] == (
+        "ImportError: gcs: DataFrames need pandas, which is not installed (pip install pandas)"
+    )

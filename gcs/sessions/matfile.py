@@ -50,6 +50,11 @@ def _column(values) -> np.ndarray:
     return np.asarray(values, dtype=np.float64).reshape(-1, 1)
 
 
+def _float(value: object) -> float:
+    """A number from an event line; NaN for anything else (a missing or damaged field)."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
+
+
 def _cell(values: list) -> np.ndarray:
     cell = np.empty((len(values), 1), dtype=object)
     for k, v in enumerate(values):
@@ -87,15 +92,15 @@ def mat_variables(contents: Contents) -> dict[str, object]:
         variables[var] = struct
     offset = contents.clock_offset()
     gains = [e for e in contents.event_list if e.get("kind") == "gain"]
-    wall = [float(e.get("wall_time", math.nan)) for e in gains]
+    wall = [_float(e.get("wall_time")) for e in gains]
     variables["gain_changes"] = {
         "wall_time": _column(wall),
         "t": _column([w - offset if offset is not None else math.nan for w in wall]),
         "estimator": _cell([e.get("estimator") for e in gains]),
         "gain": _cell([e.get("gain") for e in gains]),
         "client": _cell([e.get("client") for e in gains]),
-        "old": _column([float(e.get("old", math.nan)) for e in gains]),
-        "new": _column([float(e.get("new", math.nan)) for e in gains]),
+        "old": _column([_float(e.get("old")) for e in gains]),
+        "new": _column([_float(e.get("new")) for e in gains]),
     }
     pairs = np.empty((len(names), 2), dtype=object)
     for k, (source, var) in enumerate(names.items()):
