@@ -213,6 +213,14 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                     href,
                 )
                 assert pq.read_table(io.BytesIO(bytes(data))).num_rows == len(lines) - 1
+                # ... and the MAT and MCAP links (one per format of the export route) download those files.
+                for fmt, magic in (("mat", b"MATLAB 5.0 MAT-file"), ("mcap", b"\x89MCAP0\r\n")):
+                    href = await page.get_attribute(f"#sessions-table tr[data-session] a.export-{fmt}", "href")
+                    data = await page.evaluate(
+                        "(href) => fetch(href).then((r) => r.arrayBuffer()).then((b) => Array.from(new Uint8Array(b)))",
+                        href,
+                    )
+                    assert bytes(data).startswith(magic), (fmt, bytes(data[:20]))
 
                 # Logs from other tools in the recording folder are offered as sources too.
                 os.symlink(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")

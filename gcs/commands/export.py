@@ -1,5 +1,5 @@
-"""`gcs export`: attitude of every source of a session (or a log run through the estimators)
-as CSV or Parquet, in degrees."""
+"""`gcs export`: a session (or a log run through the estimators) as CSV or Parquet (attitude of
+every source, degrees), MAT (MATLAB/Octave structs) or MCAP (Foxglove Studio, PlotJuggler)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from gcs.commands.common import run_reporting_errors
-from gcs.sessions.export import FORMATS, attitude_table, write_table
+from gcs.sessions.export import FORMATS, UNITS, export
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,8 +20,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or f"{Path(args.session.rstrip('/')).stem}.{args.format}"
 
     def work() -> str:
-        table = attitude_table(args.session)
-        write_table(table, args.format, out)
-        return f"{out}: {table.num_rows} rows"
+        count = export(args.session, args.format, out)
+        return f"{out}: {count} {UNITS[args.format]}"
 
     return run_reporting_errors("export", out, work)

@@ -1,15 +1,24 @@
-"""Attitude of every source (references and estimators) as CSV or Parquet.
+"""A session (or a log run through the estimators) as a file people open directly.
 
-For a recorded session this is what the live estimators produced (the `attitude` table); for a
-log file (.tlog, .bin, .ulg) the estimators are run over it first. Columns: wall_time (UNIX s;
-empty for logs without host time), t (vehicle s), source, roll_deg, pitch_deg, yaw_deg: degrees,
-because people read these files; the session's own Parquet keeps radians.
+- csv, parquet: the attitude of every source. Columns: wall_time (UNIX s; empty for logs without
+  host time), t (vehicle s), source, roll_deg, pitch_deg, yaw_deg: degrees, because people read
+  these files; the session's own Parquet keeps radians.
+- mat: MATLAB/Octave, one struct per source with its errors against each reference, and the gain
+  changes (gcs.sessions.matfile).
+- mcap: Foxglove Studio / PlotJuggler: attitude per source, raw IMU, comparisons and events on
+  JSON channels (gcs.sessions.mcapfile).
+
+For a recorded session the attitude is what the live estimators produced (the `attitude` table);
+for a log file (.tlog, .bin, .ulg) the estimators are run over it first. The output is written to
+a temporary file beside it and renamed on success, so a failed run never clobbers a file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import secrets
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,26 +27,18 @@ import pyarrow.compute as pc
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
-from gcs.sessions import columnar, layout
+from gcs.sessions.contents import Contents, open_contents
+from gcs.sessions.matfile import write_mat
+from gcs.sessions.mcapfile import write_mcap
 from gcs.sessions.sources import ReplaySource, open_source
 
-FORMATS = ("csv", "parquet")
+FORMATS = ("csv", "parquet", "mat", "mcap")
+#: What `export` counts in its result, per format.
+UNITS = {"csv": "rows", "parquet": "rows", "mat": "attitude rows", "mcap": "messages"}
 
 
-def attitude_table(
-    path: str | os.PathLike, decode: Callable[[str | os.PathLike], ReplaySource] = open_source
-) -> pa.Table:
-    """The attitude table of a session, or of a log replayed through every estimator (degrees);
-    `decode` opens the log (a Workbench's cache, in a worker)."""
-    if layout.is_session(Path(path)):
-        table = columnar.read_table(Path(path), "attitude")
-    else:
-        source = decode(path)
-        rows: list[tuple] = []
-        source.replay(source.new_pipeline(), lambda points: rows.extend(columnar.attitude_rows(points, math.nan)))
-        table = pa.Table.from_pylist(
-            [dict(zip(columnar.ATTITUDE_SCHEMA.names, r)) for r in rows], schema=columnar.ATTITUDE_SCHEMA
-        )
+def degrees_table(table: pa.Table) -> pa.Table:
+    """An attitude table (radians) as exported: wall_time, t, source, roll/pitch/yaw_deg."""
     deg = 180.0 / math.pi
     return pa.table(
         {
@@ -49,8 +50,54 @@ def attitude_table(
     )
 
 
+def attitude_table(
+    path: str | os.PathLike, decode: Callable[[str | os.PathLike], ReplaySource] = open_source
+) -> pa.Table:
+    """The attitude table of a session, or of a log replayed through every estimator (degrees);
+    `decode` opens the log (a Workbench's cache, in a worker)."""
+    return degrees_table(open_contents(path, decode).attitude)
+
+
 def write_table(table: pa.Table, fmt: str, out: str | os.PathLike) -> None:
     if fmt == "csv":
         pcsv.write_csv(table, out)
     else:
         pq.write_table(table, out)
+
+
+def write_contents(contents: Contents, fmt: str, out: str | os.PathLike) -> int:
+    """Write `contents` in `fmt` to `out` (in place); returns what UNITS[fmt] counts."""
+    if fmt == "mat":
+        return write_mat(contents, out)
+    if fmt == "mcap":
+        return write_mcap(contents, out)
+    if fmt not in FORMATS:
+        raise ValueError(f"format {fmt!r}: use one of {', '.join(FORMATS)}")
+    table = degrees_table(contents.attitude)
+    write_table(table, fmt, out)
+    return table.num_rows
+
+
+def export(
+    path: str | os.PathLike,
+    fmt: str,
+    out: str | os.PathLike,
+    decode: Callable[[str | os.PathLike], ReplaySource] = open_source,
+) -> int:
+    """Export the session or log at `path` to `out` in `fmt`; returns what UNITS[fmt] counts.
+    InputError for bad input; `out` is replaced only when the whole file was written."""
+    contents = open_contents(path, decode)
+    target = Path(out)
+    # beside the output (same file system: the rename is atomic), created with the umask's mode
+    tmp = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    try:
+        count = write_contents(contents, fmt, tmp)
+        os.replace(tmp, target)
+    except OSError as exc:
+        if exc.filename == str(tmp):  # name the file the user asked for, not the temporary one
+            exc.filename = str(target)
+        raise
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+    return count

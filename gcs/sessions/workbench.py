@@ -13,7 +13,7 @@ import dataclasses
 import os
 from functools import cache, lru_cache
 
-from gcs.sessions.export import attitude_table, write_table
+from gcs.sessions.export import export
 from gcs.sessions.sources import ReplaySource, SourceKey, open_source, source_key
 from gcs.sessions.whatif import EstimatorRun, WhatIfView, run_estimator, what_if
 
@@ -75,7 +75,6 @@ def what_if_view(path: str | os.PathLike, estimator: str, gains: dict[str, float
 
 
 def export_file(path: str | os.PathLike, fmt: str, out: str | os.PathLike) -> int:
-    """Write the attitude table of `path` to `out` in `fmt`; returns the number of rows."""
-    table = attitude_table(path, workbench().source)
-    write_table(table, fmt, out)
-    return table.num_rows
+    """Export `path` to `out` in `fmt` (gcs.sessions.export), decoding through the workbench;
+    returns what export.UNITS[fmt] counts."""
+    return export(path, fmt, out, workbench().source)

@@ -214,6 +214,13 @@ async function recordingAction(path, body, done) {
 }
 
 // ---- sessions ------------------------------------------------------------------------------
+// the export route's formats (gcs.sessions.export.FORMATS): [format, link text, what opens it]
+const EXPORTS = [
+  ["csv", "CSV", "attitude of every source, degrees"],
+  ["parquet", "Parquet", "attitude of every source, degrees"],
+  ["mat", "MAT", "MATLAB/Octave: one struct per source, errors, gain changes"],
+  ["mcap", "MCAP", "Foxglove Studio, PlotJuggler: attitude, raw IMU, comparisons, events"],
+];
 async function refreshSessions() {
   const [s, l] = await Promise.all([call("GET", "/api/sessions"), call("GET", "/api/logs")]);
   if (!s.ok) { $("sessions-table").innerHTML = `<tr><td class="low">${html(s.message)}</td></tr>`; return; }
@@ -224,8 +231,7 @@ async function refreshSessions() {
     const q = encodeURIComponent(x.name);
     return `<tr data-session="${html(x.name)}"><td title="${html(x.name)}">${html(start)}${state ? ` <span class="hint">(${state})</span>` : ""}</td>`
       + `<td>${x.duration_s == null ? "–" : `${fmt(x.duration_s, 1)} s`}</td><td>${bytes(x.size_bytes)}</td><td>${html(x.vehicle || "–")}</td>`
-      + `<td><a class="export-csv" href="/api/sessions/${q}/export?format=csv" download>CSV</a> `
-      + `<a class="export-parquet" href="/api/sessions/${q}/export?format=parquet" download>Parquet</a></td></tr>`;
+      + `<td>${EXPORTS.map(([f, label, title]) => `<a class="export-${f}" href="/api/sessions/${q}/export?format=${f}" title="${title}" download>${label}</a>`).join(" ")}</td></tr>`;
   });
   $("sessions-table").innerHTML = `<tr><th>start</th><th>duration</th><th>size</th><th>vehicle</th><th>export</th></tr>`
     + (rows.join("") || `<tr><td colspan="5" class="hint">no recorded sessions yet</td></tr>`);

@@ -101,7 +101,7 @@ async def list_logs(station: StationDep) -> list[dict[str, Any]]:
 @router.get("/sessions/{name}/export", response_class=FileResponse)
 async def export(name: str, station: StationDep, format: str = "csv") -> FileResponse:
     if format not in FORMATS:
-        raise HTTPException(422, detail=f"format {format!r}: use {' or '.join(FORMATS)}")
+        raise HTTPException(422, detail=f"format {format!r}: use one of {', '.join(FORMATS)}")
     path = named_source(station, name)
     with tempfile.NamedTemporaryFile(suffix=f".{format}", delete=False) as tmp:
         out = Path(tmp.name)

@@ -1,0 +1,235 @@
+"""Everything a session (or a log run through the estimators) holds, as tables: what the MAT and
+MCAP exports write and what the notebook API (gcs.api) hands out.
+
+- `attitude`: every source's attitude (columnar.ATTITUDE_SCHEMA, radians): the session's own
+  table, or for a .tlog/.bin/.ulg the references it carries and every estimator run over it.
+- `comparison`: the session's comparison snapshots (columnar.COMPARISON_SCHEMA); empty for a log.
+- `events`: the session's events.jsonl as rows (EVENTS_SCHEMA); empty for a log.
+- `imu`: the raw IMU samples the estimators were fed (IMU_SCHEMA), decoded from the session's
+  tlog (or the log) by the replay source's InputTable.
+- `errors()`: whole-run RMS / max error of each estimator against each reference, from `attitude`.
+
+Two clocks (docs/design.md, "Time"): `t` is the vehicle clock (s since boot), `wall_time` the
+host's UNIX time. Events and comparison rows have only the wall clock; `clock_offset()` is the
+median wall_time − t of the attitude rows, which places them on the vehicle clock.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from gcs.core.attitude_errors import errors_against
+from gcs.core.estimators import registry
+from gcs.sessions import columnar, layout
+from gcs.sessions.sources import ReplaySource, open_source
+
+EVENTS_SCHEMA = pa.schema(
+    [
+        ("wall_time", pa.float64()),  # host UNIX time, s
+        ("kind", pa.string()),  # "gain", "param", "link", "note", "recording", ...
+        ("client", pa.string()),  # who caused it
+        ("estimator", pa.string()),  # gain changes: estimator, gain name, old and new value
+        ("gain", pa.string()),
+        ("old", pa.float64()),
+        ("new", pa.float64()),
+        ("text", pa.string()),  # notes
+        ("data", pa.string()),  # the whole event as its JSON line
+    ]
+)
+
+IMU_SCHEMA = pa.schema(
+    [
+        ("t", pa.float64()),  # vehicle time, s
+        ("source", pa.string()),  # which IMU (message type or log instance)
+        *((f"gyro_{a}", pa.float64()) for a in "xyz"),  # rad/s, body FRD
+        *((f"accel_{a}", pa.float64()) for a in "xyz"),  # m/s²
+        *((f"mag_{a}", pa.float64()) for a in "xyz"),  # gauss; NaN without a magnetometer
+    ]
+)
+
+ERRORS_SCHEMA = pa.schema(
+    [
+        ("estimator", pa.string()),
+        ("reference", pa.string()),
+        ("n", pa.int64()),  # reference samples scored
+        *((f"rms_{a}", pa.float64()) for a in ("roll", "pitch", "yaw")),  # degrees
+        *((f"max_{a}", pa.float64()) for a in ("roll", "pitch", "yaw")),
+    ]
+)
+
+Decode = Callable[[str | os.PathLike], ReplaySource]
+
+
+def read_events(folder: Path) -> list[dict]:
+    """A session's events.jsonl, one dict per line; an incomplete last line (a crash mid-write)
+    or a damaged one is skipped."""
+    path = folder / layout.EVENTS
+    if not path.exists():
+        return []
+    events = []
+    for line in path.read_text().splitlines():
+        try:
+            event = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(event, dict):
+            events.append(event)
+    return events
+
+
+def _number(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def events_table(events: list[dict]) -> pa.Table:
+    rows = [
+        {
+            "wall_time": _number(e.get("wall_time")),
+            "kind": str(e.get("kind", "")),
+            "client": None if e.get("client") is None else str(e["client"]),
+            "estimator": e.get("estimator") if e.get("kind") == "gain" else None,
+            "gain": e.get("gain") if e.get("kind") == "gain" else None,
+            "old": _number(e.get("old")) if e.get("kind") == "gain" else None,
+            "new": _number(e.get("new")) if e.get("kind") == "gain" else None,
+            "text": None if e.get("text") is None else str(e["text"]),
+            "data": json.dumps(e, default=str),
+        }
+        for e in events
+    ]
+    return pa.Table.from_pylist(rows, schema=EVENTS_SCHEMA)
+
+
+def replayed_attitude(source: ReplaySource) -> pa.Table:
+    """Every estimator run over the source, with its references, as the attitude table (no wall
+    time: NaN)."""
+    rows: list[tuple] = []
+    source.replay(source.new_pipeline(), lambda points: rows.extend(columnar.attitude_rows(points, math.nan)))
+    columns: list[tuple] = list(zip(*rows)) if rows else [() for _ in columnar.ATTITUDE_SCHEMA]
+    return pa.table(
+        [pa.array(c, type=f.type) for c, f in zip(columns, columnar.ATTITUDE_SCHEMA)], schema=columnar.ATTITUDE_SCHEMA
+    )
+
+
+def imu_table(source: ReplaySource) -> pa.Table:
+    imu = source.table.imu
+    names = np.array(source.table.names, dtype=object)
+    columns: dict[str, object] = {
+        "t": imu[:, 0],
+        "source": pa.array(names[source.table.imu_source.astype(np.int64)].tolist() if len(imu) else [], pa.string()),
+    }
+    for k, name in enumerate(IMU_SCHEMA.names[2:]):
+        columns[name] = imu[:, 1 + k]
+    return pa.table(columns, schema=IMU_SCHEMA)
+
+
+@dataclass
+class Contents:
+    """What one session or log holds; tables are built on first use and kept."""
+
+    path: Path
+    kind: str  # "session", "tlog", "dataflash", "ulog"
+    decode: Decode = field(default=open_source, repr=False)
+
+    @cached_property
+    def source(self) -> ReplaySource:
+        """The decoded source (the session's tlog, or the log): inputs, references, config."""
+        return self.decode(self.path)
+
+    @cached_property
+    def attitude(self) -> pa.Table:
+        if self.kind == "session":
+            return columnar.read_table(self.path, "attitude")
+        return replayed_attitude(self.source)
+
+    @cached_property
+    def comparison(self) -> pa.Table:
+        if self.kind == "session":
+            return columnar.read_table(self.path, "comparison")
+        return columnar.COMPARISON_SCHEMA.empty_table()
+
+    @cached_property
+    def event_list(self) -> list[dict]:
+        return read_events(self.path) if self.kind == "session" else []
+
+    @cached_property
+    def events(self) -> pa.Table:
+        return events_table(self.event_list)
+
+    @cached_property
+    def imu(self) -> pa.Table:
+        return imu_table(self.source)
+
+    @cached_property
+    def sources(self) -> list[str]:
+        """Source names in the attitude table, references first, then estimators (sorted)."""
+        names = set(pc.unique(self.attitude["source"]).to_pylist())
+        estimators = set(registry.names())
+        return sorted(names - estimators) + sorted(names & estimators)
+
+    def estimators(self) -> list[str]:
+        return [s for s in self.sources if s in registry.names()]
+
+    def references(self) -> list[str]:
+        return [s for s in self.sources if s not in registry.names()]
+
+    def series(self, source: str) -> npt.NDArray[np.float64]:
+        """N×5 array of one source: t (vehicle s), roll, pitch, yaw (rad), wall_time (UNIX s or NaN),
+        in time order."""
+        table = self.attitude.filter(pc.equal(self.attitude["source"], source))
+        data = np.column_stack(
+            [table[c].to_numpy(zero_copy_only=False) for c in ("t", "roll", "pitch", "yaw", "wall_time")]
+        ).reshape(-1, 5)
+        return data[np.argsort(data[:, 0], kind="stable")]
+
+    def errors_of(self, estimator: str, reference: str) -> npt.NDArray[np.float64]:
+        """M×4: estimator − reference at the reference's times (t s, roll, pitch, yaw error deg)."""
+        return errors_against(self.series(estimator)[:, :4], self.series(reference)[:, :4])
+
+    def errors(self) -> pa.Table:
+        """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
+        rows = []
+        for est in self.estimators():
+            for ref in self.references():
+                err = self.errors_of(est, ref)[:, 1:]
+                if not len(err):
+                    continue
+                rms, worst = np.sqrt(np.mean(err**2, axis=0)), np.max(np.abs(err), axis=0)
+                rows.append(
+                    {
+                        "estimator": est,
+                        "reference": ref,
+                        "n": len(err),
+                        **{f"rms_{a}": float(v) for a, v in zip(("roll", "pitch", "yaw"), rms)},
+                        **{f"max_{a}": float(v) for a, v in zip(("roll", "pitch", "yaw"), worst)},
+                    }
+                )
+        return pa.Table.from_pylist(rows, schema=ERRORS_SCHEMA)
+
+    def clock_offset(self) -> float | None:
+        """Median wall_time − t over the attitude rows that have both clocks (UNIX s at vehicle
+        t = 0), or None when there is no wall time (logs)."""
+        diff = pc.subtract(self.attitude["wall_time"], self.attitude["t"]).to_numpy(zero_copy_only=False)
+        diff = diff[np.isfinite(diff)]
+        return float(np.median(diff)) if len(diff) else None
+
+
+def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:
+    """The contents of a session folder, .tlog, .bin or .ulg; InputError names what is wrong."""
+    folder = Path(path)
+    if layout.is_session(folder):
+        return Contents(folder, "session", decode)
+    source = decode(path)  # raises InputError for anything that is not a readable log
+    contents = Contents(Path(path), source.kind, decode)
+    contents.__dict__["source"] = source  # fill the cached property: decoded once
+    return contents

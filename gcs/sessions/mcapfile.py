@@ -1,0 +1,237 @@
+"""A session as an MCAP file that Foxglove Studio and PlotJuggler open directly (no bridge).
+
+Every channel is JSON (`message_encoding="json"`) with a JSON Schema (`encoding="jsonschema"`,
+an object schema, as Foxglove requires). Topics:
+
+| topic | schema | one message per |
+|---|---|---|
+| `/attitude/<source>` | `gcs.Attitude` | attitude row of that source (t, wall_time, roll/pitch/yaw deg) |
+| `/imu/<imu>` | `gcs.Imu` | raw IMU sample fed to the estimators (gyro rad/s, accel m/s², mag gauss) |
+| `/comparison/<estimator>/<reference>` | `gcs.Comparison` | comparison snapshot row (RMS / max deg) |
+| `/events` | `foxglove.Log` | line of events.jsonl (the Log panel shows them; `event` holds the line) |
+
+Clocks. `log_time` is on the vehicle clock (ns since boot) for everything, so the file has one
+timeline: attitude and IMU use their vehicle time `t`; comparison rows and events, which have only
+the host's wall clock, are placed on it with the session's clock offset (median wall_time − t of
+the attitude rows), and fall back to the wall time itself when there is no offset. `publish_time`
+is the host wall time (UNIX ns) where one is known, else equal to `log_time`; every message also
+carries its raw times as fields. A `gcs` metadata record says so in the file.
+
+Non-finite numbers (NaN: a missing magnetometer, no wall time) are written as JSON null.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import os
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pyarrow.compute as pc
+from mcap.writer import Writer
+
+from gcs.sessions.contents import Contents
+
+NUMBER = {"type": "number"}
+OPTIONAL_NUMBER = {"type": ["number", "null"]}
+
+
+def _vector(unit: str, optional: bool = False) -> dict:
+    schema = {
+        "type": "object",
+        "description": unit,
+        "properties": {a: NUMBER for a in "xyz"},
+        "required": ["x", "y", "z"],
+    }
+    return {"oneOf": [schema, {"type": "null"}]} if optional else schema
+
+
+def _object(title: str, properties: dict[str, Any], required: list[str] | None = None) -> dict:
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "type": "object",
+        "properties": properties,
+        "required": list(properties) if required is None else required,
+    }
+
+
+ATTITUDE = _object(
+    "gcs.Attitude",
+    {
+        "t": {**NUMBER, "description": "vehicle time, s since boot"},
+        "wall_time": {**OPTIONAL_NUMBER, "description": "host UNIX time the point was produced, s"},
+        "roll_deg": NUMBER,
+        "pitch_deg": NUMBER,
+        "yaw_deg": NUMBER,
+    },
+)
+IMU = _object(
+    "gcs.Imu",
+    {
+        "t": {**NUMBER, "description": "vehicle time, s since boot"},
+        "gyro": _vector("rad/s, body FRD"),
+        "accel": _vector("m/s², body FRD"),
+        "mag": _vector("gauss, body FRD; null without a magnetometer", optional=True),
+    },
+)
+COMPARISON = _object(
+    "gcs.Comparison",
+    {
+        "wall_time": {**NUMBER, "description": "host UNIX time of the snapshot, s"},
+        "estimator": {"type": "string"},
+        "reference": {"type": "string"},
+        "n": {"type": "integer"},
+        **{f"{stat}_{axis}": OPTIONAL_NUMBER for stat in ("rms", "max") for axis in ("roll", "pitch", "yaw")},
+        "lag_s": OPTIONAL_NUMBER,
+        "imu_rate_hz": OPTIONAL_NUMBER,
+    },
+)
+TIME = {
+    "type": "object",
+    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}},
+    "required": ["sec", "nsec"],
+}
+LOG = _object(
+    "foxglove.Log",
+    {
+        "timestamp": {**TIME, "description": "host wall time of the event"},
+        "level": {"type": "integer", "description": "2 = INFO"},
+        "message": {"type": "string"},
+        "name": {"type": "string"},
+        "file": {"type": "string"},
+        "line": {"type": "integer", "minimum": 0},
+        "event": {"type": "object", "description": "the events.jsonl line"},
+    },
+)
+INFO = 2
+
+#: (log_time ns, publish_time ns, channel id, JSON bytes)
+Message = tuple[int, int, int, bytes]
+
+
+def _finite(value: Any) -> Any:
+    return value if not isinstance(value, float) or math.isfinite(value) else None
+
+
+def _ns(seconds: float) -> int:
+    return max(0, round(seconds * 1e9))
+
+
+def _xyz(row: np.ndarray, start: int) -> dict[str, float]:
+    return {"x": float(row[start]), "y": float(row[start + 1]), "z": float(row[start + 2])}
+
+
+class McapExport:
+    def __init__(self, contents: Contents) -> None:
+        self.contents = contents
+        self.offset = contents.clock_offset()
+
+    def _on_vehicle_clock(self, wall: float) -> float:
+        return wall if self.offset is None else wall - self.offset
+
+    def attitude(self, channel: int, source: str) -> Iterator[Message]:
+        for t, roll, pitch, yaw, wall in self.contents.series(source).tolist():
+            log = _ns(t)
+            data = {
+                "t": t,
+                "wall_time": _finite(wall),
+                "roll_deg": math.degrees(roll),
+                "pitch_deg": math.degrees(pitch),
+                "yaw_deg": math.degrees(yaw),
+            }
+            yield log, _ns(wall) if math.isfinite(wall) else log, channel, json.dumps(data).encode()
+
+    def imu(self, channel: int, rows: np.ndarray) -> Iterator[Message]:
+        for row in rows:
+            mag = None if np.isnan(row[7:10]).any() else _xyz(row, 7)
+            data = {"t": float(row[0]), "gyro": _xyz(row, 1), "accel": _xyz(row, 4), "mag": mag}
+            log = _ns(float(row[0]))
+            yield log, log, channel, json.dumps(data).encode()
+
+    def comparison(self, channel: int, rows: list[dict]) -> Iterator[Message]:
+        for row in rows:
+            wall = row["wall_time"]
+            yield (
+                _ns(self._on_vehicle_clock(wall)),
+                _ns(wall),
+                channel,
+                json.dumps({k: _finite(v) for k, v in row.items()}).encode(),
+            )
+
+    def events(self, channel: int) -> Iterator[Message]:
+        for event in self.contents.event_list:
+            wall = float(event.get("wall_time") or 0.0)
+            details = {k: v for k, v in event.items() if k not in ("wall_time", "host_time", "kind", "client")}
+            message = f"{event.get('kind', '?')} ({event.get('client', '?')}): " + ", ".join(
+                f"{k}={v}" for k, v in details.items()
+            )
+            stamp = _ns(wall)
+            data = {
+                "timestamp": {"sec": stamp // 1_000_000_000, "nsec": stamp % 1_000_000_000},
+                "level": INFO,
+                "message": message,
+                "name": f"gcs/{event.get('kind', '?')}",
+                "file": "",
+                "line": 0,
+                "event": event,
+            }
+            yield _ns(self._on_vehicle_clock(wall)), stamp, channel, json.dumps(data, default=str).encode()
+
+    def write(self, out: str | os.PathLike) -> dict[str, int]:
+        """Write the file; returns messages per topic."""
+        contents = self.contents
+        with open(out, "wb") as fh:
+            writer = Writer(fh)
+            writer.start(profile="", library="gcs")
+            schemas = {
+                s["title"]: writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode())
+                for s in (ATTITUDE, IMU, COMPARISON, LOG)
+            }
+            streams: list[Iterator[Message]] = []
+            counts: dict[str, int] = {}
+
+            def channel(topic: str, schema: str, count: int) -> int:
+                counts[topic] = count
+                return writer.register_channel(topic, "json", schemas[schema])
+
+            for source in contents.sources:
+                n = int(pc.sum(pc.equal(contents.attitude["source"], source)).as_py() or 0)
+                streams.append(self.attitude(channel(f"/attitude/{source}", "gcs.Attitude", n), source))
+            imu = contents.source.table
+            for code in np.unique(imu.imu_source).tolist():
+                rows = imu.imu[imu.imu_source == code]
+                topic = f"/imu/{imu.names[code]}"
+                streams.append(self.imu(channel(topic, "gcs.Imu", len(rows)), rows))
+            comparison = contents.comparison.to_pylist()
+            pairs: dict[tuple[str, str], list[dict]] = {}
+            for row in comparison:
+                pairs.setdefault((row["estimator"], row["reference"]), []).append(row)
+            for (est, ref), rows_of_pair in sorted(pairs.items()):
+                topic = f"/comparison/{est}/{ref}"
+                streams.append(self.comparison(channel(topic, "gcs.Comparison", len(rows_of_pair)), rows_of_pair))
+            streams.append(self.events(channel("/events", "foxglove.Log", len(contents.event_list))))
+            writer.add_metadata(
+                "gcs",
+                {
+                    "session": contents.path.name,
+                    "kind": contents.kind,
+                    "log_time": "vehicle clock, ns since boot; wall-clock-only records (comparison, events) "
+                    "are placed on it with clock_offset_s",
+                    "publish_time": "host UNIX time, ns, where known; else log_time",
+                    "clock_offset_s": "" if self.offset is None else repr(self.offset),
+                    "angles": "degrees, Z-Y-X; IMU in SI (rad/s, m/s²) and gauss, body FRD",
+                },
+            )
+            for sequence, (log, publish, chan, data) in enumerate(heapq.merge(*streams, key=lambda m: m[0])):
+                writer.add_message(chan, log_time=log, data=data, publish_time=publish, sequence=sequence)
+            writer.finish()
+        return counts
+
+
+def write_mcap(contents: Contents, out: str | os.PathLike) -> int:
+    """Write the MCAP file; returns the number of messages."""
+    return sum(McapExport(contents).write(out).values())
