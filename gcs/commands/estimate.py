@@ -21,6 +21,8 @@ import tempfile
 from collections.abc import Callable
 from typing import TextIO
 
+from tqdm import tqdm
+
 from gcs.core.estimation import run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
@@ -87,7 +89,8 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0) -> int:
     rows = 0
     deg = 57.29577951308232
     samples = read_samples(input_path, imu)
-    for sample, _ in run_estimator(estimator, samples):
+    shown = tqdm(samples, desc="estimate", unit=" samples", disable=not sys.stderr.isatty(), leave=True)
+    for sample, _ in run_estimator(estimator, shown):
         if isinstance(sample, ImuSample):
             q = estimator.quaternion
             roll, pitch, yaw = quat_to_euler(q)

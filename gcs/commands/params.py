@@ -12,9 +12,11 @@ import argparse
 import asyncio
 import sys
 
+from gcs.commands.common import progress_bar
 from gcs.commands.options import add_link_arguments, station_config
 from gcs.mavlink import param_files
 from gcs.mavlink.params import ParamError, format_value, type_name
+from gcs.runtime.params import Param, ParamClient
 from gcs.runtime.station import Station
 from gcs.runtime.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
 
@@ -85,7 +87,7 @@ async def _get(params, args, profile) -> int:
     found = (
         [await params.read(name) for name in args.names]
         if args.names
-        else list((await params.download(args.timeout)).values())
+        else list((await downloaded(params, args.timeout)).values())
     )
     for p in sorted(found, key=lambda p: p.name):
         print(f"{p.name:<16} {format_value(p.value):>14}  {type_name(p.type)}")
@@ -103,7 +105,7 @@ async def _set(params, args, profile) -> int:
 
 
 async def _save(params, args, profile) -> int:
-    table = await params.download(args.timeout)
+    table = await downloaded(params, args.timeout)
     path = param_files.save(args.file, params.values(), comment=f"{len(table)} parameters from {params.link.address}")
     print(f"saved {len(table)} parameters to {path}")
     return 0
@@ -111,7 +113,7 @@ async def _save(params, args, profile) -> int:
 
 async def _load(params, args, profile) -> int:
     wanted = param_files.load(args.file)
-    await params.download(args.timeout)
+    await downloaded(params, args.timeout)
     unknown = sorted(set(wanted) - set(params.table))
     if unknown:
         raise ParamError(f"{args.file}: not parameters of this vehicle: {', '.join(unknown)}; nothing written")
@@ -150,10 +152,24 @@ async def _load(params, args, profile) -> int:
 
 async def _diff(params, args, profile) -> int:
     wanted = param_files.load(args.file)
-    await params.download(args.timeout)
+    await downloaded(params, args.timeout)
     vehicle = {name: params.table[name].value for name in wanted if name in params.table}
     print(param_files.format_diff(param_files.diff(wanted, vehicle), args.file, "vehicle"))
     return 0
 
 
 ACTIONS = {"get": _get, "set": _set, "save": _save, "load": _load, "diff": _diff}
+
+
+async def downloaded(params: ParamClient, timeout: float) -> dict[str, Param]:
+    """params.download(timeout), with a progress bar of the parameters received so far."""
+    show = progress_bar("parameters")
+    task = asyncio.create_task(params.download(timeout))
+    while not task.done():
+        progress = params.progress()
+        if progress["state"] == "downloading" and progress.get("count"):
+            show(min(progress["received"], progress["count"] - 1), progress["count"])
+        await asyncio.wait({task}, timeout=0.2)
+    table = task.result()
+    show(len(table), max(len(table), 1))
+    return table
