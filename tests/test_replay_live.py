@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import numpy as np
 from conftest import free_port
 from live import running_sim, running_station, wait_for
 
 from gcs.core.estimation import GainChange
+from gcs.core.samples import ImuSample
 from gcs.runtime.replay import ReplaySession
 from gcs.sessions import columnar
 from gcs.sessions.sources import open_source
@@ -63,3 +65,29 @@ def test_replay_of_recorded_session_equals_live(tmp_path):
         if not (isinstance(item, GainChange) and item.estimator):
             other += pipeline.feed(item)
     assert np.max(np.abs(_as_array(other)[1] - live_values)) > 1e-6
+
+
+def test_a_gain_change_in_a_session_started_later_replays_where_it_happened(udp_port, tmp_path):
+    """ "Start recording" mid-flight: the session's input positions count from its own start."""
+
+    async def record():
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
+        ):
+            pipeline = station.estimation.pipeline
+            await wait_for(lambda: pipeline.imu_samples > 200, 60, "IMU samples")
+            await station.stop_recording("test")
+            await wait_for(lambda: pipeline.imu_samples > 400, 60, "IMU samples between sessions")
+            folder = Path(station.start_recording().folder)
+            await wait_for(lambda: pipeline.imu_samples > 600, 60, "IMU samples in the second session")
+            station.set_gain("dcm", "kp_rp", 0.8, "test")
+            applied_after = pipeline.latest["dcm"].t  # the last IMU sample the old gain saw
+            await wait_for(lambda: pipeline.imu_samples > 800, 60, "IMU samples after the change")
+            return folder, applied_after
+
+    folder, applied_after = asyncio.run(record())
+    inputs = list(open_source(folder).inputs())
+    (at,) = [k for k, item in enumerate(inputs) if isinstance(item, GainChange) and item.estimator == "dcm"]
+    before = [item for item in inputs[:at] if isinstance(item, ImuSample)]
+    assert before and before[-1].t == applied_after

@@ -11,6 +11,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.runtime.dropqueue import DropOldestQueue
 
 #: Vehicle time fields above this many µs are UNIX-epoch times (e.g. GPS_RAW_INT.time_usec on
@@ -100,6 +101,7 @@ class MessageBus:
         self._all: list[Subscription] = []
         self._by_type: dict[str, list[Subscription]] = {}
         self.published = 0
+        self.inputs_published = 0  # messages of the estimation's input types (a recording's input positions)
 
     def subscribe(self, name: str, types: Iterable[str] | None = None, maxlen: int = 10_000) -> Subscription:
         """A new subscriber for the given message types (None: every message)."""
@@ -123,6 +125,8 @@ class MessageBus:
 
     def publish(self, item: Message) -> None:
         self.published += 1
+        if item.type in INPUT_TYPES:
+            self.inputs_published += 1
         for sub in self._all:
             sub._offer(item)
         for sub in self._by_type.get(item.type, ()):

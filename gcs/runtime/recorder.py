@@ -125,6 +125,7 @@ class SessionRecorder:
         self.packets = {"received": 0, "sent": 0}
         self.params: dict[str, float] = {}
         self._sub: Subscription | None = None
+        self._input_base = 0  # bus input messages published before the session's first tlog record
         self._meta_dirty = False
         self._loop: asyncio.AbstractEventLoop | None = None
         station.link.packet_sent.connect(self._on_send)
@@ -167,6 +168,9 @@ class SessionRecorder:
         self.packets = {"received": 0, "sent": 0}
         if self._sub is None:
             self._sub = self.station.bus.subscribe("recorder", maxlen=200_000)
+        self._sub.drain()  # published before this session: not in its tlog
+        # Input positions of this session count from here, as its replay counts from the tlog's start.
+        self._input_base = self.station.bus.inputs_published
         self.station.events.record("recording", "recorder", event="start", folder=str(folder))
 
     def stop_recording(self, client: str = "recorder") -> dict | None:
@@ -287,7 +291,7 @@ class SessionRecorder:
             return
         line = event.as_dict()
         if event.kind == "gain" and self.station.estimation is not None:
-            line["input_index"] = self.station.estimation.messages_fed
+            line["input_index"] = max(0, self.station.estimation.messages_fed - self._input_base)
         self.session.writer.append(layout.EVENTS, (json.dumps(line, default=str) + "\n").encode())
 
     def _on_param(self, msg) -> None:
