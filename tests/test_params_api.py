@@ -16,7 +16,7 @@ TOKEN = "s3cret-token"
 
 
 async def _client(station, token):
-    app = create_app(station, token=token)
+    app = create_app(station, token=token, bound_host="0.0.0.0")  # reachable from other machines
     return app, httpx.AsyncClient(
         transport=httpx.ASGITransport(app=app, client=("10.0.0.7", 5000)), base_url="http://gcs"
     )
@@ -39,6 +39,8 @@ def test_tuning_over_rest_needs_the_token_when_not_local():
                     assert response.status_code == 401, response.text
                     assert "token" in response.json()["detail"]
                 assert getattr(app.state, "tuning", None) is None
+                read = await client.get("/api/tuning")  # a read never talks to the vehicle
+                assert read.status_code == 409 and "/api/params/download" in read.json()["detail"]
                 assert "PARAM_SET" not in sim.received and "PARAM_REQUEST_LIST" not in sim.received
                 assert sim.params.as_dict() == before
 

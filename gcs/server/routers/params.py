@@ -75,9 +75,15 @@ async def start_download(station: StationDep) -> dict:
     return {"download": "started" if started else "already running", "progress": station.params.progress()}
 
 
-@router.get("/api/tuning")
-async def get_tuning(session: TuningDep) -> TuningSnapshot:
-    return session.snapshot()
+@router.get("/api/tuning", responses={409: {"description": "the parameter table is not downloaded yet"}})
+async def get_tuning(station: StationDep) -> TuningSnapshot:
+    """The tuning session. A read never talks to the vehicle: without the whole parameter table
+    (POST /api/params/download first, which needs the token) this is a 409, not a download."""
+    if not station.params.complete:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, detail="parameters not downloaded yet: POST /api/params/download first"
+        )
+    return (await tuning_session(station)).snapshot()
 
 
 @router.put(

@@ -203,7 +203,7 @@ async def unload_replay(station: StationDep) -> dict[str, bool]:
     return {"ok": True}
 
 
-@router.post("/whatif")
+@router.post("/whatif", dependencies=[TOKEN])
 async def whatif(body: WhatIfRequest, station: StationDep) -> WhatIfView:
     """Old and new output of one estimator over a whole session with other gains, and the RMS table."""
     path = named_source(station, body.source)
