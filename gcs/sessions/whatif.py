@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.core.attitude_errors import errors_against
+from gcs.core.comparison import errors_against
 from gcs.core.estimation import GainChange
 from gcs.core.estimators import registry
 from gcs.core.rotation import quat_to_euler
