@@ -7,20 +7,28 @@ INPUT is a .tlog or a CSV (see gcs.logs.readers). OUT has the header
 t,qw,qx,qy,qz,roll,pitch,yaw and one row per IMU sample; q rotates sensor/body → NED and the
 angles are Z-Y-X in degrees. Before the filter is valid the row holds its current (initial)
 attitude. Bad input or arguments: one line on stderr naming what and where, exit code 2.
+On success one line on stderr says which magnetic declination the yaw is referred to and where it
+came from: the vehicle's COMPASS_DEC / EKF2_MAG_DECL in the .tlog, else the World Magnetic Model
+at the first 3D GPS fix, else none (magnetic north); a `--gain declination=...` wins over both.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+from collections.abc import Iterator
 
-from gcs.core.estimation import run_estimator
+from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
 from gcs.logs.logfile import InputError
-from gcs.logs.readers import read_samples
+from gcs.logs.readers import Sample, read_samples
+from gcs.logs.tlog import read_tlog
+from gcs.mavlink.sampling import MessageInputs
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
 
@@ -71,13 +79,36 @@ def _parse_gains(items: list[str]) -> dict[str, float]:
     return gains
 
 
-def estimate(input_path: str, estimator, out) -> int:
-    """Feed every sample of input_path to estimator, writing one row per IMU sample to out."""
+class Declination:
+    """What the yaw is referred to: the last declination applied and where it came from."""
 
+    def __init__(self, pinned: bool, value: float) -> None:
+        self.source = "--gain declination" if pinned else "none (magnetic north)" if value == 0.0 else "the preset"
+        self.value = value
+
+
+def _inputs(path: str, declination: Declination) -> Iterator[Sample]:
+    if os.path.splitext(path)[1].lower() == ".tlog" and os.path.isfile(path):
+        inputs = MessageInputs()
+        for item in read_tlog(path, inputs):
+            if isinstance(item, GainChange) and item.name == "declination" and not declination.source.startswith("--"):
+                declination.value = item.value
+                declination.source = inputs.declination_source
+            yield item
+    else:
+        yield from read_samples(path)
+
+
+def estimate(input_path: str, estimator, out, declination: Declination | None = None) -> int:
+    """Feed every sample of input_path to estimator, writing one row per IMU sample to out. The
+    declination in a .tlog is applied unless the estimator's `declination` gain was pinned."""
+
+    declination = declination or Declination(False, estimator.gains["declination"])
+    pinned = ("declination",) if declination.source.startswith("--") else ()
     out.write(OUT_HEADER + "\n")
     rows = 0
     deg = 57.29577951308232
-    for sample, _ in run_estimator(estimator, read_samples(input_path)):
+    for sample, _ in run_estimator(estimator, _inputs(input_path, declination), pinned=pinned):
         if isinstance(sample, ImuSample):
             q = estimator.quaternion
             roll, pitch, yaw = quat_to_euler(q)
@@ -103,18 +134,24 @@ def run(args: argparse.Namespace) -> int:
         if not value:
             return _fail(f"{flag} is required (or use --list)")
     try:
-        estimator = registry.create(args.estimator, args.preset, **_parse_gains(args.gain))
+        gains = _parse_gains(args.gain)
+        estimator = registry.create(args.estimator, args.preset, **gains)
     except (KeyError, GainError, ValueError) as exc:
         return _fail(str(exc).strip("'\""))
+    declination = Declination("declination" in gains, estimator.gains["declination"])
     try:
         with open(args.out, "w", newline="") as out:
-            rows = estimate(args.input, estimator, out)
+            rows = estimate(args.input, estimator, out, declination)
     except InputError as exc:
         return _fail(str(exc))
     except OSError as exc:
         return _fail(f"{exc.filename or args.out}: {exc.strerror}")
     if rows == 0:
         return _fail(f"{args.input}: no IMU samples")
+    print(
+        f"gcs estimate: declination {math.degrees(declination.value):.2f} deg from {declination.source}",
+        file=sys.stderr,
+    )
     return 0
 
 

@@ -1,5 +1,6 @@
 """Every log format → one time-ordered stream of samples (`ImuSample`, `GpsSample`,
-`AttitudeSample`) on the vehicle clock: `read_samples(path)` picks the reader by suffix.
+`AttitudeSample`) on the vehicle clock, plus, from a .tlog, the declination `GainChange` the
+live pipeline would make: `read_samples(path)` picks the reader by suffix.
 Bad input raises `InputError` naming the file, the line or byte offset, the field and the value.
 """
 
@@ -8,6 +9,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable
 
+from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 from gcs.logs.csvfile import read_csv
 from gcs.logs.dataflash import DataflashLog
@@ -17,7 +19,7 @@ from gcs.logs.ulog import UlogFile
 
 __all__ = ["READERS", "InputError", "Sample", "read_samples"]
 
-Sample = ImuSample | GpsSample | AttitudeSample
+Sample = ImuSample | GpsSample | AttitudeSample | GainChange
 
 READERS: dict[str, Callable[[str], Iterable[Sample]]] = {
     ".csv": read_csv,
