@@ -157,6 +157,8 @@ class EstimationSnapshot:
     declination_rad: float | None
     estimators: dict[str, EstimatorSnapshot]
     latest: dict[str, SourceAttitude]
+    #: where declination_rad came from: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none"
+    declination_source: str = "none"
 
 
 @dataclass(frozen=True, slots=True)
