@@ -4,9 +4,9 @@ References (`AttitudeSample.source`): `onboard` (ATTITUDE), `ahrs2` (AHRS2) and 
 vehicle clock (AHRS2 and SIMSTATE take the time of their scheduler slot, see
 `gcs.mavlink.sampling.VehicleClock`). A reference is scored once the estimator has passed its time, against
 the estimator slerped between the two bracketing outputs: estimator − reference roll, pitch and yaw, each
-wrapped to ±180°, in degrees (`errors_at`, the one error function: the live `Comparison`, what-if and the
-report all use it), RMS and max |error| over the last `window` seconds and over the session. `lag()` is the
-delay of the estimator behind ATTITUDE (positive: the estimator is late). Below
+wrapped to ±180°, in degrees (`attitude_error`, the one error function: the live `Comparison`, and what-if
+and the report through `errors_at`, all use it), RMS and max |error| over the last `window` seconds and
+over the session. `lag()` is the delay of the estimator behind ATTITUDE (positive: the estimator is late). Below
 `RATE_TOLERANCE` × `min_imu_rate` (50 Hz) of raw IMU the comparison is marked unreliable. Memory is bounded,
 and the numbers depend only on the samples fed, so a live run and an offline recomputation over the same
 samples agree exactly.
@@ -22,7 +22,7 @@ from typing import TypedDict
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.rotation import quat_to_euler, wrap_pi_array
+from gcs.core.rotation import euler_quat, quat_to_euler, wrap_pi, wrap_pi_array
 from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
@@ -32,74 +32,61 @@ DEG = 180.0 / math.pi
 RATE_TOLERANCE = 0.95
 
 
-def euler_array_to_quat(euler: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """N×3 Z-Y-X Euler angles (roll, pitch, yaw rad) → N×4 quaternions (w, x, y, z)."""
-    hr, hp, hy = (euler[:, k] / 2 for k in range(3))
-    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
-    return np.column_stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
+Quat = tuple[float, float, float, float]
+
+
+def attitude_error(q0: Quat, q1: Quat, u: float, roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
+    """The one error function: the estimator slerped from output q0 (u = 0) to q1 (u = 1) along
+    the shorter arc, as Z-Y-X angles, minus the reference (rad), each difference wrapped to ±180°;
+    degrees (roll, pitch, yaw). Slerp is wrap-safe where interpolating angles is not (roll near
+    ±180° upside down, yaw through ±180°). Plain floats: the same numbers live and whole-run."""
+    w0, x0, y0, z0 = q0
+    w1, x1, y1, z1 = q1
+    d = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
+    if d < 0.0:
+        w1, x1, y1, z1, d = -w1, -x1, -y1, -z1, -d
+    if d > 0.9995:  # nearly equal: normalised linear interpolation is exact to rounding
+        a, b = 1.0 - u, u
+    else:
+        theta = math.acos(min(d, 1.0))
+        s = math.sin(theta)
+        a, b = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
+    w, x, y, z = a * w0 + b * w1, a * x0 + b * x1, a * y0 + b * y1, a * z0 + b * z1
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    est_roll, est_pitch, est_yaw = quat_to_euler((w, x, y, z))
+    return (
+        math.degrees(wrap_pi(est_roll - roll)),
+        math.degrees(wrap_pi(est_pitch - pitch)),
+        math.degrees(wrap_pi(est_yaw - yaw)),
     )
-
-
-def quat_array_to_euler(q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """N×4 quaternions → N×3 Z-Y-X Euler angles (roll, pitch, yaw rad), as `quat_to_euler`."""
-    w, x, y, z = (q[:, k] for k in range(4))
-    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2 * (w * y - x * z), -1.0, 1.0))
-    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.column_stack([roll, pitch, yaw])
-
-
-def slerp_array(
-    q0: npt.NDArray[np.float64], q1: npt.NDArray[np.float64], u: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """Row-wise `quat_slerp`: from q0 (u = 0) to q1 (u = 1) along the shorter arc."""
-    d = np.sum(q0 * q1, axis=1)
-    q1 = np.where((d < 0.0)[:, None], -q1, q1)
-    d = np.abs(d)
-    theta = np.arccos(np.clip(d, -1.0, 1.0))
-    s = np.sin(theta)
-    near = d > 0.9995  # nearly equal: normalised linear interpolation is exact to rounding
-    safe = np.where(near, 1.0, s)
-    a = np.where(near, 1.0 - u, np.sin((1.0 - u) * theta) / safe)
-    b = np.where(near, u, np.sin(u * theta) / safe)
-    q = a[:, None] * q0 + b[:, None] * q1
-    out: npt.NDArray[np.float64] = q / np.linalg.norm(q, axis=1)[:, None]
-    return out
 
 
 def errors_at(
     t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
-    """Estimator − reference at the reference times inside the estimator's time span, degrees, as an
-    M×4 array (t s, roll, pitch, yaw error). The one error function of the project.
+    """`attitude_error` at every reference time inside the estimator's time span, as an M×4 array
+    (t s, roll, pitch, yaw error deg), for whole runs (what-if, the report).
 
     t (N, increasing) and q (N×4, w x y z) are the estimator's outputs; reference is M×4 (t s, roll,
-    pitch, yaw rad). The estimator is slerped between the two outputs around each reference time
-    (wrap-safe at roll ±180° and yaw ±180°, unlike interpolating angles), turned into Z-Y-X angles,
-    and each difference is wrapped to ±180°. A reference before the first or after the last output
-    is not scored.
+    pitch, yaw rad). Each reference is scored against the two outputs around it, as the live
+    `Comparison` does; one before the first or after the last output is not scored.
     """
     if len(t) < 1 or len(reference) == 0:
         return np.empty((0, 4))
     inside = (reference[:, 0] >= t[0]) & (reference[:, 0] <= t[-1])
     ref = reference[inside]
-    if len(t) == 1:
-        est = np.repeat(q[:1], len(ref), axis=0)
-    else:
-        hi = np.clip(np.searchsorted(t, ref[:, 0], side="right"), 1, len(t) - 1)
-        lo = hi - 1
-        span = t[hi] - t[lo]
-        u = np.clip((ref[:, 0] - t[lo]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
-        est = slerp_array(q[lo], q[hi], u)
+    hi = np.minimum(np.searchsorted(t, ref[:, 0], side="right"), len(t) - 1)
+    lo = np.maximum(hi - 1, 0)
+    times, quats = t.tolist(), q.tolist()
     out = np.empty((len(ref), 4))
-    out[:, 0] = ref[:, 0]
-    out[:, 1:] = np.degrees(wrap_pi_array(quat_array_to_euler(est) - ref[:, 1:4]))
+    for k, (rt, roll, pitch, yaw) in enumerate(ref.tolist()):
+        i, j = int(lo[k]), int(hi[k])
+        if rt >= times[-1]:
+            i = j = len(times) - 1
+        span = times[j] - times[i]
+        u = (rt - times[i]) / span if span > 0 else 0.0
+        out[k] = (rt, *attitude_error(quats[i], quats[j], u, roll, pitch, yaw))
     return out
 
 
@@ -108,7 +95,8 @@ def errors_against(series: npt.NDArray[np.float64], reference: npt.NDArray[np.fl
     and what-if, which keep angles: the angles are turned back into quaternions first."""
     if len(series) < 1:
         return np.empty((0, 4))
-    return errors_at(series[:, 0], euler_array_to_quat(series[:, 1:4]), reference)
+    quats = np.array([euler_quat(r, p, y) for r, p, y in series[:, 1:4].tolist()])
+    return errors_at(series[:, 0], quats, reference)
 
 
 class ErrorSummary(TypedDict):
@@ -187,7 +175,7 @@ class Comparison:
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate
-        self.estimates: deque[tuple[float, npt.NDArray[np.float64]]] = deque()
+        self.estimates: deque[tuple[float, Quat]] = deque()
         self.pending: deque[AttitudeSample] = deque()
         self.onboard: deque[tuple[float, float, float]] = deque()  # (t, roll, pitch) for the lag search
         self.est_euler: deque[tuple[float, float, float]] = deque()
@@ -202,7 +190,8 @@ class Comparison:
             self.est_euler.clear()
         if self.estimates and t == self.estimates[-1][0]:
             return
-        self.estimates.append((t, np.array(q, dtype=float)))
+        w, x, y, z = (float(c) for c in q)
+        self.estimates.append((t, (w, x, y, z)))
         roll, pitch, _ = quat_to_euler(q)
         self.est_euler.append((t, roll, pitch))
         for buf in (self.estimates, self.est_euler):
@@ -220,29 +209,23 @@ class Comparison:
                 self.pending.popleft()
                 self.dropped += 1
 
-    def _bracket(self, t: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
-        """The outputs around t (times, quaternions), or None before the first."""
+    def _score(self, ref: AttitudeSample) -> None:
         est = self.estimates
-        if not est or t < est[0][0]:
-            return None
+        if not est or ref.t < est[0][0]:
+            self.dropped += 1
+            return
         lo, hi = 0, len(est) - 1
-        if t >= est[hi][0]:
-            return np.array([est[hi][0]]), est[hi][1][None, :]
+        if ref.t >= est[hi][0]:
+            lo = hi
         while hi - lo > 1:  # binary search for est[lo].t <= t < est[hi].t
             mid = (lo + hi) // 2
-            if est[mid][0] <= t:
+            if est[mid][0] <= ref.t:
                 lo = mid
             else:
                 hi = mid
-        return np.array([est[lo][0], est[hi][0]]), np.array([est[lo][1], est[hi][1]])
-
-    def _score(self, ref: AttitudeSample) -> None:
-        bracket = self._bracket(ref.t)
-        if bracket is None:
-            self.dropped += 1
-            return
-        row = errors_at(*bracket, np.array([[ref.t, ref.roll, ref.pitch, ref.yaw]]))
-        err = (float(row[0, 1]), float(row[0, 2]), float(row[0, 3]))
+        (t0, q0), (t1, q1) = est[lo], est[hi]
+        u = (ref.t - t0) / (t1 - t0) if t1 > t0 else 0.0
+        err = attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
         self.stats.setdefault(ref.source, _Stats(self.window)).add(ref.t, err)
         if ref.source == "onboard":
             self.onboard.append((ref.t, ref.roll, ref.pitch))
