@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from gcs.core.estimation import EstimationInput
 from gcs.logs.logfile import InputError
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.mavlink.sampling import IMU_TYPES, MessageInputs
+from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import read_tlog_records
 
 
@@ -42,4 +42,5 @@ def read_tlog(path: str, inputs: MessageInputs | None = None) -> Iterator[Estima
         if usec & 3 == 3:
             continue
         for msg in decoder.feed(packet, final=True):
-            yield from inputs.feed(msg, (usec & ~3) / 1e6)
+            if msg.get_type() in INPUT_TYPES:  # what the live estimation subscribes to, no more
+                yield from inputs.feed(msg, (usec & ~3) / 1e6)

@@ -131,7 +131,7 @@ _BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
 #: Messages without a time field that ArduPilot sends *before* the first timestamped message of
 #: their scheduler slot (ap_message order: MSG_AHRS 1, MSG_AHRS2 2, MSG_ATTITUDE 3, ...): they take
 #: the time of the next timestamped message. Measured on a SITL recording: docs/estimators/comparison.md
-LEADING_MESSAGES = frozenset({"AHRS2", "AHRS3"})
+LEADING_MESSAGES = frozenset({"AHRS2"})
 
 
 class VehicleClock:
@@ -140,7 +140,8 @@ class VehicleClock:
     Timestamped messages are those with `time_boot_ms`, plus RAW_IMU / HIGHRES_IMU `time_usec`.
     A message without a timestamp takes the time of its own scheduler slot: SIMSTATE (sent after
     the slot's ATTITUDE and RAW_IMU) the time of the most recent timestamped message from the same
-    system, AHRS2 / AHRS3 (`LEADING_MESSAGES`, sent before the slot's ATTITUDE) that of the next one.
+    system, AHRS2 (`LEADING_MESSAGES`, sent before the slot's ATTITUDE) that of the next one. (AHRS3,
+    a third estimator on old firmware, is not a reference and not taken.)
     """
 
     def __init__(self) -> None:
