@@ -55,6 +55,9 @@ def test_dashboard_in_chromium(udp_port, artifacts_dir):
     assert report["attitude_delivery"] >= 0.95, report
     assert report["slider_latency_s"] < 1.0, report
     assert report["pose_view_colours"] > 20, report
+    # the lag's sign is explained on the page without hovering, and the declination's source shown
+    assert "lag +20 ms = estimator 20 ms behind onboard" in report["status_note"], report["status_note"]
+    assert "from vehicle COMPASS_DEC" in report["status_note"], report["status_note"]
 
 
 async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
@@ -75,6 +78,12 @@ async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
                 await page.wait_for_function(
                     "window.gcsStats && (gcsStats.received.onboard || 0) > 20", polling=POLL_MS, timeout=30_000
                 )
+                await page.wait_for_function(
+                    "document.querySelector('#streams').innerText.includes('vehicle COMPASS_DEC')",
+                    polling=POLL_MS,
+                    timeout=30_000,
+                )
+                report["status_note"] = await page.inner_text("#streams .note")
                 report.update(await attitude_delivery(station, page))
                 report["server_feed"] = [c.snapshot() for c in server.hub.clients.values()]
                 report["slider_latency_s"] = await slider_latency(page)

@@ -3,9 +3,10 @@
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from gcs.core.comparison import Comparison
+from gcs.core.comparison import Comparison, errors_against, errors_at
 from gcs.core.estimation import compare_stream
 from gcs.core.estimators import registry
 from gcs.core.rotation import euler_to_quat
@@ -77,14 +78,57 @@ def test_reliability_flag():
     c = Comparison()
     feed(c, duration=5.0, rate=24.8, ref_rate=24.8)
     s = c.summary()
-    assert s["reliable"] is False and s["reason"].startswith("raw IMU at 24.8 Hz < 50 Hz")
+    assert s["reliable"] is False and s["reason"].startswith("raw IMU at 24.8 Hz, below the 50 Hz needed")
+
+
+@pytest.mark.parametrize("rate", [50.0, 49.0])
+def test_the_requested_rate_is_reliable(rate):
+    """50 Hz requested and 50 Hz measured (or 49 Hz: a lost message and clock rounding) is reliable."""
+    c = Comparison()
+    feed(c, duration=12.0, rate=rate, ref_rate=rate / 2)
+    s = c.summary()
+    assert s["reliable"] is True and s["reason"] == ""
+    c = Comparison()
+    feed(c, duration=12.0, rate=40.0, ref_rate=20.0)  # one ArduPilot group rate step below: not reliable
+    assert c.summary()["reliable"] is False
+
+
+def roll_near_180(t):
+    return D(179.5) * (1 if int(t * 4) % 2 == 0 else -1)  # flips between +179.5° and −179.5°
+
+
+def test_roll_near_180_scores_the_same_everywhere():
+    """Upside down, roll flipping across ±180°: the estimator equals the reference, so every error
+    is ≈0 in the live Comparison, in what-if / report's whole-run errors_against, and in errors_at."""
+    times = [k / 100.0 for k in range(1000)]
+    euler = [(roll_near_180(t), D(3), D(-179.9) if k % 2 else D(179.9)) for k, t in enumerate(times)]
+    live = Comparison()
+    refs = []
+    for k, t in enumerate(times):
+        if k % 4 == 0:
+            live.add_reference(AttitudeSample(t, *euler[k], "truth"))
+            refs.append((t, *euler[k]))
+        live.add_estimate(t, euler_to_quat(*euler[k]))
+    live_rms = live.summary()["references"]["truth"]["session"]["rms"]
+    series = np.array([(t, *e) for t, e in zip(times, euler)])
+    whole = errors_against(series, np.array(refs))
+    quats = np.array([euler_to_quat(*e) for e in euler])
+    at = errors_at(np.array(times), quats, np.array(refs))
+    assert live_rms == pytest.approx([0.0, 0.0, 0.0], abs=1e-6)
+    for err in (whole, at):
+        assert len(err) == len(refs)
+        assert np.sqrt(np.mean(err[:, 1:] ** 2, axis=0)) == pytest.approx([0.0, 0.0, 0.0], abs=1e-6)
+    # between the flips the slerped estimator stays upside down: no 180° error at a reference time
+    # that falls between an output at +179.5° and one at −179.5°
+    mid = errors_at(np.array([0.0, 1.0]), quats[[0, 25]], np.array([[0.5, D(180.0), D(3), D(179.9)]]))
+    assert np.abs(mid[0, 1:]) == pytest.approx([0.0, 0.0, 0.0], abs=0.2)
 
 
 def test_vtol_at_4_hz_is_unreliable():
     est = registry.create("dcm")
     s = compare_stream(read_samples(str(LOGS / "arduplane-sitl-vtol.tlog")), est).summary()
     assert s["reliable"] is False
-    assert "raw IMU at 4.2 Hz < 50 Hz" in s["reason"]
+    assert "raw IMU at 4.2 Hz, below the 50 Hz needed" in s["reason"]
 
 
 def test_live_numbers_equal_offline_recomputation():

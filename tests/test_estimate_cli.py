@@ -184,3 +184,25 @@ def test_through_the_gcs_command(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert read_out(tmp_path / "o.csv")[0] == HEADER
+
+
+def test_tlog_declination_is_applied_and_reported(tmp_path):
+    """The hop tlog holds no COMPASS_DEC: `gcs estimate` refers its yaw to the WMM at the SITL home
+    (12.69° at Canberra), says so on stderr, and a --gain declination wins over it; the same live
+    and offline (the pipeline's MessageInputs)."""
+    hop = LOGS / "arducopter-sitl-hop.tlog"
+    runs = {}
+    for label, extra in (("wmm", []), ("pinned", ["--gain", "declination=0"])):
+        out = tmp_path / f"{label}.csv"
+        proc = subprocess.run(
+            [sys.executable, "-m", "gcs", "estimate", str(hop), "-e", "ekf", "-o", str(out), *extra],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert proc.returncode == 0, proc.stderr
+        runs[label] = (proc.stderr.strip(), read_out(out)[1])
+    assert runs["wmm"][0] == "gcs estimate: declination 12.69 deg from WMM at -35.3633,149.1652"
+    assert runs["pinned"][0] == "gcs estimate: declination 0.00 deg from --gain declination"
+    yaw_wmm, yaw_mag = float(runs["wmm"][1][-1][7]), float(runs["pinned"][1][-1][7])
+    assert math.degrees(math.remainder(math.radians(yaw_wmm - yaw_mag), 2 * math.pi)) == pytest.approx(12.69, abs=1.0)

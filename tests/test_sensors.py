@@ -7,6 +7,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from gcs.core import samples
+from gcs.core.samples import AttitudeSample
 from gcs.logs import dataflash, ulog
 from gcs.mavlink import sampling
 
@@ -90,11 +91,36 @@ def test_vehicle_clock_stamps_untimed_messages_per_system():
     assert clock.observe(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0))) is None
     assert clock.observe(wire(mavlink.MAVLink_attitude_message(14204, 0, 0, 0, 0, 0, 0))) == pytest.approx(14.204)
     assert clock.observe(wire(mavlink.MAVLink_attitude_message(99000, 0, 0, 0, 0, 0, 0), system=2)) == 99.0
-    ahrs2 = wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0))
-    t = clock.observe(ahrs2)
-    assert t == pytest.approx(14.204)
-    ref = sampling.attitude_from_message(ahrs2, t)
-    assert ref.source == "ahrs2" and (ref.roll, ref.pitch, ref.yaw) == pytest.approx((0.1, 0.2, 0.3))
+    assert clock.observe(wire(mavlink.MAVLink_simstate_message(0.1, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0))) == 14.204
+
+
+def _raw_imu(t_us):
+    return wire(mavlink.MAVLink_raw_imu_message(t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400))
+
+
+def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
+    """ArduPilot sends a slot as AHRS2, ATTITUDE, RAW_IMU, SIMSTATE (ap_message order): AHRS2 gets
+    the time of the ATTITUDE after it, SIMSTATE that of the messages before it, not the previous slot's."""
+    sampler = sampling.MessageSampler()
+    out = []
+    for t_ms in (1000, 1040):
+        out += sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
+        out += sampler.feed(wire(mavlink.MAVLink_attitude_message(t_ms, 0.11, 0.2, 0.3, 0, 0, 0)))
+        out += sampler.feed(_raw_imu(t_ms * 1000 + 344))
+        out += sampler.feed(wire(mavlink.MAVLink_simstate_message(0.12, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0)))
+    refs = [(s.source, s.t) for s in out if isinstance(s, AttitudeSample)]
+    # the first AHRS2 and ATTITUDE came before any IMU message (the vehicle is not chosen yet)
+    assert refs == [
+        ("truth", pytest.approx(1.000344)),
+        ("ahrs2", 1.04),
+        ("onboard", 1.04),
+        ("truth", pytest.approx(1.040344)),
+    ]
+    # without ATTITUDE in the stream, an AHRS2 followed by another keeps the previous time
+    held = sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
+    assert held == []
+    released = sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
+    assert [(s.source, s.t) for s in released] == [("ahrs2", pytest.approx(1.040344))]
 
 
 class Record:  # DataFlash rows are plain attribute bags with a type name; this is one, not a mock of one

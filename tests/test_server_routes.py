@@ -73,7 +73,9 @@ def canned_snapshot() -> StationSnapshot:
             0,
             {"onboard": error_stats(400, 0.5), "ahrs2": error_stats(400, 0.7), "truth": error_stats(400, 0.3)},
         ),
-        "kf": EstimatorSnapshot("telemetry", {}, {}, False, "raw IMU at 20.0 Hz < 50 Hz", 20.0, None, 0, {}),
+        "kf": EstimatorSnapshot(
+            "telemetry", {}, {}, False, "raw IMU at 20.0 Hz, below the 50 Hz needed", 20.0, None, 0, {}
+        ),
     }
     latest = {
         "onboard": SourceAttitude("onboard", "reference", 12.5, 1.0, -2.0, 90.0),

@@ -10,26 +10,32 @@ filter is valid the row holds its current (initial) attitude. Bad input or argum
 stderr naming what and where, exit code 2, and no OUT (OUT is written beside itself and renamed
 when complete, so a failed run never leaves a partial file nor clobbers an existing one). A log
 damaged part-way is estimated up to the damage, with one line on stderr saying where.
+On success one line on stderr says which magnetic declination the yaw is referred to and where it
+came from: the vehicle's COMPASS_DEC / EKF2_MAG_DECL in the .tlog, else the World Magnetic Model
+at the first 3D GPS fix, else none (magnetic north); a `--gain declination=...` wins over both.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from typing import TextIO
 
 from tqdm import tqdm
 
-from gcs.core.estimation import run_estimator
+from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
 from gcs.logs.logfile import InputError, LogFile
-from gcs.logs.readers import read_samples
+from gcs.logs.readers import Sample, read_samples
+from gcs.logs.tlog import read_tlog
+from gcs.mavlink.sampling import MessageInputs
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
 
@@ -81,16 +87,40 @@ def _parse_gains(items: list[str]) -> dict[str, float]:
     return gains
 
 
-def estimate(input_path: str, estimator, out: TextIO, imu: int = 0) -> int:
-    """Feed every sample of input_path (IMU instance imu) to estimator, writing one row per IMU
-    sample to out; afterwards one stderr line per damage or note the log reader reported."""
+class Declination:
+    """What the yaw is referred to: the last declination applied and where it came from."""
 
+    def __init__(self, pinned: bool, value: float) -> None:
+        self.source = "--gain declination" if pinned else "none (magnetic north)" if value == 0.0 else "the preset"
+        self.value = value
+
+
+def _tlog_inputs(path: str, imu: int, declination: Declination) -> Iterator[Sample | GainChange]:
+    """A .tlog's inputs, noting the declination change the log's parameters (or WMM) give."""
+    inputs = MessageInputs()
+    for item in read_tlog(path, imu, inputs):
+        if isinstance(item, GainChange) and item.name == "declination" and not declination.source.startswith("--"):
+            declination.value = item.value
+            declination.source = inputs.declination_source
+        yield item
+
+
+def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination: Declination | None = None) -> int:
+    """Feed every sample of input_path (IMU instance imu) to estimator, writing one row per IMU
+    sample to out; afterwards one stderr line per damage or note the log reader reported. The
+    declination in a .tlog is applied unless the estimator's `declination` gain was pinned."""
+
+    declination = declination or Declination(False, estimator.gains["declination"])
+    pinned = ("declination",) if declination.source.startswith("--") else ()
     out.write(OUT_HEADER + "\n")
     rows = 0
     deg = 57.29577951308232
-    samples = read_samples(input_path, imu)
+    is_tlog = os.path.splitext(input_path)[1].lower() == ".tlog" and os.path.isfile(input_path)
+    samples: Iterable[Sample | GainChange] = (
+        _tlog_inputs(input_path, imu, declination) if is_tlog else read_samples(input_path, imu)
+    )
     shown = tqdm(samples, desc="estimate", unit=" samples", disable=not sys.stderr.isatty(), leave=True)
-    for sample, _ in run_estimator(estimator, shown):
+    for sample, _ in run_estimator(estimator, shown, pinned=pinned):
         if isinstance(sample, ImuSample):
             q = estimator.quaternion
             roll, pitch, yaw = quat_to_euler(q)
@@ -149,19 +179,25 @@ def run(args: argparse.Namespace) -> int:
         if not value:
             return _fail(f"{flag} is required (or use --list)")
     try:
-        estimator = registry.create(args.estimator, args.preset, **_parse_gains(args.gain))
+        gains = _parse_gains(args.gain)
+        estimator = registry.create(args.estimator, args.preset, **gains)
     except (KeyError, GainError, ValueError) as exc:
         return _fail(str(exc).strip("'\""))
     if args.imu < 0:
         return _fail(f"--imu {args.imu}: an IMU instance is 0 or more")
+    declination = Declination("declination" in gains, estimator.gains["declination"])
     try:
-        rows = write_atomically(args.out, lambda out: estimate(args.input, estimator, out, args.imu))
+        rows = write_atomically(args.out, lambda out: estimate(args.input, estimator, out, args.imu, declination))
     except InputError as exc:
         return _fail(str(exc))
     except OSError as exc:
         return _fail(f"{exc.filename or args.out}: {exc.strerror}")
     if rows == 0:
         return _fail(f"{args.input}: no IMU samples")
+    print(
+        f"gcs estimate: declination {math.degrees(declination.value):.2f} deg from {declination.source}",
+        file=sys.stderr,
+    )
     return 0
 
 

@@ -35,7 +35,8 @@ scripts:
 faults (--fault NAME=VALUE, repeatable):
   sensor errors, see gcs.sim.sensors.SensorFaults: gyro_noise rad/s, gyro_bias rad/s,
     gyro_bias_walk rad/s/sqrt(s), accel_noise m/s2, vibration m/s2, vibration_freq Hz,
-    mag_noise gauss, mag_hard_iron X,Y,Z gauss, declination rad, inclination rad,
+    mag_noise gauss, mag_hard_iron X,Y,Z gauss, declination rad (default: the World
+    Magnetic Model's at home), inclination rad,
     field_strength gauss, baro_noise Pa, gps_pos_noise m, gps_vel_noise m/s
   perfect=1                 all sensor errors zero (then other --fault values apply)
   param_drop=FRACTION       drop that fraction of PARAM_VALUE packets
@@ -57,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="vehicle clock rate vs. wall clock (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed; same seed, same bytes (default 0)")
     parser.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
+    parser.add_argument(
+        "--no-declination-param",
+        action="store_true",
+        help="the vehicle has no COMPASS_DEC / EKF2_MAG_DECL parameter (the ground station must use the WMM)",
+    )
     parser.add_argument(
         "--fault",
         action="append",
@@ -118,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         sysid=args.sysid,
         param_drop=drop,
         param_clamp=clamp,
+        publish_declination=not args.no_declination_param,
     )
 
     def serving() -> None:

@@ -1,13 +1,15 @@
 """Live comparison of one ground-side estimator with the reference attitudes.
 
 References (`AttitudeSample.source`): `onboard` (ATTITUDE), `ahrs2` (AHRS2) and `truth` (SIMSTATE), on the
-vehicle clock (AHRS2 and SIMSTATE take the time of the previous timestamped message, see
+vehicle clock (AHRS2 and SIMSTATE take the time of their scheduler slot, see
 `gcs.mavlink.sampling.VehicleClock`). A reference is scored once the estimator has passed its time, against
-the estimator slerped between the two bracketing outputs: estimator − reference roll, pitch and wrapped yaw
-in degrees, RMS and max |error| over the last `window` seconds and over the session. `lag()` is the delay
-that best aligns roll and pitch with ATTITUDE. Below `min_imu_rate` (50 Hz) of raw IMU the comparison is
-marked unreliable. Memory is bounded, and the numbers depend only on the samples fed, so a live run and an
-offline recomputation over the same samples agree exactly.
+the estimator slerped between the two bracketing outputs: estimator − reference roll, pitch and yaw, each
+wrapped to ±180°, in degrees (`attitude_error`, the one error function: the live `Comparison`, and what-if
+and the report through `errors_at`, all use it), RMS and max |error| over the last `window` seconds and
+over the session. `lag()` is the delay of the estimator behind ATTITUDE (positive: the estimator is late). Below
+`RATE_TOLERANCE` × `min_imu_rate` (50 Hz) of raw IMU the comparison is marked unreliable. Memory is bounded,
+and the numbers depend only on the samples fed, so a live run and an offline recomputation over the same
+samples agree exactly.
 Time alignment, lag, why 50 Hz: docs/estimators/comparison.md
 """
 
@@ -20,10 +22,81 @@ from typing import TypedDict
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.rotation import quat_slerp, quat_to_euler, wrap_pi, wrap_pi_array
+from gcs.core.rotation import euler_quat, quat_to_euler, wrap_pi, wrap_pi_array
 from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
+#: A measured rate this close to the requested one counts as the requested one: over a 10 s window
+#: one late or lost message (plus clock rounding) reads 50 Hz as ~49.9 Hz; 0.95 still flags a stream
+#: really running slower (one group rate step below, 40 Hz, or heavy loss).
+RATE_TOLERANCE = 0.95
+
+
+Quat = tuple[float, float, float, float]
+
+
+def attitude_error(q0: Quat, q1: Quat, u: float, roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
+    """The one error function: the estimator slerped from output q0 (u = 0) to q1 (u = 1) along
+    the shorter arc, as Z-Y-X angles, minus the reference (rad), each difference wrapped to ±180°;
+    degrees (roll, pitch, yaw). Slerp is wrap-safe where interpolating angles is not (roll near
+    ±180° upside down, yaw through ±180°). Plain floats: the same numbers live and whole-run."""
+    w0, x0, y0, z0 = q0
+    w1, x1, y1, z1 = q1
+    d = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
+    if d < 0.0:
+        w1, x1, y1, z1, d = -w1, -x1, -y1, -z1, -d
+    if d > 0.9995:  # nearly equal: normalised linear interpolation is exact to rounding
+        a, b = 1.0 - u, u
+    else:
+        theta = math.acos(min(d, 1.0))
+        s = math.sin(theta)
+        a, b = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
+    w, x, y, z = a * w0 + b * w1, a * x0 + b * x1, a * y0 + b * y1, a * z0 + b * z1
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    est_roll, est_pitch, est_yaw = quat_to_euler((w, x, y, z))
+    return (
+        math.degrees(wrap_pi(est_roll - roll)),
+        math.degrees(wrap_pi(est_pitch - pitch)),
+        math.degrees(wrap_pi(est_yaw - yaw)),
+    )
+
+
+def errors_at(
+    t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """`attitude_error` at every reference time inside the estimator's time span, as an M×4 array
+    (t s, roll, pitch, yaw error deg), for whole runs (what-if, the report).
+
+    t (N, increasing) and q (N×4, w x y z) are the estimator's outputs; reference is M×4 (t s, roll,
+    pitch, yaw rad). Each reference is scored against the two outputs around it, as the live
+    `Comparison` does; one before the first or after the last output is not scored.
+    """
+    if len(t) < 1 or len(reference) == 0:
+        return np.empty((0, 4))
+    inside = (reference[:, 0] >= t[0]) & (reference[:, 0] <= t[-1])
+    ref = reference[inside]
+    hi = np.minimum(np.searchsorted(t, ref[:, 0], side="right"), len(t) - 1)
+    lo = np.maximum(hi - 1, 0)
+    times, quats = t.tolist(), q.tolist()
+    out = np.empty((len(ref), 4))
+    for k, (rt, roll, pitch, yaw) in enumerate(ref.tolist()):
+        i, j = int(lo[k]), int(hi[k])
+        if rt >= times[-1]:
+            i = j = len(times) - 1
+        span = times[j] - times[i]
+        u = (rt - times[i]) / span if span > 0 else 0.0
+        out[k] = (rt, *attitude_error(quats[i], quats[j], u, roll, pitch, yaw))
+    return out
+
+
+def errors_against(series: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """`errors_at` for an estimator given as an N×4 array (t s, roll, pitch, yaw rad), for reports
+    and what-if, which keep angles: the angles are turned back into quaternions first."""
+    if len(series) < 1:
+        return np.empty((0, 4))
+    quats = np.array([euler_quat(r, p, y) for r, p, y in series[:, 1:4].tolist()])
+    return errors_at(series[:, 0], quats, reference)
 
 
 class ErrorSummary(TypedDict):
@@ -102,7 +175,7 @@ class Comparison:
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate
-        self.estimates: deque[tuple[float, npt.NDArray[np.float64]]] = deque()
+        self.estimates: deque[tuple[float, Quat]] = deque()
         self.pending: deque[AttitudeSample] = deque()
         self.onboard: deque[tuple[float, float, float]] = deque()  # (t, roll, pitch) for the lag search
         self.est_euler: deque[tuple[float, float, float]] = deque()
@@ -117,7 +190,8 @@ class Comparison:
             self.est_euler.clear()
         if self.estimates and t == self.estimates[-1][0]:
             return
-        self.estimates.append((t, np.array(q, dtype=float)))
+        w, x, y, z = (float(c) for c in q)
+        self.estimates.append((t, (w, x, y, z)))
         roll, pitch, _ = quat_to_euler(q)
         self.est_euler.append((t, roll, pitch))
         for buf in (self.estimates, self.est_euler):
@@ -135,29 +209,23 @@ class Comparison:
                 self.pending.popleft()
                 self.dropped += 1
 
-    def _estimate_at(self, t: float) -> npt.NDArray[np.float64] | None:
+    def _score(self, ref: AttitudeSample) -> None:
         est = self.estimates
-        if not est or t < est[0][0]:
-            return None
+        if not est or ref.t < est[0][0]:
+            self.dropped += 1
+            return
         lo, hi = 0, len(est) - 1
-        if t >= est[hi][0]:
-            return est[hi][1]
+        if ref.t >= est[hi][0]:
+            lo = hi
         while hi - lo > 1:  # binary search for est[lo].t <= t < est[hi].t
             mid = (lo + hi) // 2
-            if est[mid][0] <= t:
+            if est[mid][0] <= ref.t:
                 lo = mid
             else:
                 hi = mid
         (t0, q0), (t1, q1) = est[lo], est[hi]
-        return quat_slerp(q0, q1, (t - t0) / (t1 - t0))
-
-    def _score(self, ref: AttitudeSample) -> None:
-        q = self._estimate_at(ref.t)
-        if q is None:
-            self.dropped += 1
-            return
-        roll, pitch, yaw = quat_to_euler(q)
-        err = (wrap_pi(roll - ref.roll) * DEG, wrap_pi(pitch - ref.pitch) * DEG, wrap_pi(yaw - ref.yaw) * DEG)
+        u = (ref.t - t0) / (t1 - t0) if t1 > t0 else 0.0
+        err = attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
         self.stats.setdefault(ref.source, _Stats(self.window)).add(ref.t, err)
         if ref.source == "onboard":
             self.onboard.append((ref.t, ref.roll, ref.pitch))
@@ -173,7 +241,9 @@ class Comparison:
         return (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
 
     def lag(self) -> float | None:
-        """Best-aligning delay (s) of the estimator behind ATTITUDE, or None without overlap."""
+        """How late the estimator is behind ATTITUDE, s: the shift L for which the estimator at t + L
+        best matches ATTITUDE at t (roll and pitch). Positive: the estimator is behind (late);
+        negative: ahead. None without overlap."""
         if len(self.onboard) < 10 or len(self.est_euler) < 2:
             return None
         est = np.array(self.est_euler)
@@ -196,10 +266,10 @@ class Comparison:
 
     def reliability(self) -> tuple[bool, str]:
         rate = self.imu_rate()
-        if rate < self.min_imu_rate:
+        if rate < RATE_TOLERANCE * self.min_imu_rate:
             return False, (
-                f"raw IMU at {rate:.1f} Hz < {self.min_imu_rate:g} Hz: a ground-side estimator cannot follow "
-                f"the vehicle's motion; request RAW_IMU at 50 Hz or more"
+                f"raw IMU at {rate:.1f} Hz, below the {self.min_imu_rate:g} Hz needed: a ground-side estimator "
+                f"cannot follow the vehicle's motion; request RAW_IMU at {self.min_imu_rate:g} Hz or more"
             )
         return True, ""
 

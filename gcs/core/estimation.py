@@ -207,11 +207,11 @@ def run_estimator(
 
 
 def compare_stream(
-    samples: Iterable[ImuSample | GpsSample | AttitudeSample],
+    samples: Iterable[EstimationInput],
     estimator: AttitudeEstimator,
     comparison: Comparison | None = None,
 ) -> Comparison:
-    """Run estimator over a sample stream (IMU, GPS, references in arrival order) and compare.
+    """Run estimator over a sample stream (IMU, GPS, references, gain changes in arrival order) and compare.
 
     The same calls the live pipeline makes, so its result equals the live numbers.
     """

@@ -1,6 +1,7 @@
 """Every log format → one time-ordered stream of samples (`ImuSample`, `GpsSample`,
-`AttitudeSample`) on the vehicle clock: `read_samples(path, imu)` picks the reader by suffix;
-`imu` is the IMU instance to use (0: the first).
+`AttitudeSample`) on the vehicle clock, plus, from a .tlog, the declination `GainChange` the
+live pipeline would make: `read_samples(path, imu)` picks the reader by suffix; `imu` is the
+IMU instance to use (0: the first).
 Bad input raises `InputError` naming the file, the line or byte offset, the field and the value.
 """
 
@@ -9,6 +10,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable
 
+from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 from gcs.logs.csvfile import read_csv
 from gcs.logs.dataflash import DataflashLog
@@ -18,7 +20,7 @@ from gcs.logs.ulog import UlogFile
 
 __all__ = ["READERS", "InputError", "Sample", "read_samples"]
 
-Sample = ImuSample | GpsSample | AttitudeSample
+Sample = ImuSample | GpsSample | AttitudeSample | GainChange
 
 READERS: dict[str, Callable[[str, int], Iterable[Sample]]] = {
     ".csv": read_csv,

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.core.estimation import EstimationInput
 from gcs.logs.logfile import InputError
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.mavlink.sampling import IMU_TYPES, MessageSampler
+from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import read_tlog_records
 
 #: IMU instance → message type (ArduPilot sends its first IMU as RAW_IMU, the others scaled).
@@ -38,17 +38,19 @@ def _imu_stream(path: str, imu: int) -> tuple[str, int]:
     )
 
 
-def read_tlog(path: str, imu: int = 0) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
-    """Samples of one vehicle in arrival order: IMU instance `imu` (see `_imu_stream`),
-    GPS from GPS_RAW_INT, references from ATTITUDE, AHRS2 and SIMSTATE. Packets the ground
-    station sent (link bits 3 in the timestamp) are skipped."""
+def read_tlog(path: str, imu: int = 0, inputs: MessageInputs | None = None) -> Iterator[EstimationInput]:
+    """Inputs of one vehicle in arrival order, made as the live pipeline makes them: IMU instance
+    `imu` (see `_imu_stream`), GPS from GPS_RAW_INT, references from ATTITUDE, AHRS2 and
+    SIMSTATE, and a declination `GainChange` from the COMPASS_DEC / EKF2_MAG_DECL the log holds
+    (else the World Magnetic Model's at the first 3D fix; `inputs.declination_source` says
+    which). Packets the ground station sent (link bits 3 in the timestamp) are skipped."""
     imu_type, system = _imu_stream(path, imu)
-    sampler = MessageSampler(imu_type, system)
+    if inputs is None:
+        inputs = MessageInputs(imu_type, system)
     decoder = MavlinkDecoder()
     for usec, packet in read_tlog_records(path):
         if usec & 3 == 3:
             continue
         for msg in decoder.feed(packet, final=True):
-            sample = sampler.feed(msg)
-            if sample is not None:
-                yield sample
+            if msg.get_type() in INPUT_TYPES:  # what the live estimation subscribes to, no more
+                yield from inputs.feed(msg, (usec & ~3) / 1e6)

@@ -9,6 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from gcs.core.declination import WMM_EPOCH, decimal_year, wmm_declination
 from gcs.core.estimation import EstimationInput, GainChange
 from gcs.core.samples import (
     AttitudeSample,
@@ -127,24 +128,39 @@ REFERENCE_MESSAGES = {"ATTITUDE": "onboard", "AHRS2": "ahrs2", "SIMSTATE": "trut
 _BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
 
 
+#: Messages without a time field that ArduPilot sends *before* the first timestamped message of
+#: their scheduler slot (ap_message order: MSG_AHRS 1, MSG_AHRS2 2, MSG_ATTITUDE 3, ...): they take
+#: the time of the next timestamped message. Measured on a SITL recording: docs/estimators/comparison.md
+LEADING_MESSAGES = frozenset({"AHRS2"})
+
+
 class VehicleClock:
     """The latest vehicle time (s since boot) seen from each system, for messages without one.
 
     Timestamped messages are those with `time_boot_ms`, plus RAW_IMU / HIGHRES_IMU `time_usec`.
-    A message without a timestamp (AHRS2, SIMSTATE) is given the vehicle time of the most recent
-    timestamped message from the same system that arrived before it; see gcs.core.comparison.
+    A message without a timestamp takes the time of its own scheduler slot: SIMSTATE (sent after
+    the slot's ATTITUDE and RAW_IMU) the time of the most recent timestamped message from the same
+    system, AHRS2 (`LEADING_MESSAGES`, sent before the slot's ATTITUDE) that of the next one. (AHRS3,
+    a third estimator on old firmware, is not a reference and not taken.)
     """
 
     def __init__(self) -> None:
         self.latest: dict[int, float] = {}
 
-    def observe(self, msg: MAVLinkMessage) -> float | None:
-        """Update from msg and return the vehicle time to assign to it (None: nothing seen yet)."""
-        system = msg.get_srcSystem()
+    def time_of(self, msg: MAVLinkMessage) -> float | None:
+        """The vehicle time msg carries itself, or None."""
         if hasattr(msg, "time_boot_ms"):
-            self.latest[system] = ms_to_s(msg.time_boot_ms)
-        elif msg.get_type() in _BOOT_USEC_MESSAGES:
-            self.latest[system] = usec_to_s(msg.time_usec)
+            return ms_to_s(msg.time_boot_ms)
+        if msg.get_type() in _BOOT_USEC_MESSAGES:
+            return usec_to_s(msg.time_usec)
+        return None
+
+    def observe(self, msg: MAVLinkMessage) -> float | None:
+        """Update from msg and return the latest vehicle time of its system (None: nothing seen yet)."""
+        system = msg.get_srcSystem()
+        t = self.time_of(msg)
+        if t is not None:
+            self.latest[system] = t
         return self.latest.get(system)
 
 
@@ -183,21 +199,44 @@ class MessageSampler:
         self.system = system
         self.clock = VehicleClock()
         self._secondary_since: dict[str, float] = {}
+        self._leading: MAVLinkMessage | None = None  # an AHRS2 waiting for its slot's time
 
-    def feed(self, msg: MAVLinkMessage) -> ImuSample | GpsSample | AttitudeSample | None:
+    def feed(self, msg: MAVLinkMessage) -> list[ImuSample | GpsSample | AttitudeSample]:
+        """The samples msg completes, in order: usually none or one; an AHRS2 held for its slot's
+        time comes out just before the sample of the timestamped message that follows it."""
         kind = msg.get_type()
         if kind == "BAD_DATA" or kind.startswith("UNKNOWN"):
-            return None
+            return []
         system = msg.get_srcSystem()
         if self.system is None:
             if kind not in IMU_TYPES:
-                return None
+                return []
             self.system = system
         if system != self.system:
-            return None
+            return []
+        out: list[ImuSample | GpsSample | AttitudeSample] = []
+        own_time = self.clock.time_of(msg)
+        if self._leading is not None and (own_time is not None or kind in LEADING_MESSAGES):
+            # the slot's first timestamped message gives its time; a second AHRS2 before any
+            # timestamped message (no ATTITUDE streamed) leaves the first with the previous time
+            held, self._leading = self._leading, None
+            held_t = own_time if own_time is not None else self.clock.latest.get(system)
+            if held_t is not None:
+                sample = attitude_from_message(held, held_t)
+                if sample is not None:
+                    out.append(sample)
         now = self.clock.observe(msg)
+        if kind in LEADING_MESSAGES:
+            self._leading = msg
+            return out
         if now is None:
-            return None
+            return out
+        current = self._sample(msg, kind, now)
+        if current is not None:
+            out.append(current)
+        return out
+
+    def _sample(self, msg: MAVLinkMessage, kind: str, now: float) -> ImuSample | GpsSample | AttitudeSample | None:
         if kind in IMU_TYPES:
             return _IMU_CONVERTERS[kind](msg) if self._is_imu_stream(kind, now) else None
         if kind == "GPS_RAW_INT":
@@ -228,25 +267,91 @@ DECLINATION_PARAMS: dict[str, Callable[[float], float]] = {
 INPUT_TYPES = frozenset({*IMU_TYPES, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTATE", "PARAM_VALUE"})
 
 
+#: GPS_RAW_INT fix_type from which the position is good enough for the World Magnetic Model (3D).
+WMM_MIN_FIX = 3
+#: The vehicle clock going back by more than this (s) is a reboot.
+REBOOT_CLOCK_JUMP = 1.0
+#: A GPS_RAW_INT time_usec above this (2015-01-01 in µs) is UNIX time, not time since boot.
+UNIX_USEC_MIN = 1_420_070_400_000_000
+
+
 class MessageInputs:
     """One vehicle's messages → estimation inputs: its samples (`MessageSampler`) and a
-    `GainChange` of every estimator's declination when the vehicle reports a new one."""
+    `GainChange` of every estimator's declination when it becomes known or changes.
+
+    The declination is the vehicle's own (COMPASS_DEC rad / EKF2_MAG_DECL deg, from any
+    PARAM_VALUE) when it has sent one; until then the World Magnetic Model's at the first 3D GPS
+    fix (`gcs.core.declination`), dated by `wall_time` (the tlog record time, so a live run and a
+    replay of its recording agree), else by GPS time when it is UNIX time, else the model's
+    epoch. A vehicle value of exactly 0 is the firmware default (ArduPilot's COMPASS_DEC before
+    its first GPS lock) and counts as unset: the WMM value wins over it. `declination_source`
+    says which: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none".
+    `gps_fix` turns True at the first 3D fix (the station then asks for the parameters again:
+    ArduPilot sets COMPASS_DEC only after GPS lock).
+    """
 
     def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
         self.sampler = MessageSampler(imu_type, system)
         self.declination: float | None = None
+        self.declination_source = "none"
+        self.vehicle_declination: float | None = None  # the vehicle's own, non-zero value
+        self.wmm: tuple[float, str] | None = None  # (declination, source) at the first 3D fix
+        self.gps_fix = False
 
-    def feed(self, msg: MAVLinkMessage) -> EstimationInput | None:
+    def feed(self, msg: MAVLinkMessage, wall_time: float | None = None) -> list[EstimationInput]:
+        """The inputs msg gives, in order; `wall_time`: its host UNIX time as the tlog stores it (s)."""
         if msg.get_type() == "PARAM_VALUE":
-            return self._declination(msg)
-        return self.sampler.feed(msg)
+            change = self._vehicle_declination(msg)
+            return [] if change is None else [change]
+        clock = self.sampler.clock.latest
+        before = clock.get(self.sampler.system) if self.sampler.system is not None else None
+        out: list[EstimationInput] = list(self.sampler.feed(msg))
+        after = clock.get(self.sampler.system) if self.sampler.system is not None else None
+        if before is not None and after is not None and after < before - REBOOT_CLOCK_JUMP:
+            self.gps_fix = False  # a reboot: the next 3D fix is a new GPS lock
+        if msg.get_type() == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
+            change = self._wmm_declination(msg, wall_time)
+            if change is not None:
+                out.append(change)
+        return out
 
-    def _declination(self, msg: MAVLinkMessage) -> GainChange | None:
-        to_rad = DECLINATION_PARAMS.get(param_name(msg))
-        if to_rad is None:
-            return None
-        value = to_rad(msg.param_value)
-        if not -math.pi <= value <= math.pi or value == self.declination:
+    def _set(self, value: float, source: str) -> GainChange | None:
+        self.declination_source = source
+        if value == self.declination:
             return None
         self.declination = value
         return GainChange(None, "declination", value)
+
+    def _vehicle_declination(self, msg: MAVLinkMessage) -> GainChange | None:
+        if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:
+            return None
+        name = param_name(msg)
+        to_rad = DECLINATION_PARAMS.get(name)
+        if to_rad is None:
+            return None
+        value = to_rad(msg.param_value)
+        if not -math.pi <= value <= math.pi:
+            return None
+        if value == 0.0:  # the firmware default: not set yet (ArduPilot sets it after GPS lock)
+            self.vehicle_declination = None
+            if self.wmm is not None:
+                return self._set(*self.wmm)
+            return self._set(0.0, f"vehicle {name} = 0 (unset)")
+        self.vehicle_declination = value
+        return self._set(value, f"vehicle {name}")
+
+    def _wmm_declination(self, msg: MAVLinkMessage, wall_time: float | None) -> GainChange | None:
+        if self.gps_fix or int(msg.fix_type) < WMM_MIN_FIX or (msg.lat == 0 and msg.lon == 0):
+            return None
+        self.gps_fix = True
+        if wall_time is not None:
+            year = decimal_year(wall_time)
+        elif msg.time_usec > UNIX_USEC_MIN:
+            year = decimal_year(usec_to_s(msg.time_usec))
+        else:
+            year = WMM_EPOCH
+        lat, lon = degE7_to_deg(msg.lat), degE7_to_deg(msg.lon)
+        self.wmm = (wmm_declination(lat, lon, mm_to_m(msg.alt), year), f"WMM at {lat:.4f},{lon:.4f}")
+        if self.vehicle_declination is not None:  # the vehicle's own value wins
+            return None
+        return self._set(*self.wmm)

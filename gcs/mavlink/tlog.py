@@ -89,6 +89,12 @@ def read_tlog_records(path: str | Path) -> TlogRecords:
     return TlogRecords(str(path))
 
 
+def tlog_wall_time(wall_time: float) -> float:
+    """A host UNIX time (s) as a tlog record keeps it: whole µs, the low 2 bits (link bits) cleared.
+    What a live consumer uses where a replay of the recording reads (usec & ~3) / 1e6."""
+    return (int(wall_time * 1e6) & ~3) / 1e6
+
+
 def tlog_record(usec: int, packet: bytes) -> bytes:
     """One record as written to a .tlog."""
     return TIMESTAMP.pack(usec) + packet

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
@@ -24,6 +25,10 @@ class LiveEstimation:
         self.messages_fed = 0
         #: the attitudes each drained batch of messages produced
         self.points: Signal[[list[AttitudePoint]]] = Signal()
+        #: the first 3D GPS fix (ArduPilot sets COMPASS_DEC then: ask for it again)
+        self.gps_locked: Signal[[]] = Signal()
+        #: the declination's source or value changed: (source, rad or None)
+        self.declination_changed: Signal[[str, float | None]] = Signal()
 
     @property
     def imu_type(self) -> str | None:
@@ -42,10 +47,16 @@ class LiveEstimation:
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []
+        inputs = self.inputs
         for item in items:
             self.messages_fed += 1
-            estimation_input = self.inputs.feed(item.msg)
-            if estimation_input is not None:
+            had_fix, before = inputs.gps_fix, (inputs.declination_source, inputs.declination)
+            # the wall time as the recording's tlog keeps it, so a replay dates the WMM the same
+            for estimation_input in inputs.feed(item.msg, tlog_wall_time(item.wall_time)):
                 points += self.pipeline.feed(estimation_input)
+            if inputs.gps_fix and not had_fix:
+                self.gps_locked.emit()
+            if (inputs.declination_source, inputs.declination) != before:
+                self.declination_changed.emit(inputs.declination_source, inputs.declination)
         if points:
             self.points.emit(points)

@@ -159,6 +159,8 @@ class EstimationSnapshot:
     latest: dict[str, SourceAttitude]
     refused_inputs: dict[str, int] = field(default_factory=dict)  # implausible samples, by reason
     restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state
+    #: where declination_rad came from: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none"
+    declination_source: str = "none"
 
 
 @dataclass(frozen=True, slots=True)

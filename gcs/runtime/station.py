@@ -98,8 +98,13 @@ class Station:
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
-        if self.estimation is not None:  # the magnetometer's declination comes from the vehicle
+        if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
+            # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
+            # does not say so) and after a reboot; every change is recorded in the event log
             self.link.state_changed.connect(self._ask_declination)
+            self.estimation.gps_locked.connect(self._request_declination)
+            self.vehicle.rebooted.connect(self._request_declination)
+            self.estimation.declination_changed.connect(self._declination_changed)
         #: every snapshot as it is published
         self.published: Signal[[StationSnapshot]] = Signal()
         #: the attitudes the live estimation produces, as it produces them
@@ -320,7 +325,14 @@ class Station:
     # ---- helpers -----------------------------------------------------------------------------
     def _ask_declination(self, old: str, new: str) -> None:
         if new == "connected":
-            self.params.request(DECLINATION_PARAMS)
+            self._request_declination()
+
+    def _request_declination(self) -> None:
+        self.params.request(DECLINATION_PARAMS)
+
+    def _declination_changed(self, source: str, value: float | None) -> None:
+        deg = None if value is None else round(math.degrees(value), 3)
+        self.events.record("declination", "estimation", source=source, declination_rad=value, declination_deg=deg)
 
     def _pipeline(self) -> EstimationPipeline:
         if self.estimation is None:
@@ -380,6 +392,7 @@ def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
         pipeline.declination,
         estimators,
         latest,
-        dict(pipeline.refused),
-        dict(pipeline.restarts),
+        refused_inputs=dict(pipeline.refused),
+        restarts=dict(pipeline.restarts),
+        declination_source=estimation.inputs.declination_source,
     )

@@ -52,7 +52,7 @@ class EstimatorStatus(BaseModel):
     reliable: bool
     reason: str
     imu_rate_hz: float
-    lag_s: float | None
+    lag_s: float | None = Field(description="how late the estimator is behind ATTITUDE, s (positive: behind)")
     health: dict[str, Any]
 
 
@@ -61,6 +61,10 @@ class StatusResponse(BaseModel):
     vehicle: VehicleSnapshot
     data_age_ms: float | None = Field(description="how old the newest attitude sample is at the server")
     imu_type: str | None
+    declination_rad: float | None = Field(default=None, description="the declination the estimators use")
+    declination_source: str = Field(
+        default="none", description='where it came from: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none"'
+    )
     estimators: dict[str, EstimatorStatus]
     refused_inputs: dict[str, int] = Field(
         default_factory=dict,

@@ -29,7 +29,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from gcs.core.attitude_errors import errors_against
+from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source

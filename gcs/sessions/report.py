@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from gcs.core.attitude_errors import errors_against
+from gcs.core.comparison import errors_against
 from gcs.core.estimation import AttitudePoint
 from gcs.provenance import provenance
 from gcs.sessions.sources import open_source

@@ -3,7 +3,7 @@
 A source is a recorded session (folder), a .tlog from any ground station, a DataFlash .bin or
 a PX4 .ulg. It becomes `Frames` (per tlog record or log sample: pacing time, where its MAVLink
 packet is in the file, whether the ground station sent it, where its inputs end) and an
-`InputTable` of estimation inputs: samples made by the same `MessageSampler` the live pipeline
+`InputTable` of estimation inputs: samples made by the same `MessageInputs` the live pipeline
 uses, plus `GainChange`s where a gain changed (the vehicle's declination parameter, or a gain
 change recorded in the session's event log at the pipeline input position where it was applied
 live). Feeding those inputs in order to `new_pipeline()` reproduces the live outputs exactly.
@@ -226,8 +226,7 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
             while pending and pending[0][0] <= position:
                 table.append(pending.pop(0)[1])
             position += 1
-            item = to_inputs.feed(msg)
-            if item is not None:
+            for item in to_inputs.feed(msg, (usec & ~3) / 1e6):
                 table.append(item)
         frames.append((usec & ~3) / 1e6, offset, sent, len(table))
     if pending and frames.t:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.core.attitude_errors import errors_against
+from gcs.core.comparison import errors_against
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.rotation import quat_to_euler

@@ -89,6 +89,7 @@ class Autopilot:
         stood in for by a stiffer filter of the same kind, so ATTITUDE and AHRS2 differ slightly.
         """
         dec = self.faults.declination
+        assert dec is not None, "SimVehicle resolves the declination from its home"
         p = self.params
         if self.profile.name == "px4":
             return OnboardAhrs(p["ATT_W_ACC"], p["ATT_W_MAG"], p["ATT_W_GYRO_BIAS"] * PX4_BIAS_GAIN_SCALE, dec), None

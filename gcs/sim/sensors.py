@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from gcs.core.declination import wmm_declination
 from gcs.core.rotation import vec3
 from gcs.sim.motion import Truth
 
@@ -46,8 +47,9 @@ class SensorFaults:
     """Magnetometer white noise, σ per sample per axis, gauss."""
     mag_hard_iron: tuple[float, float, float] = (0.01, -0.005, 0.01)
     """Uncompensated hard-iron offset added in body FRD, gauss."""
-    declination: float = -0.13
-    """Magnetic declination, rad, east of true north positive (about −7.5° at Bogotá)."""
+    declination: float | None = None
+    """Magnetic declination, rad, east of true north positive. None: the World Magnetic Model's at
+    the vehicle's home on `SIM_DATE` (`home_declination`; −8.65° at the default home near Bogotá)."""
     inclination: float = 0.55
     """Magnetic inclination (dip), rad, positive when the field points down (about 31°)."""
     field_strength: float = 0.33
@@ -85,9 +87,10 @@ class SensorFaults:
     def earth_field(self) -> tuple[float, float, float]:
         """Earth magnetic field in NED, gauss: horizontal part along the declination azimuth."""
         horizontal = self.field_strength * math.cos(self.inclination)
+        declination = self.declination if self.declination is not None else home_declination(Home())
         return (
-            horizontal * math.cos(self.declination),
-            horizontal * math.sin(self.declination),
+            horizontal * math.cos(declination),
+            horizontal * math.sin(declination),
             self.field_strength * math.sin(self.inclination),
         )
 
@@ -171,6 +174,17 @@ class Home:
         lat = self.lat + math.degrees(north / EARTH_RADIUS)
         lon = self.lon + math.degrees(east / (EARTH_RADIUS * math.cos(math.radians(self.lat))))
         return lat, lon
+
+
+#: The date (decimal year) the simulated magnetic field is taken at: fixed, so that the same seed
+#: gives the same bytes on any day (a ground station dating the model by today's date differs
+#: from it by the secular variation only, under 0.2°/year at the default home).
+SIM_DATE = 2026.0
+
+
+def home_declination(home: Home) -> float:
+    """The World Magnetic Model's declination at home on SIM_DATE, rad (gcs.core.declination)."""
+    return wmm_declination(home.lat, home.lon, home.alt, SIM_DATE)
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,9 +26,11 @@ from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
 from gcs.sim.profiles import Profile, get_profile
 from gcs.sim.pty import PtyTransport
-from gcs.sim.sensors import Home, SensorFaults
+from gcs.sim.sensors import Home, SensorFaults, home_declination
 from gcs.transport.pipes import make_transport
 
+#: The vehicle parameters that hold the declination (left out with publish_declination=False).
+DECLINATION_PARAMS = ("COMPASS_DEC", "EKF2_MAG_DECL")
 #: Internal events, ordered before messages due at the same instant.
 _GPS, _LOOP = "_gps", "_loop"
 #: Wall-clock lag (s) after which run() stops catching up and lets the vehicle clock slip.
@@ -50,8 +52,11 @@ class _Stream:
 class SimVehicle:
     """A simulated autopilot. See the module docstring; profile/script names in gcs.sim.profiles
     and gcs.sim.motion. `faults`: the sensor errors; the sensor models read the same object, so
-    assigning its fields later changes them at run time. `param_drop` / `param_clamp`: parameter
-    protocol faults, also settable later through the properties of the same names."""
+    assigning its fields later changes them at run time; a `faults.declination` of None becomes
+    the World Magnetic Model's at `home`. `param_drop` / `param_clamp`: parameter protocol faults,
+    also settable later through the properties of the same names. `publish_declination=False`:
+    the vehicle has no COMPASS_DEC / EKF2_MAG_DECL parameter (a ground station must find the
+    declination itself; the onboard filters still use the true one)."""
 
     def __init__(
         self,
@@ -65,13 +70,19 @@ class SimVehicle:
         home: Home | None = None,
         param_drop: float = 0.0,
         param_clamp: dict[str, float] | None = None,
+        publish_declination: bool = True,
     ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
         self.faults = faults if faults is not None else SensorFaults()
         self.seed, self.speed, self.sysid, self.compid = seed, speed, sysid, compid
         self.home = home or Home()
-        self.params = ParamTable(self.profile.param_rows(), bytewise=self.profile.param_bytewise)
+        if self.faults.declination is None:  # the real field at home (World Magnetic Model)
+            self.faults.declination = home_declination(self.home)
+        rows = self.profile.param_rows()
+        if not publish_declination:  # a vehicle that does not tell its declination (see docs)
+            rows = [row for row in rows if row[0] not in DECLINATION_PARAMS]
+        self.params = ParamTable(rows, bytewise=self.profile.param_bytewise)
         if "COMPASS_DEC" in self.params:  # ArduPilot: radians
             self.params["COMPASS_DEC"] = self.faults.declination
         if "EKF2_MAG_DECL" in self.params:  # PX4: degrees

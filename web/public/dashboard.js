@@ -72,9 +72,12 @@ function showStatus(s) {
     `<tr><td>${name}</td><td>${fmt(r.requested_hz)}</td><td class="${r.ratio != null && r.ratio < 0.9 ? "low" : ""}">${fmt(r.achieved_hz)}</td></tr>`);
   const est = Object.entries(s.estimators).map(([n, e]) =>
     `<tr><td>${n} (${e.preset})</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="${e.reliable ? "" : "low"}">${e.reliable ? "reliable" : "unreliable"}`
-    + `${e.lag_s == null ? "" : `, lag ${fmt(1000 * e.lag_s, 0)} ms`}</td></tr>`);
+    + `${e.lag_s == null ? "" : `, lag ${1000 * e.lag_s >= 0 ? "+" : ""}${fmt(1000 * e.lag_s, 0)} ms`}</td></tr>`);
+  const dec = s.declination_rad == null ? "none (yaw against magnetic north)"
+    : `${fmt(s.declination_rad * 180 / Math.PI, 2)}° from ${escapeHtml(s.declination_source)}`;
   $("streams").innerHTML = `<table><tr><th>stream (${l.stream_method || "?"})</th><th>requested Hz</th><th>achieved Hz</th></tr>${rows.join("")}`
-    + `<tr><th>estimator</th><th>IMU rate</th><th>health</th></tr>${est.join("")}</table>`;
+    + `<tr><th>estimator</th><th>IMU rate</th><th>health</th></tr>${est.join("")}</table>`
+    + `<div class="note">lag +20 ms = estimator 20 ms behind onboard ATTITUDE (negative: ahead) · declination ${dec}</div>`;
   const frame = $("pose");
   if (s.viser_port && !frame.src) frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
   if (s.token_required && !TOKEN) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";

@@ -35,6 +35,8 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
         vehicle=snap.vehicle,
         data_age_ms=None if age is None else round(age * 1000, 1),
         imu_type=estimation.imu_type if estimation else None,
+        declination_rad=estimation.declination_rad if estimation else None,
+        declination_source=estimation.declination_source if estimation else "none",
         estimators={
             name: EstimatorStatus(
                 preset=e.preset,
