@@ -107,7 +107,7 @@ def test_the_vehicle_value_wins_over_the_wmm(tmp_path):
 def _inputs_of(path, inputs):
     from gcs.logs.tlog import read_tlog
 
-    return list(read_tlog(str(path), inputs))
+    return list(read_tlog(str(path), inputs=inputs))
 
 
 @pytest.mark.parametrize("name", ["dcm", "kf", "ekf"])
