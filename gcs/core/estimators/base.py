@@ -32,7 +32,7 @@ COMMON_GAINS: tuple[Gain, ...] = (
 #: GPS aiding settings shared by the estimators that use `GpsAcceleration`.
 GPS_GAINS: tuple[Gain, ...] = (
     Gain("gps_gain", 1.0, 0.0, 1.0, "", "weight of the GPS acceleration removed from the specific force"),
-    Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no mag)"),
+    Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no usable mag)"),
 )
 
 #: Shock and saturation settings shared by every estimator (see `Shock`).
