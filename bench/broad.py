@@ -13,6 +13,12 @@ Metric, exactly as data/README.md and the BROAD paper's example code: both attit
 q_e = q_est ⊗ q_opt⁻¹, total = 2·acos|w|, heading = 2·atan|z/w|, inclination = 2·acos√(w²+z²),
 RMS over the samples where `movement` is true, NaN (no optical tracking) skipped.
 
+Leave-one-trial-out (`--loo`, in-process, minutes at 47.6 Hz, about an hour at full rate): for
+each estimator and rate, TUNED's 2-3 gains are searched on the other five trials (coordinate
+search over the default × FACTORS, SWEEPS passes, cost = mean + worst of the five) and scored on
+the sixth, beside the defaults and the same search on all six (in-sample). Every gain set is run
+once on every trial and cached, so the six folds share their runs.
+
 Heading reference: BROAD's ENU is magnetic north; our estimators run with declination 0, so they
 output magnetic-north NED, turned into ENU by q_ENU = q(NED→ENU) ⊗ q_est with q(NED→ENU) =
 (0, 1/√2, 1/√2, 0). No heading offset or any other alignment is fitted or removed — not for VQF
