@@ -39,6 +39,10 @@ MAG_GAINS: tuple[Gain, ...] = (
     Gain("mag_offset_time", 2.0, 0.0, 600.0, "s", "time a rejected field's sensor-frame offset is steady: hard iron"),
     Gain("mag_offset_tol", 0.1, 0.0, 1.0, "", "offset change (of the reference |m|) allowed while it is timed"),
 )
+#: Timing uncertainty of a field sample against the gyro's (s): the heading check widens by
+#: |ω|·this while turning (BROAD's field lags its gyro by about 14 ms; RAW_IMU carries whatever
+#: compass reading was latest).
+MAG_TIME_SIGMA = 0.05
 #: After (re)initialisation every field is used, and is the reference, until its norm and dip have
 #: held within half the tolerances for this long (s): the tilt (hence the dip) of a filter
 #: initialised away from the truth has to settle first.
@@ -118,7 +122,7 @@ class MagneticHeading:
         n0, d0 = self.ref
         self.yaw_error = wrap_pi(g["declination"] - math.atan2(he, hn))
         fits = abs(norm - n0) <= g["mag_norm_tol"] * n0 and abs(dip - d0) <= g["mag_dip_tol"]
-        agrees = abs(self.yaw_error) <= g["mag_heading_tol"] or not self.heading_trusted
+        agrees = abs(self.yaw_error) <= g["mag_heading_tol"] + spin * MAG_TIME_SIGMA or not self.heading_trusted
         if fits and agrees:
             a = dt / (MAG_REF_TAU + dt)
             self.ref = (n0 + a * (norm - n0), d0 + a * (dip - d0))
