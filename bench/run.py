@@ -10,6 +10,7 @@ import sys
 BENCHMARKS = {
     "link": "bench.link_throughput",
     "broad": "bench.broad",
+    "stress": "bench.stress",
     "replay": "bench.replay",
     "ws_latency": "bench.ws_latency",
     "soak": "bench.soak",

@@ -10,6 +10,7 @@ from synthetic import imu, spinning, static
 
 from gcs.core.estimation import compare_stream
 from gcs.core.estimators.dcm import DcmEstimator, renormalize, rotate_rows
+from gcs.core.estimators.magnetic import MAG_OFF
 from gcs.core.rotation import euler_to_quat, quat_to_euler
 from gcs.core.samples import GpsSample
 from gcs.logs.readers import read_samples
@@ -141,7 +142,7 @@ def test_magnetic_disturbance_is_rejected_then_relearned():
 
     est, yaw = run()
     assert yaw < 0.1 and est.health()["mag_disturbed"] and est.health()["yaw_source"] == "mag_rejected"
-    assert run(mag_norm_tol=10.0, mag_dip_tol=math.pi)[1] > 10.0  # without rejection it follows the magnet
+    assert run(**MAG_OFF)[1] > 10.0  # without rejection it follows the magnet
     # turning at 30 deg/s about down in the disturbed (but earth-fixed) field: relearned after 5 s
     c, sn = math.cos(D(30)), math.sin(D(30))
     bad = 1.4 * np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array([0.25, 0.0, 0.433])

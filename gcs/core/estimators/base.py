@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
 
 from gcs.core.gains import Gain, GainSet
-from gcs.core.samples import GpsSample, ImuSample
+from gcs.core.samples import G0, GpsSample, ImuSample
 
 #: Settings every estimator declares (append them to your own GAINS).
 COMMON_GAINS: tuple[Gain, ...] = (
@@ -31,7 +32,14 @@ COMMON_GAINS: tuple[Gain, ...] = (
 #: GPS aiding settings shared by the estimators that use `GpsAcceleration`.
 GPS_GAINS: tuple[Gain, ...] = (
     Gain("gps_gain", 1.0, 0.0, 1.0, "", "weight of the GPS acceleration removed from the specific force"),
-    Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no mag)"),
+    Gain("gps_speed_min", 3.0, 0.0, 50.0, "m/s", "minimum ground speed to use GPS course for yaw (no usable mag)"),
+)
+
+#: Shock and saturation settings shared by every estimator (see `Shock`).
+SHOCK_GAINS: tuple[Gain, ...] = (
+    Gain("shock_acc", 5.0 * G0, G0, 2000.0, "m/s²", "|specific force| above which a sample is a shock (5 g)"),
+    Gain("gyro_limit", math.radians(1800.0), 0.1, 1000.0, "rad/s", "|rate| at which the gyro may be saturated"),
+    Gain("shock_hold", 0.5, 0.0, 10.0, "s", "the accelerometer stays ignored this long after a shock"),
 )
 
 #: A number or a label in `AttitudeEstimator.health()`; a few are per-axis tuples.
@@ -135,6 +143,31 @@ class AttitudeEstimator(ABC):
     @abstractmethod
     def health(self) -> dict[str, HealthValue]:
         """Numbers that tell whether to trust the output (accel norm, innovations, ...)."""
+
+
+class Shock:
+    """A hard touch-down, a tap or a saturated gyro: |f| > `shock_acc` or |ω| > `gyro_limit`
+    (0.9 of a 2000°/s full scale by default). While `active` (the sample and `shock_hold` s after)
+    the estimators ignore the accelerometer, which then measures the impact and not gravity; a
+    saturated gyro (`saturated`) has integrated too little turn, so the heading is no longer
+    trusted over the magnetometer (docs/estimators/common.md).
+    """
+
+    def __init__(self) -> None:
+        self.until = -math.inf
+        self.active = False
+        self.saturated = False
+        self.count = 0
+
+    def update(self, t: float, accel_norm: float, spin: float, g: Mapping[str, float]) -> bool:
+        """Whether the accelerometer is to be ignored at vehicle time t."""
+        self.saturated = spin > g["gyro_limit"]
+        if accel_norm > g["shock_acc"] or self.saturated:
+            if t >= self.until:
+                self.count += 1
+            self.until = t + g["shock_hold"]
+        self.active = t <= self.until
+        return self.active
 
 
 class GpsAcceleration:

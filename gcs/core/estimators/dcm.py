@@ -11,12 +11,14 @@ import numpy.typing as npt
 from gcs.core.estimators.base import (
     COMMON_GAINS,
     GPS_GAINS,
+    SHOCK_GAINS,
     AttitudeEstimator,
     GpsAcceleration,
     HealthValue,
+    Shock,
     initial_attitude,
 )
-from gcs.core.estimators.magnetic import MagDisturbance
+from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import Rows, Vec3, matrix_to_quat, vec3
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -87,12 +89,9 @@ class DcmEstimator(AttitudeEstimator):
             Gain("spin_gain_yaw", 0.0, 0.0, 1.0, "", "1 = scale the yaw P gain with spin rate too (ArduPilot does)"),
             Gain("accel_tau", 1.0, 0.0, 10.0, "s", "earth-frame average of the specific force"),
             Gain("accel_weight", 1.0, 0.0, 1.0, "", "1 = roll-pitch weight clip(1 - 2|1 - |f_avg|/g|, 0, 1)"),
-            Gain(
-                "mag_norm_tol", 0.1, 0.0, 10.0, "", "field-magnitude departure (of the reference) that rejects the mag"
-            ),
-            Gain("mag_dip_tol", math.radians(10.0), 0.0, math.pi, "rad", "dip-angle departure that rejects the mag"),
-            Gain("mag_relearn", 20.0, 0.0, 600.0, "s", "turning time in a steady new field before it is the reference"),
         )
+        + MAG_GAINS
+        + SHOCK_GAINS
         + GPS_GAINS
         + COMMON_GAINS
     )
@@ -106,8 +105,7 @@ class DcmEstimator(AttitudeEstimator):
             "spin_gain": 0.0,
             "accel_tau": 0.0,
             "accel_weight": 0.0,
-            "mag_norm_tol": 10.0,
-            "mag_dip_tol": math.pi,
+            **MAG_OFF,
         },
     }
     DEFAULT_PRESET = "ardupilot"
@@ -135,7 +133,8 @@ class DcmEstimator(AttitudeEstimator):
         self.f_avg: tuple[float, float, float] | None = None  # earth-frame specific force, averaged
         self.r_avg = (0.0, 0.0, -G0)  # its reference (gravity + GPS acceleration), averaged alike
         self.accel_w = 1.0
-        self.mag = MagDisturbance()
+        self.mag = MagneticHeading()
+        self.shock = Shock()
 
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
@@ -182,9 +181,13 @@ class DcmEstimator(AttitudeEstimator):
         self.renorm_max = max(self.renorm_max, self.renorm_size)
         self.rows = (X, Y, Z)
         spin = math.sqrt(wx * wx + wy * wy + wz * wz)
-        # 3. roll-pitch error, earth frame, from the averaged specific force and reference
+        if self.shock.update(sample.t, self.accel_norm, math.sqrt(gx * gx + gy * gy + gz * gz), g.values):
+            if self.shock.saturated:
+                self.mag.distrust_heading()
+        # 3. roll-pitch error, earth frame, from the averaged specific force and reference (held
+        #    through a shock: the accelerometer then measures the impact, not gravity)
         ex = ey = 0.0
-        if self.accel_norm > 1e-6:
+        if self.accel_norm > 1e-6 and not self.shock.active:
             f0 = X[0] * fx + X[1] * fy + X[2] * fz
             f1 = Y[0] * fx + Y[1] * fy + Y[2] * fz
             f2 = Z[0] * fx + Z[1] * fy + Z[2] * fz
@@ -219,7 +222,7 @@ class DcmEstimator(AttitudeEstimator):
         self.omega_P = (kp * bx, kp * by, kp * bz)
         self.omega_Y = (kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2])
         self.corr_e = (kp * ex, kp * ey, kpy * ez)
-        if spin < SPIN_RATE_LIMIT:
+        if spin < SPIN_RATE_LIMIT and not self.shock.active:
             ki, kiy = g["ki_rp"] * dt, g["ki_yaw"] * ez * dt
             for i, (b, z) in enumerate(((bx, Z[0]), (by, Z[1]), (bz, Z[2]))):
                 self.omega_I[i] = min(max(self.omega_I[i] + ki * b + kiy * z, -OMEGA_I_MAX), OMEGA_I_MAX)
@@ -227,35 +230,18 @@ class DcmEstimator(AttitudeEstimator):
 
     def _yaw_error(self, sample: ImuSample, X: Vec3, Y: Vec3, Z: Vec3, dt: float = 0.0, spin: float = 0.0) -> float:
         """Heading error about earth down (rad, small-angle sine), or 0 without a usable reference."""
-        mag = sample.mag
-        if mag is not None:
-            mx, my, mz = (float(v) for v in mag)
-            hn = X[0] * mx + X[1] * my + X[2] * mz
-            he = Y[0] * mx + Y[1] * my + Y[2] * mz
-            hd = Z[0] * mx + Z[1] * my + Z[2] * mz
-            h = math.hypot(hn, he)
-            if h > 1e-9:
-                g = self.gains
-                if not self.mag.usable(
-                    math.sqrt(h * h + hd * hd),
-                    math.atan2(hd, h),
-                    dt,
-                    spin,
-                    g["mag_norm_tol"],
-                    g["mag_dip_tol"],
-                    g["mag_relearn"],
-                ):
-                    self.yaw_source = "mag_rejected"
-                    self.mag_rejected += 1
-                    return 0.0
+        self.yaw_source = "none"
+        if sample.mag is not None:
+            mx, my, mz = (float(v) for v in sample.mag)
+            if self.mag.field((mx, my, mz), (X, Y, Z), dt, spin, self.gains.values) is not None:
                 self.yaw_source = "mag"
-                dec = self.gains["declination"]
-                return (hn * math.sin(dec) - he * math.cos(dec)) / h
+                return math.sin(self.mag.yaw_error)
+            self.yaw_source = "mag_rejected"
+            self.mag_rejected += 1
         course = self.gps.course_at(sample.t, self.gains["gps_speed_min"])
         if course is not None:
             self.yaw_source = "gps_course"
             return X[0] * math.sin(course) - Y[0] * math.cos(course)
-        self.yaw_source = "none"
         return 0.0
 
     @property
@@ -281,4 +267,6 @@ class DcmEstimator(AttitudeEstimator):
             "accel_weight": self.accel_w,
             "mag_disturbed": self.mag.disturbed,
             "mag_rejected": self.mag_rejected,
+            "mag_offset": self.mag.offset,
+            "shocks": self.shock.count,
         }

@@ -19,12 +19,15 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.estimators.base import COMMON_GAINS, AttitudeEstimator, HealthValue, initial_attitude
+from gcs.core.estimators.base import COMMON_GAINS, SHOCK_GAINS, AttitudeEstimator, HealthValue, Shock, initial_attitude
+from gcs.core.estimators.magnetic import MAG_GAINS, MagneticHeading
 from gcs.core.gains import Gain
-from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times, wrap_pi
+from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
 from gcs.core.samples import G0, GpsSample, ImuSample
 
 _TH, _V, _B = slice(0, 3), slice(3, 6), slice(6, 9)  # error-state blocks
+#: Tilt 1-σ (rad) above which the field's dip says nothing yet: its reference is not kept.
+MAG_SETTLE_TILT = math.radians(3.0)
 _U = np.array([[0.0, G0, 0.0], [-G0, 0.0, 0.0]])  # the non-zero rows of [−g]×, g = (0, 0, G0)
 
 
@@ -59,26 +62,29 @@ class EkfEstimator(AttitudeEstimator):
 
     name: ClassVar[str] = "ekf"
     GAINS: ClassVar[tuple[Gain, ...]] = (
-        Gain("gyro_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "gyro noise density, including unmodelled errors in motion"),
-        Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
-        Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
-        Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
-        Gain("acc_gate", 20.0, 0.01, 100.0, "m/s²", "| |a| − g | at which the accel noise has doubled"),
-        Gain("vel_noise", 1.0, 1e-3, 100.0, "m/s·√s", "without GPS: how far the velocity may wander from zero"),
-        Gain("gps_noise", 0.3, 0.01, 10.0, "m/s", "GPS horizontal velocity noise (1 σ)"),
-        Gain("gps_delay", 0.0, 0.0, 1.0, "s", "age of the GPS velocity at its own timestamp"),
-        Gain("gps_timeout", 1.0, 0.05, 10.0, "s", "GPS older than this no longer aids: back to the velocity prior"),
-        Gain("mag_noise", 0.05, 1e-4, 10.0, "rad·√s", "magnetometer heading noise density"),
-        Gain("mag_norm_gate", 0.1, 0.001, 10.0, "ratio", "relative |m| change doubling the mag noise"),
-        Gain("mag_dip_gate", 0.1, 0.001, 3.0, "rad", "dip-angle departure from the reference doubling the mag noise"),
-        Gain("mag_reject", 3.0, 1.0, 1e6, "×", "mag noise inflation above which the heading update is skipped"),
-        Gain("mag_relearn", 20.0, 1.0, 3600.0, "s", "a field rejected this long becomes the new reference"),
-        Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
-        Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
-        Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before zero-rate updates"),
-        Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
-        Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
-    ) + COMMON_GAINS
+        (
+            Gain(
+                "gyro_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "gyro noise density, including unmodelled errors in motion"
+            ),
+            Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
+            Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
+            Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
+            Gain("acc_gate", 20.0, 0.01, 100.0, "m/s²", "| |a| − g | at which the accel noise has doubled"),
+            Gain("vel_noise", 1.0, 1e-3, 100.0, "m/s·√s", "without GPS: how far the velocity may wander from zero"),
+            Gain("gps_noise", 0.3, 0.01, 10.0, "m/s", "GPS horizontal velocity noise (1 σ)"),
+            Gain("gps_delay", 0.0, 0.0, 1.0, "s", "age of the GPS velocity at its own timestamp"),
+            Gain("gps_timeout", 1.0, 0.05, 10.0, "s", "GPS older than this no longer aids: back to the velocity prior"),
+            Gain("mag_noise", 0.05, 1e-4, 10.0, "rad·√s", "magnetometer heading noise density"),
+            Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
+            Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
+            Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before zero-rate updates"),
+            Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
+            Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
+        )
+        + MAG_GAINS
+        + SHOCK_GAINS
+        + COMMON_GAINS
+    )
     PRESETS: ClassVar[dict[str, dict[str, float]]] = {
         "default": {},
         # 25-50 Hz RAW_IMU streams: picking samples makes the gyro integration coarser, and real
@@ -102,13 +108,11 @@ class EkfEstimator(AttitudeEstimator):
         self._gps_t = -math.inf
         self._rest_since = -math.inf
         self._rest_acc: list[float] | None = None
-        self.mag_ref_norm = 0.0
-        self.mag_ref_dip = 0.0
-        self._mag_rejected_since: float | None = None
+        self.mag = MagneticHeading()
+        self.shock = Shock()
         self.stats: dict[str, float] = {
             "accel_norm": 0.0, "acc_inflation": 1.0, "vel_innov": 0.0, "gps_nis": 0.0, "gps_aided": 0,
-            "mag_nis": 0.0, "mag_innov_deg": 0.0, "mag_disturbance": 0.0, "mag_rejected": 0, "mag_relearned": 0,
-            "at_rest": 0, "dropped": 0,
+            "mag_nis": 0.0, "mag_innov_deg": 0.0, "mag_rejected": 0, "at_rest": 0, "dropped": 0,
         }  # fmt: skip
 
     # -- public API ---------------------------------------------------------------------------
@@ -119,6 +123,8 @@ class EkfEstimator(AttitudeEstimator):
     def health(self) -> dict[str, HealthValue]:
         h: dict[str, HealthValue] = {**self._common_health(), **self.stats}
         h.update(bias_x=self.b[0], bias_y=self.b[1], bias_z=self.b[2])
+        h.update(mag_disturbed=self.mag.disturbed, mag_offset=self.mag.offset, mag_relearned=self.mag.relearned)
+        h.update(mag_offsets_learned=self.mag.offsets_learned, shocks=self.shock.count)
         h["tilt_sigma_deg"] = math.degrees(math.sqrt(max(self.P[0, 0] + self.P[1, 1], 0.0)))
         h["heading_sigma_deg"] = math.degrees(math.sqrt(max(self.P[2, 2], 0.0)))
         return h
@@ -137,16 +143,24 @@ class EkfEstimator(AttitudeEstimator):
             return self._initialise(sample.t, accel, mag)
         if dt == 0.0:
             return True
-        self._predict(gyro, accel, dt, sample.t)
-        aided = sample.t - self._gps_t <= self.gains.values["gps_timeout"]
+        g = self.gains.values
+        spin = math.sqrt(gyro[0] * gyro[0] + gyro[1] * gyro[1] + gyro[2] * gyro[2])
+        a_norm = math.sqrt(accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2])
+        shock = self.shock.update(sample.t, a_norm, spin, g)
+        self._predict(gyro, accel, dt, sample.t, shock)
+        if self.shock.saturated:
+            self._saturated(spin, dt)
+        aided = sample.t - self._gps_t <= g["gps_timeout"]
         self.stats["gps_aided"] = int(aided)
-        if self._at_rest(sample.t, gyro, accel):
+        if shock:
+            self._rest_acc = None  # a shock is not rest
+        elif self._at_rest(sample.t, gyro, accel):
             self._update_zero_rate(gyro, dt)
             if not aided:  # with GPS, a steady acceleration is not taken for rest
                 self._update_gravity(accel, dt)
         self._update_velocity_prior(dt, 1 if aided else 3)
         if mag is not None:
-            self._update_heading(mag, dt, sample.t)
+            self._update_heading(mag, gyro, dt)
         return True
 
     def update_gps(self, sample: GpsSample) -> None:
@@ -186,21 +200,22 @@ class EkfEstimator(AttitudeEstimator):
         vel_var = self.gains["vel_noise"] ** 2
         bias_var = self.gains["bias_init"] ** 2
         self.P = np.diag([tilt_var, tilt_var, heading_var] + [vel_var] * 3 + [bias_var] * 3)
-        self.mag_ref_norm = 0.0
-        if mag is not None:
-            self._learn_mag_reference(rows_times(quat_rows(self.q), mag))
+        self.mag = MagneticHeading()
+        self.shock = Shock()
         self.initialised = True
         return True
 
-    def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float) -> None:
-        """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P."""
+    def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float, shock: bool) -> None:
+        """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P.
+        Through a shock the accelerometer measures the impact: the specific force is taken as
+        gravity alone (v held) and its noise inflated as for the impact."""
         g = self.gains.values
         bx, by, bz = self.b
         self.q = q = quat_unit(
             quat_mul(self.q, quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt, (gyro[2] - bz) * dt))
         )
         R = quat_rows(q)
-        fx, fy, fz = rows_times(R, accel)
+        fx, fy, fz = (0.0, 0.0, -G0) if shock else rows_times(R, accel)
         vx, vy, vz = self.v
         self.v = v = (vx + fx * dt, vy + fy * dt, vz + (fz + G0) * dt)
         ox, oy, oz = self._v_offset
@@ -298,39 +313,32 @@ class EkfEstimator(AttitudeEstimator):
         y = [gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]]
         self._update(self.P[:, _B], _plus_r(self.P[_B, _B], r), y)
 
-    def _learn_mag_reference(self, m_n: Vec3) -> None:
-        """|m| and dip angle of the undisturbed field, from a field vector in NED."""
-        self.mag_ref_norm = math.sqrt(m_n[0] * m_n[0] + m_n[1] * m_n[1] + m_n[2] * m_n[2])
-        self.mag_ref_dip = math.atan2(m_n[2], math.hypot(m_n[0], m_n[1]))
-        self._mag_rejected_since = None
+    def _saturated(self, spin: float, dt: float) -> None:
+        """A saturated gyro turned by an unknown amount above its reading: the whole step's turn
+        becomes attitude uncertainty, and the heading is no longer trusted over the field."""
+        q = (spin * dt) ** 2
+        self.P.reshape(-1)[0:30:10] += q
+        self.mag.distrust_heading()
 
-    def _update_heading(self, mag: list[float], dt: float, t: float) -> None:
+    def _update_heading(self, mag: list[float], gyro: list[float], dt: float) -> None:
+        """Heading from the field the shared test passes (magnetic.py: m − b, hard iron removed)."""
         g = self.gains.values
-        m_n = rows_times(quat_rows(self.q), mag)
+        R = quat_rows(self.q)
+        bx, by, bz = self.b
+        settling = self.P[0, 0] + self.P[1, 1] > MAG_SETTLE_TILT**2
+        mc = self.mag.field((mag[0], mag[1], mag[2]), R, dt, math.dist(gyro, (bx, by, bz)), g, settling)
+        if mc is None:
+            self.stats["mag_rejected"] += 1
+            return
+        m_n = rows_times(R, mc)
         m_h = math.hypot(m_n[0], m_n[1])
-        m_norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        m_norm = math.sqrt(mc[0] * mc[0] + mc[1] * mc[1] + mc[2] * mc[2])
         if m_h < 1e-3 * m_norm:
             self.stats["mag_rejected"] += 1
             return
-        dip = math.atan2(m_n[2], m_h)
-        if self.mag_ref_norm == 0.0:  # no field at initialisation
-            self._learn_mag_reference(m_n)
-        norm_dev = (m_norm / self.mag_ref_norm - 1.0) / g["mag_norm_gate"]
-        dip_dev = (dip - self.mag_ref_dip) / g["mag_dip_gate"]
-        inflation = 1.0 + norm_dev * norm_dev + dip_dev * dip_dev
-        self.stats["mag_disturbance"] = inflation - 1.0
-        if inflation > g["mag_reject"]:
-            self.stats["mag_rejected"] += 1
-            if self._mag_rejected_since is None:
-                self._mag_rejected_since = t
-            elif t - self._mag_rejected_since >= g["mag_relearn"]:
-                self._learn_mag_reference(m_n)
-                self.stats["mag_relearned"] += 1
-            return
-        self._mag_rejected_since = None
-        sigma = g["mag_noise"] * inflation * m_norm / m_h
+        sigma = g["mag_noise"] * m_norm / m_h
         r = sigma * sigma / dt
-        y = wrap_pi(g["declination"] - math.atan2(m_n[1], m_n[0]))
+        y = self.mag.yaw_error
         # K = k e_3 (heading only, see the module docstring); Joseph form P − K pᵀ − p Kᵀ + s K Kᵀ
         P = self.P
         p = P[:, 2].copy()

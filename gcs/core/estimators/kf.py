@@ -9,8 +9,16 @@ import numpy as np
 import numpy.typing as npt
 from filterpy.kalman import KalmanFilter
 
-from gcs.core.estimators.base import COMMON_GAINS, GPS_GAINS, AttitudeEstimator, GpsAcceleration, HealthValue
-from gcs.core.estimators.magnetic import MagDisturbance
+from gcs.core.estimators.base import (
+    COMMON_GAINS,
+    GPS_GAINS,
+    SHOCK_GAINS,
+    AttitudeEstimator,
+    GpsAcceleration,
+    HealthValue,
+    Shock,
+)
+from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import (
     Rows,
@@ -38,6 +46,8 @@ _R_NAMES = tuple(f"r_{s}" for s in _ANGLES + _RATES)
 _DIAG5, _DIAG6 = np.diag_indices(5), np.diag_indices(6)
 #: Measurement rows without a heading: roll, pitch and the three rates.
 _ROWS5 = [0, 1, 3, 4, 5]
+#: Measurement noise (rad²) of a tilt row that carries no information (a shock, a zero vector).
+_NO_WEIGHT = 1e6
 
 
 def accel_tilt(
@@ -119,17 +129,14 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             Gain("accel_tau", 1.0, 0.0, 10.0, "s", "earth-frame average of the specific force for the tilt"),
             Gain("accel_gate", 1.0, 0.0, 100.0, "m/s²", "tilt noise × (1 + (||f_avg| − g| / gate)²); 0 = off"),
             Gain(
-                "mag_norm_tol", 0.1, 0.0, 10.0, "", "field-magnitude departure (of the reference) that rejects the mag"
-            ),
-            Gain("mag_dip_tol", math.radians(10.0), 0.0, math.pi, "rad", "dip-angle departure that rejects the mag"),
-            Gain("mag_relearn", 20.0, 0.0, 600.0, "s", "turning time in a steady new field before it is the reference"),
-            Gain(
                 "mag_delay", 0.0, 0.0, 0.05, "s", "how much older the field sample is than the gyro's (turned forward)"
             ),
             Gain(
                 "mag_time_sigma", 0.05, 0.0, 1.0, "s", "timing uncertainty of the field sample: yaw noise + (|ω|·σ_t)²"
             ),
         )
+        + MAG_GAINS
+        + SHOCK_GAINS
         + GPS_GAINS
         + COMMON_GAINS
     )
@@ -139,8 +146,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         "gimbal_r": 0.0,
         "accel_tau": 0.0,
         "accel_gate": 0.0,
-        "mag_norm_tol": 10.0,
-        "mag_dip_tol": math.pi,
+        **MAG_OFF,
         "mag_time_sigma": 0.0,
     }
     PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
@@ -153,7 +159,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.gyro_prev = (0.0, 0.0, 0.0)
         self.f_avg: tuple[float, float, float] | None = None
         self.gps = GpsAcceleration()
-        self.mag = MagDisturbance()
+        self.mag = MagneticHeading()
+        self.shock = Shock()
         self.valid = False
         self.accel_norm = 0.0
         self.accel_scale = 1.0
@@ -192,34 +199,26 @@ class KalmanAttitudeFilter(AttitudeEstimator):
                     my - lag * (wz * mx - wx * mz),
                     mz - lag * (wx * my - wy * mx),
                 )
-            hn = Rm[0][0] * mx + Rm[0][1] * my + Rm[0][2] * mz
-            he = Rm[1][0] * mx + Rm[1][1] * my + Rm[1][2] * mz
-            hd = Rm[2][0] * mx + Rm[2][1] * my + Rm[2][2] * mz
-            h = math.hypot(hn, he)
-            psi = mag_heading((mx, my, mz), roll, pitch, g["declination"]) if h > 1e-9 else None
+            mc = self.mag.field((mx, my, mz), Rm, dt, spin, g.values)
+            psi = mag_heading(mc, roll, pitch, g["declination"]) if mc is not None else None
             if psi is not None:
-                if not self.mag.usable(
-                    math.hypot(h, hd),
-                    math.atan2(hd, h),
-                    dt,
-                    spin,
-                    g["mag_norm_tol"],
-                    g["mag_dip_tol"],
-                    g["mag_relearn"],
-                ):
-                    self.heading_source = "mag_rejected"
-                    self.mag_rejected += 1
-                    return None
                 self.heading_source = "mag"
                 return psi
+            self.mag_rejected += 1
         course = self.gps.course_at(sample.t, g["gps_speed_min"])
-        self.heading_source = "gps_course" if course is not None else "none"
+        if course is not None:
+            self.heading_source = "gps_course"
+        elif sample.mag is not None:
+            self.heading_source = "mag_rejected"
+        else:
+            self.heading_source = "none"
         return course
 
     def _initialise(self, sample: ImuSample) -> None:
         g = self.gains
         roll, pitch = accel_tilt(sample.accel)
-        self.mag = MagDisturbance()
+        self.mag = MagneticHeading()
+        self.shock = Shock()
         yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
         self.heading_source = "mag" if yaw is not None else "none"
         self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
@@ -299,7 +298,10 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         a = self.gps.at(sample.t)
         k = g["gps_gain"]
         r = [g[n] for n in _R_NAMES]
-        if self.accel_norm > 1e-6:
+        spin = math.sqrt(gyro[0] ** 2 + gyro[1] ** 2 + gyro[2] ** 2)
+        if self.shock.update(sample.t, self.accel_norm, spin, g) and self.shock.saturated:
+            self.mag.distrust_heading()
+        if self.accel_norm > 1e-6 and not self.shock.active:
             fe = vec3(Rm[i][0] * fx + Rm[i][1] * fy + Rm[i][2] * fz - k * a[i] for i in range(3))
             if self.f_avg is not None and g["accel_tau"] > 0.0:
                 c = dt / (g["accel_tau"] + dt)
@@ -312,15 +314,15 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             self.accel_scale = 1.0 + (dev / gate) ** 2 if gate > 0.0 else 1.0
             r[0] *= self.accel_scale
             r[1] *= self.accel_scale
-        else:
+        else:  # no tilt information: the prediction, with a noise that gives it no weight
             roll, pitch = x[0], x[1]
+            r[0] = r[1] = _NO_WEIGHT
         if g["gimbal_r"] >= 0.5:  # near pitch ±90° roll, yaw and their rates are ill-defined
             s = 1.0 / max(math.cos(x[1]) ** 2, cmin * cmin)
             r[0] *= s
             r[2] *= s
             r[3] *= s
             r[5] *= s
-        spin = math.sqrt(gyro[0] ** 2 + gyro[1] ** 2 + gyro[2] ** 2)
         yaw = self._heading(sample, x[0], x[1], Rm, dt, spin)
         z0 = x[0] + wrap_pi(roll - x[0])
         if yaw is not None:
@@ -365,5 +367,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             "accel_scale": self.accel_scale,
             "mag_disturbed": self.mag.disturbed,
             "mag_rejected": self.mag_rejected,
+            "mag_offset": self.mag.offset,
+            "shocks": self.shock.count,
             **{f"sigma_{s}": float(math.sqrt(max(self.kf.P[i, i], 0.0))) for i, s in enumerate(_ANGLES + _RATES)},
         }
