@@ -85,6 +85,7 @@ class MagneticHeading:
         self.offsets_learned = 0
         self.relearned = 0
         self.age = 0.0  # time the reference has held still while settling (s)
+        self.declination: float | None = None  # the one the heading check last compared against
 
     def distrust_heading(self) -> None:
         """The estimate's heading may be wrong (a saturated gyro): take the next field that fits."""
@@ -120,6 +121,11 @@ class MagneticHeading:
             self.heading_trusted = False
         assert self.ref is not None
         n0, d0 = self.ref
+        if g["declination"] != self.declination:
+            # A new declination moves the heading reference, not the field: the gyro-held heading
+            # is then no evidence against the field until the estimate has turned to the new one.
+            self.declination = g["declination"]
+            self.heading_trusted = False
         self.yaw_error = wrap_pi(g["declination"] - math.atan2(he, hn))
         fits = abs(norm - n0) <= g["mag_norm_tol"] * n0 and abs(dip - d0) <= g["mag_dip_tol"]
         agrees = abs(self.yaw_error) <= g["mag_heading_tol"] + spin * MAG_TIME_SIGMA or not self.heading_trusted
