@@ -9,6 +9,7 @@ magnetometer reads), is refused before it reaches an estimator, and counted by i
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
@@ -21,9 +22,9 @@ MAX_FIELD = 1e9
 MAX_SPEED = 1000.0  # m/s, GPS
 
 
-def _bounded(values: object, limit: float) -> bool:
+def _bounded(values: Iterable[float], limit: float) -> bool:
     """Every value finite and within ±limit (NaN fails every comparison)."""
-    return all(-limit <= v <= limit for v in values)  # type: ignore[attr-defined]
+    return all(-limit <= v <= limit for v in values)
 
 
 def refusal(item: ImuSample | GpsSample | AttitudeSample) -> str | None:

@@ -98,7 +98,7 @@ class InputTableBuilder:
             return np.frombuffer(values, dtype=np.float64).reshape(-1, columns)
 
         def codes(values: array[int], dtype: type[np.generic]) -> npt.NDArray[np.generic]:
-            return np.frombuffer(values, dtype=dtype) if len(values) else np.empty(0, dtype)
+            return np.frombuffer(values, dtype=dtype)
 
         return InputTable(
             kind=codes(self._kind, np.uint8),

@@ -187,12 +187,10 @@ class _FramesBuilder:
 
     def build(self) -> Frames:
         return Frames(
-            np.frombuffer(self.t, dtype=np.float64) if self.t else np.empty(0),
-            (np.frombuffer(self.offset, dtype=np.int64) if self.offset else np.empty(0, np.int64))
-            if self.with_packets
-            else None,
-            np.frombuffer(self.sent, dtype=np.bool_) if self.sent else np.empty(0, np.bool_),
-            np.frombuffer(self.input_end, dtype=np.int64) if self.input_end else np.empty(0, np.int64),
+            np.frombuffer(self.t, dtype=np.float64),
+            np.frombuffer(self.offset, dtype=np.int64) if self.with_packets else None,
+            np.frombuffer(self.sent, dtype=np.bool_),
+            np.frombuffer(self.input_end, dtype=np.int64),
         )
 
 
