@@ -146,10 +146,13 @@ class _Stats:
             self.max[i] = max(self.max[i], abs(e))
 
     def summary(self) -> ReferenceSummary:
-        w = list(self.recent)
-        n = len(w)
-        window_rms = [math.sqrt(sum(r[i] ** 2 for r in w) / n) if n else math.nan for i in (1, 2, 3)]
-        window_max = [max(abs(r[i]) for r in w) if n else math.nan for i in (1, 2, 3)]
+        n = len(self.recent)
+        if n:
+            errors = np.array(self.recent)[:, 1:]
+            window_rms = np.sqrt(np.mean(errors * errors, axis=0)).tolist()
+            window_max = np.abs(errors).max(axis=0).tolist()
+        else:
+            window_rms = window_max = [math.nan] * 3
         session_rms = [math.sqrt(s / self.n) if self.n else math.nan for s in self.sum_sq]
         return {
             "n": self.n,
