@@ -10,7 +10,7 @@ import time
 
 import httpx
 import pyarrow.parquet as pq
-from live import running_sim, running_station, wait_for
+from live import running_station, sim_process, wait_for
 
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.server.dashboard import DashboardServer
@@ -24,7 +24,7 @@ def test_sessions_api(udp_port, tmp_path):
 async def scenario(udp_port: int, root) -> None:
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
-        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
     ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
