@@ -99,13 +99,18 @@ async def _run(config: StationConfig, protocol: Protocol, args: argparse.Namespa
     station = Station(config)
     try:
         gains = parse_gains(args.gain, station.estimator_names())
-        for estimator, values in gains.items():
-            for name, value in values.items():
-                station.set_gain(estimator, name, value, "cli")
-    except (ValueError, KeyError, GainError) as exc:
+    except ValueError as exc:
         print(f"gcs protocol: {exc}", file=sys.stderr)
         return 2
     await station.start()
+    try:  # once recording: the session's events carry the changes, where they were applied
+        for estimator, values in gains.items():
+            for name, value in values.items():
+                station.set_gain(estimator, name, value, "cli")
+    except (KeyError, GainError) as exc:
+        print(f"gcs protocol: {exc}", file=sys.stderr)
+        await station.stop()
+        return 2
     live = LiveProtocol(station, protocol, args.detect_source)
     done = asyncio.Event()
     live.changed.connect(lambda state: _prompt(state, done))
