@@ -189,7 +189,8 @@ def format_tables(tables: ProtocolTables) -> str:
     reduction relative to the raw accelerometer/magnetometer angles), as text."""
     sources = list(dict.fromkeys(m.source for m in tables.steps))
     labels = list(dict.fromkeys(m.label for m in tables.steps))
-    lines = [f"protocol {tables.protocol.name}: mean relative error over the last {tables.protocol.last_samples} samples, %"]
+    last = tables.protocol.last_samples
+    lines = [f"protocol {tables.protocol.name}: mean relative error over the last {last} samples, %"]
     lines.append(f"{'step':<22}" + "".join(f"{s:>11}" for s in sources))
     by = {(m.label, m.source): m for m in tables.steps}
     for label in labels:
@@ -202,6 +203,7 @@ def format_tables(tables: ProtocolTables) -> str:
     lines.append("MSE per axis over the holds, deg² (reduction vs accel/mag angles, %)")
     for row in tables.mse:
         mse = "  ".join(formatted(v, 4) for v in (row.mse_roll, row.mse_pitch, row.mse_yaw))
-        red = "  ".join(formatted(v, 1) for v in (row.reduction_roll_pct, row.reduction_pitch_pct, row.reduction_yaw_pct))
+        reductions = (row.reduction_roll_pct, row.reduction_pitch_pct, row.reduction_yaw_pct)
+        red = "  ".join(formatted(v, 1) for v in reductions)
         lines.append(f"{row.source:<12} {mse}   ({red})")
     return "\n".join(lines)

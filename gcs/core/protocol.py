@@ -53,7 +53,8 @@ class Step:
 
     @property
     def prompt(self) -> str:
-        return f"rotate to {self.axis} {self.target_deg:+g}° and hold ({self.hold_s:g} s within ±{self.tolerance_deg:g}°)"
+        hold = f"{self.hold_s:g} s within ±{self.tolerance_deg:g}°"
+        return f"rotate to {self.axis} {self.target_deg:+g}° and hold ({hold})"
 
 
 @dataclass(frozen=True, slots=True)
@@ -370,10 +371,7 @@ def protocol_tables(protocol: Protocol, windows: list[StepWindow], series: Mappi
         latest[w.index] = w  # a repeat replaces the earlier attempt
     chosen = [latest[i] for i in sorted(latest)]
     rows = [
-        m
-        for w in chosen
-        for source in series
-        if (m := step_metrics(protocol, w, source, series[source])) is not None
+        m for w in chosen for source in series if (m := step_metrics(protocol, w, source, series[source])) is not None
     ]
     means = []
     for source in series:

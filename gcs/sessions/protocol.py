@@ -48,7 +48,8 @@ def load_protocol(name_or_path: str) -> Protocol:
         return parse_protocol(_SHIPPED.joinpath(f"{name_or_path}.toml").read_text(), name_or_path)
     path = Path(name_or_path)
     if not path.is_file():
-        raise ProtocolError(f"no protocol {name_or_path!r}: neither a file nor one of {', '.join(available_protocols())}")
+        shipped = ", ".join(available_protocols())
+        raise ProtocolError(f"no protocol {name_or_path!r}: neither a file nor one of {shipped}")
     try:
         return parse_protocol(path.read_text(), path.stem)
     except ProtocolError as exc:
@@ -150,4 +151,3 @@ def formatted(value: object, digits: int = 3) -> str:
     if isinstance(value, float):
         return "–" if math.isnan(value) else f"{value:.{digits}f}"
     return str(value)
-
