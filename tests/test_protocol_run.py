@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import socket
 import subprocess
 import sys
+from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pytest
+import scipy.io
 
 from gcs.transport.address import free_port
 
@@ -89,12 +93,82 @@ def test_bench_protocol_completes_unattended_and_truth_meets_the_target(bench_ru
     assert {(g["gain"], g["new"]) for g in gains} >= {("kp_rp", 0.0), ("ki_rp", 0.0)}
 
 
-def test_protocol_report_recomputes_the_run_from_the_session(bench_run, tmp_path):
+class _Tables(HTMLParser):
+    """The cells of every <table class=...> of a page, by class."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: dict[str, list[list[str]]] = {}
+        self._current: list[list[str]] | None = None
+        self._cell: list[str] | None = None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table":
+            self._current = self.tables.setdefault(dict(attrs).get("class") or "", [])
+        elif tag == "tr" and self._current is not None:
+            self._current.append([])
+        elif tag in ("td", "th"):
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self._cell is not None and self._current is not None:
+            self._current[-1].append("".join(self._cell))
+            self._cell = None
+        elif tag == "table":
+            self._current = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def _same(a: str, b: float) -> bool:
+    """An HTML cell (3 decimals, a dash for NaN) shows the number b."""
+    if math.isnan(b):
+        return a == "–"
+    return abs(float(a) - b) <= 0.0005 + 1e-9 * abs(b)
+
+
+def test_protocol_tables_agree_in_csv_html_and_mat(bench_run, tmp_path):
     folder = bench_run[3]
-    out = tmp_path / "again.csv"
-    done = subprocess.run(
-        GCS + ["protocol", "report", str(folder), "--csv", str(out)], capture_output=True, text=True, timeout=120
+    again, page, mat = tmp_path / "again.csv", tmp_path / "report.html", tmp_path / "run.mat"
+    commands = [
+        ["protocol", "report", str(folder), "--csv", str(again)],
+        ["report", str(folder), "--out", str(page)],
+        ["export", str(folder), "--format", "mat", "--out", str(mat)],
+    ]
+    for command in commands:
+        done = subprocess.run(GCS + command, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+    # the report command recomputes the live run's file exactly from the session
+    assert again.read_text() == (folder / "protocol.csv").read_text()
+    with (folder / "protocol.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    steps = [r for r in rows if r["table"] == "steps"]
+    mse = [r for r in rows if r["table"] == "mse"]
+    assert {r["source"] for r in steps} >= {"truth", "onboard", "ahrs2", "dcm", "kf", "ekf", "accel_mag"}
+
+    parser = _Tables()
+    parser.feed(page.read_text())
+    html_steps = parser.tables["protocol-steps"]
+    header, body = html_steps[0], html_steps[1:]
+    assert len(body) == len(steps)
+    for cells, row in zip(body, steps):
+        shown = dict(zip(header, cells))
+        assert shown["source"] == row["source"] and int(shown["step"]) == int(row["step"])
+        for name in ("mre_last_pct", "mre_hold_pct", "abs_err_last_deg", "mse_roll", "mse_pitch", "mse_yaw", "rise_s"):
+            assert _same(shown[name], float(row[name] or "nan")), (name, shown[name], row[name])
+    html_mse = parser.tables["protocol-mse"]
+    for cells, row in zip(html_mse[1:], mse, strict=True):
+        shown = dict(zip(html_mse[0], cells))
+        assert shown["source"] == row["source"]
+        for name in ("mse_roll", "mse_pitch", "mse_yaw", "reduction_roll_pct", "reduction_pitch_pct"):
+            assert _same(shown[name], float(row[name] or "nan")), (name, shown[name], row[name])
+
+    variables = scipy.io.loadmat(mat, simplify_cells=True)["protocol"]
+    assert list(variables["steps"]["source"]) == [r["source"] for r in steps]
+    for name in ("mre_last_pct", "abs_err_hold_deg", "mse_yaw", "settling_s", "cross_deg"):
+        np.testing.assert_array_equal(variables["steps"][name], [float(r[name] or "nan") for r in steps])
+    np.testing.assert_array_equal(
+        variables["mse"]["reduction_roll_pct"], [float(r["reduction_roll_pct"] or "nan") for r in mse]
     )
-    assert done.returncode == 0, done.stderr
-    assert "roll mean" in done.stdout and "accel_mag" in done.stdout
-    assert out.read_text() == (folder / "protocol.csv").read_text()

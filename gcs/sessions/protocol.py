@@ -121,7 +121,9 @@ def table_rows(tables: ProtocolTables) -> list[dict[str, object]]:
 
 def csv_table(tables: ProtocolTables) -> pa.Table:
     """The three tables in one CSV-ready table (columns a table lacks are empty)."""
-    return pa.Table.from_pylist(table_rows(tables))
+    rows = table_rows(tables)
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    return pa.Table.from_pylist([{key: row.get(key) for key in columns} for row in rows])
 
 
 def mat_struct(tables: ProtocolTables) -> dict[str, object]:
