@@ -27,6 +27,7 @@ import numpy as np
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet
+from gcs.mavlink.ascii import SEED000, AsciiFormat
 from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
@@ -72,6 +73,7 @@ class StationConfig:
     request_streams: bool = True
     estimate: bool = True
     record_dir: str | None = None  # where sessions are recorded; None: no recording
+    ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
 
 
 class StationError(Exception):
@@ -90,6 +92,7 @@ class Station:
             baud=config.baud,
             speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
+            ascii_format=config.ascii_format,
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
