@@ -6,13 +6,14 @@ and hands back, per good line, an ATTITUDE message (the firmware's own estimate:
 stamped with the host clock since the stream began (the lines carry no time), plus a HEARTBEAT
 once a second so the link shows the device as connected. The messages are packed, so the
 recorder writes them to the session's tlog like any received packet and a replay reads them back.
-A line that does not parse (wrong field count, not a number, not finite, longer than
+A line that does not parse (wrong field count, not a number, beyond ±720°, longer than
 `MAX_LINE`) is counted in `counters.malformed` and skipped.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -66,6 +67,7 @@ class AsciiAttitudeDecoder:
         self.clock = clock
         self.counters = FramingCounters()  # packets: good lines; malformed: bad lines
         self._buf = bytearray()
+        self._skipping = False
         self._encoder = Encoder(1, 1)
         self._t0: float | None = None
         self._next_heartbeat = 0.0
@@ -78,12 +80,19 @@ class AsciiAttitudeDecoder:
         while True:
             end = buf.find(b"\n")
             if end < 0:
-                if len(buf) > MAX_LINE:  # no line ending in sight: garbage
-                    self._bad(len(buf))
+                if len(buf) > MAX_LINE:  # no line ending in sight: garbage, up to the next ending
+                    if not self._skipping:
+                        self._bad(0)
+                    self.counters.bytes_skipped += len(buf)
+                    self._skipping = True
                     del buf[:]
                 break
             line = bytes(buf[:end])
             del buf[: end + 1]
+            if self._skipping:  # the end of an overlong line, already counted
+                self._skipping = False
+                self.counters.bytes_skipped += len(line) + 1
+                continue
             out += self._line(line)
         if final and buf:  # a datagram ends its last line
             line = bytes(buf)
@@ -132,9 +141,10 @@ class AsciiAttitudeDecoder:
                 value = float(cell)
             except ValueError:
                 return None
-            if not math.isfinite(value):
+            angle = self._scale(value)
+            if not abs(angle) <= 2 * math.tau:  # NaN, infinite, or no attitude angle at all
                 return None
-            values[name] = self._scale(value)
+            values[name] = _float32(angle)
         return values["roll"], values["pitch"], values["yaw"]
 
     def _pack(self, msg: MAVLinkMessage) -> MAVLinkMessage:
@@ -144,3 +154,8 @@ class AsciiAttitudeDecoder:
     def _bad(self, size: int) -> None:
         self.counters.malformed += 1
         self.counters.bytes_skipped += size
+
+
+def _float32(value: float) -> float:
+    """The value as ATTITUDE's float field carries it, so the live message equals its replay."""
+    return float(struct.unpack("<f", struct.pack("<f", value))[0])
