@@ -42,6 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--detect-source", default=None, help="source whose attitude detects the holds (default: the protocol's)"
     )
     run_parser.add_argument(
+        "--preset",
+        action="append",
+        default=[],
+        metavar="EST=PRESET",
+        help="start an estimator from a preset, e.g. dcm=seed000 (recorded as gain changes), repeatable",
+    )
+    run_parser.add_argument(
         "-g",
         "--gain",
         action="append",
@@ -104,6 +111,11 @@ async def _run(config: StationConfig, protocol: Protocol, args: argparse.Namespa
         return 2
     await station.start()
     try:  # once recording: the session's events carry the changes, where they were applied
+        for item in args.preset:
+            estimator, sep, preset = item.partition("=")
+            if not sep:
+                raise GainError(f"--preset {item!r}: expected EST=PRESET")
+            station.reset_gains(estimator.strip(), preset.strip(), "cli")
         for estimator, values in gains.items():
             for name, value in values.items():
                 station.set_gain(estimator, name, value, "cli")
