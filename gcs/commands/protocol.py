@@ -12,7 +12,7 @@ from gcs.commands.common import run_reporting_errors
 from gcs.commands.options import add_link_arguments, station_config_or_report
 from gcs.commands.replay import parse_gains
 from gcs.core.gains import GainError
-from gcs.core.protocol import Protocol, ProtocolError, ProtocolTables, SourceMetrics, StepWindow
+from gcs.core.protocol import ProtocolError, ProtocolTables, SourceMetrics, StepWindow
 from gcs.runtime.protocol import LiveProtocol, ProtocolState
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions.contents import open_contents
@@ -74,14 +74,14 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "report":
         return _report(args)
     try:
-        protocol = load_protocol(args.protocol)
+        load_protocol(args.protocol)  # a bad file is refused before connecting
     except ProtocolError as exc:
         print(f"gcs protocol: {exc}", file=sys.stderr)
         return 2
     config = station_config_or_report(args, "protocol")
     if config is None:
         return 2
-    return asyncio.run(_run(config, protocol, args))
+    return asyncio.run(_run(config, args))
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -102,7 +102,7 @@ def _report(args: argparse.Namespace) -> int:
         return 2
 
 
-async def _run(config: StationConfig, protocol: Protocol, args: argparse.Namespace) -> int:
+async def _run(config: StationConfig, args: argparse.Namespace) -> int:
     station = Station(config)
     try:
         gains = parse_gains(args.gain, station.estimator_names())
@@ -123,7 +123,7 @@ async def _run(config: StationConfig, protocol: Protocol, args: argparse.Namespa
         print(f"gcs protocol: {exc}", file=sys.stderr)
         await station.stop()
         return 2
-    live = LiveProtocol(station, protocol, args.detect_source)
+    live = station.start_protocol(args.protocol, args.detect_source, "cli")
     done = asyncio.Event()
     live.changed.connect(lambda state: _prompt(state, done))
     live.step_done.connect(_print_step)

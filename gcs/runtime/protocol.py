@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import Protocol as TypingProtocol
 
 import numpy as np
 
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import HoldDetector, Protocol, SourceMetrics, Step, StepWindow, step_metrics
+from gcs.runtime.events import EventLog
 from gcs.runtime.signal import Signal
-from gcs.runtime.station import Station
 from gcs.sessions.protocol import EVENT_KIND, window_event
 
 #: Attitudes kept per source for one step (10 min at 400 Hz): an operator who walks away does not
@@ -26,7 +27,8 @@ STEP_BUFFER = 240_000
 
 @dataclass(frozen=True, slots=True)
 class ProtocolState:
-    """Where the run is, for the terminal and the dashboard."""
+    """Where the run is, for the terminal and the dashboard; `results`: every source's figures for
+    each completed step (its latest attempt), in step order."""
 
     protocol: str
     step: int  # 0-based index of the current step; == len(steps) when finished
@@ -36,6 +38,14 @@ class ProtocolState:
     completed: int
     skipped: int
     finished: bool
+    results: tuple[SourceMetrics, ...] = ()
+
+
+class Attitudes(TypingProtocol):
+    """What a run needs of the Station: its attitudes as they are produced, and its event log."""
+
+    points: Signal[[list[AttitudePoint]]]
+    events: EventLog
 
 
 class LiveProtocol:
@@ -43,7 +53,9 @@ class LiveProtocol:
     every source's metrics) and `changed` (a new prompt); `skip`, `repeat` and `finish` are
     commands on the loop."""
 
-    def __init__(self, station: Station, protocol: Protocol, detect_source: str | None = None, client: str = "cli"):
+    def __init__(
+        self, station: Attitudes, protocol: Protocol, detect_source: str | None = None, client: str = "cli"
+    ) -> None:
         self.station = station
         self.protocol = protocol
         self.detect_source = detect_source or protocol.detect_source
@@ -52,6 +64,8 @@ class LiveProtocol:
         self.attempts = [0] * len(protocol.steps)
         self.windows: list[StepWindow] = []
         self.skipped: list[int] = []
+        self.results: dict[int, list[SourceMetrics]] = {}
+        self.ended = False
         self.step_done: Signal[[StepWindow, list[SourceMetrics]]] = Signal()
         self.changed: Signal[[ProtocolState]] = Signal()
         self._buffers: dict[str, deque[tuple[float, float, float, float]]] = {}
@@ -80,12 +94,13 @@ class LiveProtocol:
             len({w.index for w in self.windows}),
             len(self.skipped),
             self.finished,
+            tuple(m for index in sorted(self.results) for m in self.results[index]),
         )
 
     # ---- commands ----------------------------------------------------------------------
     def skip(self) -> None:
         """Leave the current step without a result."""
-        if self.finished:
+        if self.finished or self.ended:
             return
         self.skipped.append(self.index)
         self.station.events.record(EVENT_KIND, self.client, action="skip", index=self.index)
@@ -93,14 +108,18 @@ class LiveProtocol:
 
     def repeat(self) -> None:
         """Go back to the previous step and do it again; its new window replaces the old one."""
-        if self.index == 0:
+        if self.index == 0 or self.ended:
             return
         index = self.index - 1
         self.station.events.record(EVENT_KIND, self.client, action="repeat", index=index)
         self._begin(index)
 
     def finish(self) -> None:
-        """End the run (all steps done, or given up) and stop listening."""
+        """End the run (all steps done, or given up) and stop listening; once."""
+        if self.ended:
+            return
+        self.ended = True
+        self._detector = None
         self._disconnect()
         self.station.events.record(
             EVENT_KIND,
@@ -123,6 +142,8 @@ class LiveProtocol:
             self.station.events.record(
                 EVENT_KIND, self.client, action="prompt", index=index, attempt=self.attempts[index], prompt=step.prompt
             )
+        else:
+            self.finish()
         self.changed.emit(self.state())
 
     def _on_points(self, points: list[AttitudePoint]) -> None:
@@ -153,5 +174,6 @@ class LiveProtocol:
             m = step_metrics(self.protocol, window, source, series[np.argsort(series[:, 0], kind="stable")])
             if m is not None:
                 metrics.append(m)
+        self.results[window.index] = metrics
         self.step_done.emit(window, metrics)
         self._begin(self.index + 1)

@@ -125,3 +125,30 @@ class History(BaseModel):
 
     seconds: float
     points: dict[str, list[list[float]]]
+
+
+class ProtocolStart(BaseModel):
+    name: str = Field(description="a shipped protocol (GET /api/protocol lists them) or a TOML file on the server")
+    detect_source: str | None = Field(default=None, description="source that detects the holds; omitted: the file's")
+
+
+class ProtocolRun(BaseModel):
+    """A test protocol run: where it is, and every source's figures per completed step
+    (gcs.core.protocol.SourceMetrics fields; null where a figure could not be had)."""
+
+    protocol: str
+    step: int = Field(description="0-based current step; equals steps when finished")
+    steps: int
+    attempt: int
+    prompt: str
+    completed: int
+    skipped: int
+    finished: bool
+    running: bool
+    detect_source: str
+    results: list[dict[str, float | int | str | None]]
+
+
+class ProtocolStatus(BaseModel):
+    available: list[str]
+    run: ProtocolRun | None
