@@ -60,10 +60,13 @@ def test_shipped_bench_protocol_is_what_the_simulator_does():
 
 def test_hold_needs_the_whole_time_inside_the_tolerance():
     detector = HoldDetector(Step("pitch", 30.0, hold_s=1.0, tolerance_deg=2.0))
-    angles = {0.0: 25.0, 0.5: 29.0, 1.0: 33.0, 1.2: 31.0, 2.0: 30.5, 2.1: 29.0, 2.2: 30.0}
+    angles = {0.0: 25.0, 0.5: 29.0, 1.0: 33.0, 1.2: 31.0, 1.6: 30.2, 2.0: 30.5, 2.1: 29.0, 2.2: 30.0}
     results = {t: detector.feed(t, (0.0, math.radians(a), 0.0)) for t, a in angles.items()}
     assert results[2.0] is None  # 0.8 s since it came back inside at 1.2 s
     assert results[2.2] == (1.2, 2.2)
+    gappy = HoldDetector(Step("pitch", 30.0, hold_s=1.0, tolerance_deg=2.0))
+    seen = [gappy.feed(t, (0.0, math.radians(30.0), 0.0)) for t in (0.0, 0.3, 3.0, 3.4, 3.8, 4.0)]
+    assert seen == [None, None, None, None, None, (3.0, 4.0)]  # not seen between 0.3 and 3.0 s
 
 
 def _ramp_and_hold(target: float, offset: float, bump: float) -> np.ndarray:

@@ -173,9 +173,14 @@ class StepWindow:
     t_hold_end: float
 
 
+#: A gap in the detecting source longer than this (s) restarts a hold: it must be seen held.
+HOLD_MAX_GAP = 0.5
+
+
 class HoldDetector:
     """Feed one source's attitude in time order; `feed` returns (hold start, hold end) once the
-    step's axis has stayed within the tolerance of the target for the hold time."""
+    step's axis has been seen within the tolerance of the target for the hold time, with no
+    gap in the samples longer than HOLD_MAX_GAP (lost packets hide what happened)."""
 
     def __init__(self, step: Step) -> None:
         self.axis = AXES.index(step.axis)
@@ -188,10 +193,11 @@ class HoldDetector:
     def feed(self, t: float, angles: tuple[float, float, float]) -> tuple[float, float] | None:
         if t <= self.last_t:
             return None
+        gap = t - self.last_t > HOLD_MAX_GAP
         self.last_t = t
         error = abs(math.remainder(angles[self.axis] - self.target, math.tau))
-        if error > self.tolerance:
-            self.since = None
+        if error > self.tolerance or gap:
+            self.since = None if error > self.tolerance else t
             return None
         if self.since is None:
             self.since = t
