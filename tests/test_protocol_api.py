@@ -44,17 +44,17 @@ async def _scenario(udp_port: int, path: str) -> None:
                 bad = await api.post("/api/protocol/start", json={"name": "no-such-protocol"})
                 assert bad.status_code == 422 and "seed000-bench" in bad.json()["detail"]
                 started = (await api.post("/api/protocol/start", json={"name": path})).json()["run"]
-                assert started["prompt"].startswith("rotate to roll -30") and started["running"]
+                assert started["state"]["prompt"].startswith("rotate to roll -30") and started["running"]
                 # the vehicle starts now, so its script begins with the first step's angle
                 async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="bench"):
                     await wait_for(lambda: station.protocol.index == 1, 90, "step 1 held")
                 run = (await api.get("/api/protocol")).json()["run"]
-                assert run["completed"] == 1 and run["step"] == 1
+                assert run["state"]["completed"] == 1 and run["state"]["step"] == 1
                 truth = next(m for m in run["results"] if m["source"] == "truth")
                 assert truth["label"] == "roll -30" and truth["mre_last_pct"] < 0.5
                 assert {m["source"] for m in run["results"]} >= {"truth", "onboard", "dcm", "kf", "ekf"}
                 run = (await api.post("/api/protocol/skip")).json()["run"]
-                assert run["finished"] and not run["running"] and run["skipped"] == 1
+                assert run["state"]["finished"] and not run["running"] and run["state"]["skipped"] == 1
                 assert (await api.post("/api/protocol/skip")).status_code == 404  # nothing left to skip
         finally:
             await server.stop()

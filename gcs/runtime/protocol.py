@@ -27,8 +27,7 @@ STEP_BUFFER = 240_000
 
 @dataclass(frozen=True, slots=True)
 class ProtocolState:
-    """Where the run is, for the terminal and the dashboard; `results`: every source's figures for
-    each completed step (its latest attempt), in step order."""
+    """Where the run is, for the terminal and the dashboard."""
 
     protocol: str
     step: int  # 0-based index of the current step; == len(steps) when finished
@@ -38,7 +37,6 @@ class ProtocolState:
     completed: int
     skipped: int
     finished: bool
-    results: tuple[SourceMetrics, ...] = ()
 
 
 class Attitudes(TypingProtocol):
@@ -94,8 +92,11 @@ class LiveProtocol:
             len({w.index for w in self.windows}),
             len(self.skipped),
             self.finished,
-            tuple(m for index in sorted(self.results) for m in self.results[index]),
         )
+
+    def completed_results(self) -> list[SourceMetrics]:
+        """Every source's figures for each completed step (its latest attempt), in step order."""
+        return [m for index in sorted(self.results) for m in self.results[index]]
 
     # ---- commands ----------------------------------------------------------------------
     def skip(self) -> None:

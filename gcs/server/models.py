@@ -6,6 +6,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from gcs.runtime.protocol import ProtocolState
 from gcs.runtime.snapshots import ErrorStats, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.live import ClientSnapshot
@@ -136,14 +137,7 @@ class ProtocolRun(BaseModel):
     """A test protocol run: where it is, and every source's figures per completed step
     (gcs.core.protocol.SourceMetrics fields; null where a figure could not be had)."""
 
-    protocol: str
-    step: int = Field(description="0-based current step; equals steps when finished")
-    steps: int
-    attempt: int
-    prompt: str
-    completed: int
-    skipped: int
-    finished: bool
+    state: ProtocolState
     running: bool
     detect_source: str
     results: list[dict[str, float | int | str | None]]

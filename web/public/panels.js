@@ -352,10 +352,11 @@ async function refreshProtocol() {
 function showProtocol(run) {
   panelState.protocol = run;
   if (!run) { $("protocol-prompt").textContent = "no protocol run yet"; return; }
-  $("protocol-prompt").textContent = run.running ? `Step ${run.step + 1}: ${run.prompt}` : run.finished ? "protocol finished" : "protocol stopped";
-  $("protocol-progress").max = run.steps; $("protocol-progress").value = run.completed;
-  $("protocol-step").textContent = `${run.protocol}: ${run.completed} of ${run.steps} steps done, ${run.skipped} skipped`
-    + `${run.attempt > 1 && run.running ? `, attempt ${run.attempt}` : ""}; holds seen by ${run.detect_source}`;
+  const s = run.state;
+  $("protocol-prompt").textContent = run.running ? `Step ${s.step + 1}: ${s.prompt}` : s.finished ? "protocol finished" : "protocol stopped";
+  $("protocol-progress").max = s.steps; $("protocol-progress").value = s.completed;
+  $("protocol-step").textContent = `${s.protocol}: ${s.completed} of ${s.steps} steps done, ${s.skipped} skipped`
+    + `${s.attempt > 1 && run.running ? `, attempt ${s.attempt}` : ""}; holds seen by ${run.detect_source}`;
   for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run.running || !canChange();
   const sources = [...new Set(run.results.map((m) => m.source))];
   const steps = [...new Set(run.results.map((m) => m.step))];

@@ -22,13 +22,11 @@ router = APIRouter(prefix="/api/protocol", tags=["protocol"])
 def run_model(live: LiveProtocol | None) -> ProtocolRun | None:
     if live is None:
         return None
-    state = live.state()
     results = [
         {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in dataclasses.asdict(m).items()}
-        for m in state.results
+        for m in live.completed_results()
     ]
-    fields = {f.name: getattr(state, f.name) for f in dataclasses.fields(state) if f.name != "results"}
-    return ProtocolRun(**fields, running=not live.ended, detect_source=live.detect_source, results=results)
+    return ProtocolRun(state=live.state(), running=not live.ended, detect_source=live.detect_source, results=results)
 
 
 @router.get("", response_model=ProtocolStatus)
