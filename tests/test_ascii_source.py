@@ -44,7 +44,7 @@ def test_seed000_ascii_stream_over_pty_is_plotted_recorded_and_replayed(tmp_path
 
 async def _scenario(tmp_path):
     pty = tmp_path / "apm25"
-    firmware = AsciiFirmware(SimVehicle(profile="apm25", script="bench", speed=4.0), rate_hz=50.0, malformed=0.02)
+    firmware = AsciiFirmware(SimVehicle(profile="apm25", script="bench", speed=2.0), rate_hz=25.0, malformed=0.02)
     served = asyncio.create_task(firmware.run(f"pty:{pty}"))
     await wait_for(pty.exists, 10, "the pseudo-terminal")
     station = Station(StationConfig(connect=f"ascii:{pty}", record_dir=str(tmp_path / "sessions")))
@@ -56,21 +56,23 @@ async def _scenario(tmp_path):
     await server.start()
     try:
         stats = station.link.stats.framing
-        # 12 vehicle seconds: the bench script has turned to roll -30° and held it
-        await wait_for(lambda: stats.packets >= 600 and stats.malformed >= 3, 60, "600 good lines and some bad ones")
+        # 10 vehicle seconds: the bench script has turned to roll -30° and held it
+        await wait_for(lambda: stats.packets >= 250 and stats.malformed >= 2, 60, "250 good lines and bad ones")
         async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:
             history = (await api.get("/api/history", params={"seconds": 60})).json()["points"]
             status = (await api.get("/api/status")).json()
         t, roll, pitch, yaw = history["onboard"]
-        assert len(t) >= 500 and min(roll) < -28.0  # plotted: the dashboard's store has the stream
-        assert status["link"]["state"] == "connected" and status["link"]["malformed"] >= 3
+        assert len(t) >= 200 and min(roll) < -28.0  # plotted: the dashboard's store has the stream
+        assert status["link"]["state"] == "connected" and status["link"]["malformed"] >= 2
         assert station.link.stats.packets_out == 0  # nothing written to a device that reads no MAVLink
         served.cancel()
         await asyncio.gather(served, return_exceptions=True)
-        # every line printed since the port was opened is either read or counted as malformed
-        await wait_for(lambda: stats.packets + stats.malformed >= firmware.lines - early[0], 10, "the last lines")
-        assert 0 <= firmware.lines - (stats.packets + stats.malformed) <= early[0]
-        assert firmware.damaged - early[1] <= stats.malformed <= firmware.damaged
+        # every line printed since the port was opened (and not refused by a full port buffer, which
+        # a loaded machine's stalled reader can cause) is either read or counted as malformed
+        printed, damaged = firmware.lines - firmware.lost, firmware.damaged - firmware.lost_damaged
+        await wait_for(lambda: stats.packets + stats.malformed >= printed - early[0], 10, "the last lines")
+        assert 0 <= printed - (stats.packets + stats.malformed) <= early[0]
+        assert damaged - early[1] <= stats.malformed <= damaged
         assert 0.005 < firmware.damaged / firmware.lines < 0.05
         session = station.recorder.session.folder
     finally:

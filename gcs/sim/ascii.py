@@ -30,10 +30,15 @@ class AsciiFirmware:
         self.rng = np.random.default_rng(vehicle.seed + 1000)
         self.lines = 0
         self.damaged = 0
+        #: lines (and damaged ones among them) a full port buffer refused: a stalled reader
+        self.lost = 0
+        self.lost_damaged = 0
         self._next = 0.0
+        self._chunk = (0, 0)  # lines and damaged lines in the last advance()
 
     def advance(self, t: float) -> bytes:
         out = bytearray()
+        lines, damaged = self.lines, self.damaged
         while self._next <= t:
             self.vehicle.advance(self._next)  # the autopilot's loop runs up to the line's time
             line = self.format.line(*self.vehicle.autopilot.primary.euler()).encode()
@@ -44,6 +49,7 @@ class AsciiFirmware:
             out += line
             self._next += self.period
         self.vehicle.advance(t)
+        self._chunk = (self.lines - lines, self.damaged - damaged)
         return bytes(out)
 
     def _damage(self, line: bytes) -> bytes:
@@ -68,7 +74,11 @@ class AsciiFirmware:
             while True:
                 data = self.advance(vehicle0 + (loop.time() - wall0) * speed)
                 if data:
+                    refused = endpoint.dropped_writes
                     endpoint.write(data)
+                    if endpoint.dropped_writes > refused:
+                        self.lost += self._chunk[0]
+                        self.lost_damaged += self._chunk[1]
                 await asyncio.sleep(self.period / speed)
         finally:
             endpoint.close()
