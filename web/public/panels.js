@@ -364,9 +364,11 @@ function showProtocol(run) {
   $("protocol-table").innerHTML = !steps.length ? "" : `<tr><th>step</th>${sources.map((s) => `<th>${html(s)}</th>`).join("")}</tr>`
     + steps.map((k) => {
       const label = cell.get(`${k}/${sources.find((s) => cell.has(`${k}/${s}`))}`).label;
-      return `<tr data-step="${k}"><td>${html(label)}</td>${sources.map((s) => `<td>${num(cell.get(`${k}/${s}`)?.mre_last_pct, 2)}</td>`).join("")}</tr>`;
+      return `<tr data-step="${k}"><td>${html(label)}</td>${sources.map((s) => `<td>${pct(cell.get(`${k}/${s}`)?.mre_last_pct)}</td>`).join("")}</tr>`;
     }).join("");
 }
+
+const pct = (x) => x == null ? "–" : Number(x).toFixed(2);
 
 async function protocolAction(path, body) {
   const r = await call("POST", path, body);
