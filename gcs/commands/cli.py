@@ -27,6 +27,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "export": ("gcs.commands.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
     "report": ("gcs.commands.report", "write a self-contained HTML flight-test report of a session or log"),
     "params": ("gcs.commands.params", "read, write (verified), save, load and diff the vehicle's parameters"),
+    "protocol": (
+        "gcs.commands.protocol",
+        "run a guided bench-test protocol (prompts, hold detection, the seeds' error figures) or report one",
+    ),
 }
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from gcs.mavlink.ascii import UNITS, AsciiFormat
 from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.transport.address import AddressError, parse_address
@@ -18,7 +19,7 @@ def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool =
         required=connect_required,
         metavar="URL",
         help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:0.0.0.0:5760, "
-        "a serial device, or a .tlog to replay",
+        "a serial device, or a .tlog to replay; ascii:ADDRESS for text attitude lines (seed 000's firmware)",
     )
     parser.add_argument("--baud", default="57600", help="serial baud rate, or 'auto' (default 57600)")
     parser.add_argument("--speed", type=float, default=1.0, help="replay speed for a .tlog (0 = as fast as possible)")
@@ -33,6 +34,13 @@ def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool =
     parser.add_argument("--imu-rate", type=float, default=50.0, help="raw IMU rate to request, Hz (default 50)")
     parser.add_argument("--attitude-rate", type=float, default=50.0, help="ATTITUDE rate to request, Hz (default 50)")
     parser.add_argument("--gps-rate", type=float, default=5.0, help="GPS rate to request, Hz (default 5)")
+    parser.add_argument(
+        "--ascii-fields",
+        default="pitch,yaw,roll",
+        metavar="A,B,C",
+        help="column order of an ascii: link's lines, - for a column to ignore (default seed 000's pitch,yaw,roll)",
+    )
+    parser.add_argument("--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)")
     add_record_arguments(parser)
 
 
@@ -66,6 +74,7 @@ def station_config(args: argparse.Namespace):
         heartbeat_timeout=args.heartbeat_timeout,
         plan=StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate),
         record_dir=record_dir(args),
+        ascii_format=AsciiFormat.parse(args.ascii_fields, args.ascii_unit),
     )
 
 

@@ -7,6 +7,7 @@ import asyncio
 import sys
 from typing import Any
 
+from gcs.sim.ascii import AsciiFirmware
 from gcs.sim.sensors import SensorFaults
 from gcs.sim.vehicle import SimVehicle
 from gcs.transport.address import parse_address
@@ -62,6 +63,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-declination-param",
         action="store_true",
         help="the vehicle has no COMPASS_DEC / EKF2_MAG_DECL parameter (the ground station must use the WMM)",
+    )
+    parser.add_argument(
+        "--ascii",
+        action="store_true",
+        help="run seed 000's firmware: plain `pitch,yaw,roll` lines (degrees) instead of MAVLink",
+    )
+    parser.add_argument("--ascii-rate", type=float, default=10.0, help="lines per second with --ascii (default 10)")
+    parser.add_argument(
+        "--ascii-malformed", type=float, default=0.0, help="fraction of damaged lines with --ascii (default 0)"
     )
     parser.add_argument(
         "--fault",
@@ -127,15 +137,24 @@ def run(args: argparse.Namespace) -> int:
         publish_declination=not args.no_declination_param,
     )
 
+    firmware = None
+    if args.ascii:
+        try:
+            firmware = AsciiFirmware(sim, rate_hz=args.ascii_rate, malformed=args.ascii_malformed)
+        except ValueError as exc:
+            print(f"gcs sim: --ascii-malformed: {exc}", file=sys.stderr)
+            return 2
+
     def serving() -> None:
+        speaking = "seed 000's ASCII lines" if firmware else f"sysid {args.sysid}"
         print(
-            f"gcs sim: {args.profile} vehicle (sysid {args.sysid}) flying the {args.script} script "
+            f"gcs sim: {args.profile} vehicle ({speaking}) flying the {args.script} script "
             f"at {args.speed:g}x on {args.link} (Ctrl-C stops)",
             flush=True,
         )
 
     try:
-        asyncio.run(sim.run(args.link, on_open=serving))
+        asyncio.run((firmware or sim).run(args.link, on_open=serving))
     except KeyboardInterrupt:
         pass
     except OSError as exc:

@@ -188,7 +188,8 @@ class MessageSampler:
     """One vehicle's MAVLink messages, in arrival order → samples on its clock.
 
     The one place where a live stream and a replayed .tlog become samples, so live and offline numbers
-    come from identical input. The vehicle is `system` (None: the first that sends IMU data); the IMU
+    come from identical input. The vehicle is `system` (None: the first that sends IMU data; until
+    one does, the ATTITUDE of `attitude_system`, the first that sends one, is passed on); the IMU
     stream is `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
     streamed alone for SECONDARY_IMU_WAIT s). GPS_RAW_INT time_usec is used when it is boot
     time; otherwise (UNIX time on ArduPilot) the fix gets the vehicle time at its arrival.
@@ -197,6 +198,7 @@ class MessageSampler:
     def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
         self.imu_type = imu_type
         self.system = system
+        self.attitude_system: int | None = None
         self.clock = VehicleClock()
         self._secondary_since: dict[str, float] = {}
         self._leading: MAVLinkMessage | None = None  # an AHRS2 waiting for its slot's time
@@ -209,6 +211,13 @@ class MessageSampler:
             return []
         system = msg.get_srcSystem()
         if self.system is None:
+            if kind == "ATTITUDE" and self.attitude_system in (None, system):
+                # no IMU yet: a device that only ever sends its attitude (seed 000's firmware
+                # on an ascii: link) is still followed, for that reference alone
+                self.attitude_system = system
+                now = self.clock.observe(msg)
+                sample = None if now is None else attitude_from_message(msg, now)
+                return [] if sample is None else [sample]
             if kind not in IMU_TYPES:
                 return []
             self.system = system

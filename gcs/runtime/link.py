@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
+from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
@@ -99,6 +100,7 @@ class Link:
         heartbeat_timeout: float = 3.0,
         heartbeat_rate: float = 1.0,
         name: str = "vehicle",
+        ascii_format: AsciiFormat = SEED000,
     ) -> None:
         self.address = parse_address(address) if isinstance(address, str) else address
         self.bus = bus or MessageBus()
@@ -110,7 +112,8 @@ class Link:
         self.state = LinkState.WAITING
         self.events: deque[LinkEvent] = deque(maxlen=1000)
         self.stats = LinkStats()
-        self.decoder = MavlinkDecoder()
+        self.ascii_format = ascii_format
+        self.decoder = self._new_decoder()
         self.stats.framing = self.decoder.counters
         self.outputs: list = []  # gcs.runtime.forward.Output
         self.target_system: int | None = None
@@ -154,7 +157,7 @@ class Link:
         self.send_raw(self._encoder.encode(msg))
 
     def send_raw(self, packet: bytes) -> None:
-        if self._transport is None:
+        if self._transport is None or self.address.framing == "ascii":  # a text device reads no MAVLink
             return
         self._transport.write(packet)
         self.stats.bytes_out += len(packet)
@@ -237,6 +240,10 @@ class Link:
             await asyncio.sleep(0.1)
 
     # ---- helpers ----------------------------------------------------------------------
+    def _new_decoder(self) -> MavlinkDecoder | AsciiAttitudeDecoder:
+        """MAVLink framing, or seed 000-style text lines (an ascii: address) turned into MAVLink."""
+        return AsciiAttitudeDecoder(self.ascii_format) if self.address.framing == "ascii" else MavlinkDecoder()
+
     def _make_transport(self) -> Transport:
         baud = self.baud if isinstance(self.baud, int) else AUTO_BAUDS[0]
         return make_transport(self.address, baud=baud, speed=self.speed)
@@ -260,10 +267,10 @@ class Link:
         """Try the usual baud rates until one yields a valid MAVLink packet; keep that one."""
         while True:
             for baud in AUTO_BAUDS:
-                decoder = MavlinkDecoder()
+                decoder = self._new_decoder()
                 transport = make_transport(self.address, baud=baud)
 
-                def deliver(data: bytes, decoder: MavlinkDecoder = decoder) -> None:
+                def deliver(data: bytes, decoder: MavlinkDecoder | AsciiAttitudeDecoder = decoder) -> None:
                     decoder.feed(data)
 
                 try:

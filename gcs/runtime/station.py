@@ -27,6 +27,7 @@ import numpy as np
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet
+from gcs.mavlink.ascii import SEED000, AsciiFormat
 from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
@@ -34,6 +35,7 @@ from gcs.runtime.events import EventLog
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
 from gcs.runtime.params import ParamClient
+from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.recorder import SessionRecorder
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.signal import Signal
@@ -50,6 +52,7 @@ from gcs.runtime.streams import StreamPlan, StreamRequester
 from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
 from gcs.runtime.vehicle import VehicleState
+from gcs.sessions.protocol import load_protocol
 from gcs.sessions.workbench import load_source
 
 #: Seconds between published snapshots (and comparison rows in a recording).
@@ -72,6 +75,7 @@ class StationConfig:
     request_streams: bool = True
     estimate: bool = True
     record_dir: str | None = None  # where sessions are recorded; None: no recording
+    ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
 
 
 class StationError(Exception):
@@ -90,6 +94,7 @@ class Station:
             baud=config.baud,
             speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
+            ascii_format=config.ascii_format,
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
@@ -116,6 +121,8 @@ class Station:
         self.replay: ReplaySession | None = None
         self.replay_loaded: Signal[[ReplaySession]] = Signal()
         self._replay_task: asyncio.Task[None] | None = None
+        #: the test protocol being run (or the last one), see gcs.runtime.protocol
+        self.protocol: LiveProtocol | None = None
         self._tuning: TuningSession | None = None
         self._tuning_lock: asyncio.Lock | None = None
         self._download: asyncio.Task[Any] | None = None
@@ -145,6 +152,8 @@ class Station:
         run("snapshots", self._publish_loop())
 
     async def stop(self) -> None:
+        if self.protocol is not None:
+            self.protocol.finish()
         await self.unload_replay()
         await self.supervisor.stop(first="link")  # nothing arrives while the others finish
         if self.recorder is not None:
@@ -269,6 +278,22 @@ class Station:
     def add_note(self, text: str, client: str) -> None:
         self._on_loop()
         self.recording().note(text, client)
+
+    # ---- commands: test protocols -------------------------------------------------------------
+    def start_protocol(self, name_or_path: str, detect_source: str | None, client: str) -> LiveProtocol:
+        """Start a test protocol (a shipped name or a TOML file), ending any run in progress;
+        ProtocolError names what is wrong with the file."""
+        self._on_loop()
+        protocol = load_protocol(name_or_path)
+        self.stop_protocol()
+        self.protocol = LiveProtocol(self, protocol, detect_source, client)
+        return self.protocol
+
+    def stop_protocol(self) -> None:
+        """End the protocol run in progress, if any (its results stay readable)."""
+        self._on_loop()
+        if self.protocol is not None:
+            self.protocol.finish()
 
     # ---- commands: vehicle parameters and tuning ---------------------------------------------
     def start_param_download(self) -> bool:

@@ -6,6 +6,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
+from gcs.runtime.protocol import ProtocolState
 from gcs.runtime.snapshots import ErrorStats, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.live import ClientSnapshot
@@ -125,3 +126,23 @@ class History(BaseModel):
 
     seconds: float
     points: dict[str, list[list[float]]]
+
+
+class ProtocolStart(BaseModel):
+    name: str = Field(description="a shipped protocol (GET /api/protocol lists them) or a TOML file on the server")
+    detect_source: str | None = Field(default=None, description="source that detects the holds; omitted: the file's")
+
+
+class ProtocolRun(BaseModel):
+    """A test protocol run: where it is, and every source's figures per completed step
+    (gcs.core.protocol.SourceMetrics fields; null where a figure could not be had)."""
+
+    state: ProtocolState
+    running: bool
+    detect_source: str
+    results: list[dict[str, float | int | str | None]]
+
+
+class ProtocolStatus(BaseModel):
+    available: list[str]
+    run: ProtocolRun | None

@@ -27,9 +27,11 @@ import pyarrow.compute as pc
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
+from gcs.core.protocol import ProtocolTables
 from gcs.sessions.contents import Contents, open_contents
 from gcs.sessions.matfile import write_mat
 from gcs.sessions.mcapfile import write_mcap
+from gcs.sessions.protocol import csv_table
 from gcs.sessions.sources import ReplaySource, open_source
 
 FORMATS = ("csv", "parquet", "mat", "mcap")
@@ -87,11 +89,17 @@ def export(
     """Export the session or log at `path` to `out` in `fmt`; returns what UNITS[fmt] counts.
     InputError for bad input; `out` is replaced only when the whole file was written."""
     contents = open_contents(path, decode)
+    return write_replacing(out, lambda tmp: write_contents(contents, fmt, tmp))
+
+
+def write_replacing(out: str | os.PathLike, write: Callable[[Path], int]) -> int:
+    """write(tmp) to a temporary file beside `out`, then rename it to `out`: a failed run never
+    clobbers the file. Returns what write returns; an OSError names `out`, not the temporary."""
     target = Path(out)
     # beside the output (same file system: the rename is atomic), created with the umask's mode
     tmp = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
-        count = write_contents(contents, fmt, tmp)
+        count = write(tmp)
         os.replace(tmp, target)
     except OSError as exc:
         if exc.filename == str(tmp):  # name the file the user asked for, not the temporary one
@@ -101,3 +109,10 @@ def export(
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
     return count
+
+
+def write_protocol_csv(tables: ProtocolTables, out: str | os.PathLike) -> int:
+    """The protocol tables (per step, per-axis means, MSE) as one CSV, replacing `out` only when
+    written; returns the rows written."""
+    table = csv_table(tables)
+    return write_replacing(out, lambda tmp: pcsv.write_csv(table, tmp) or table.num_rows)

@@ -12,6 +12,10 @@ Variables (every name a valid MATLAB identifier; see `matlab_name`):
   `wall_time` (UNIX s), `t` (vehicle s, through the session's clock offset; NaN without one),
   `estimator`, `gain`, `client` (cell arrays of char), `old`, `new`.
 - `info`: `name`, `kind`, `sources` (cell: source name → its variable name), `units`.
+- `protocol`, when the session holds a test protocol run (gcs.sessions.protocol): `name` and the
+  structs `steps` (seed 000's figures and seed 004's MSE per source and step), `axis_means` and
+  `mse` (seed 004's table with the reduction relative to the raw accelerometer/magnetometer
+  angles), one column per field, the same rows as protocol.csv and the HTML report.
 """
 
 from __future__ import annotations
@@ -24,11 +28,12 @@ import numpy as np
 import scipy.io
 
 from gcs.sessions.contents import Contents
+from gcs.sessions.protocol import mat_struct, session_tables
 
 #: MATLAB's namelengthmax.
 NAME_MAX = 63
 _INVALID = re.compile(r"[^A-Za-z0-9_]")
-RESERVED = frozenset({"gain_changes", "info"})
+RESERVED = frozenset({"gain_changes", "info", "protocol"})
 
 
 def matlab_name(text: str, taken: set[str]) -> str:
@@ -111,6 +116,9 @@ def mat_variables(contents: Contents) -> dict[str, object]:
         "sources": pairs,
         "units": "t: vehicle s since boot; wall_time: UNIX s; angles and errors: degrees, Z-Y-X (yaw, pitch, roll)",
     }
+    tables = session_tables(contents) if contents.kind == "session" else None
+    if tables is not None:
+        variables["protocol"] = mat_struct(tables)
     return variables
 
 

@@ -15,12 +15,17 @@ import html
 import io
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimation import AttitudePoint
+from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
 from gcs.provenance import provenance
+from gcs.sessions import layout
+from gcs.sessions.contents import Contents
+from gcs.sessions.protocol import formatted, session_tables
 from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
@@ -84,10 +89,78 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
     return _png(fig)
 
 
-def _table(header: list[str], rows: list[list]) -> str:
+def _table(header: list[str], rows: list[list], name: str = "") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    attribute = f" class='{name}'" if name else ""
+    return f"<table{attribute}><tr>{head}</tr>{body}</table>"
+
+
+def plot_holds(tables: ProtocolTables, series: dict[str, Series]) -> str:
+    """One panel per completed step: the step's axis of every source from the prompt to the end
+    of the hold, the target, and the hold window shaded."""
+    from matplotlib.figure import Figure  # noqa: PLC0415 - ~0.5 s to import; only reports plot
+
+    windows = tables.windows
+    cols = min(3, len(windows))
+    rows = -(-len(windows) // cols)
+    fig = Figure(figsize=(11, 2.8 * rows))
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    for ax, window in zip(axes, windows):
+        step = tables.protocol.steps[window.index]
+        k = AXES.index(step.axis)
+        for name, data in sorted(series.items()):
+            part = data[(data[:, 0] >= window.t_start) & (data[:, 0] <= window.t_hold_end)]
+            ax.plot(part[:, 0], np.degrees(part[:, 1 + k]), lw=0.8, label=name)
+        ax.axhline(step.target_deg, color="k", lw=0.6, ls="--")
+        ax.axvspan(window.t_hold_start, window.t_hold_end, color="0.9")
+        ax.set_title(f"{window.index + 1}. {step.name}", fontsize=9)
+        ax.set_ylabel(f"{step.axis} (deg)", fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in axes[len(windows) :]:
+        ax.set_visible(False)
+    axes[0].legend(loc="best", fontsize=7, ncol=2)
+    return _png(fig)
+
+
+#: The seed 000 step table's columns (SourceMetrics fields), as shown in the report.
+STEP_COLUMNS = tuple(f for f in METRIC_FIELDS if f != "label")
+
+
+def protocol_sections(tables: ProtocolTables, series: dict[str, Series]) -> list[str]:
+    """Seed 000's tables (every source per step; per-axis means), seed 004's (MSE per axis,
+    reduction relative to the raw accelerometer/magnetometer angles) and the holds' plots."""
+    p = tables.protocol
+    steps = [[formatted(getattr(m, f)) for f in STEP_COLUMNS] for m in tables.steps]
+    means = [
+        [m.source, m.axis, m.steps, formatted(m.mre_last_pct), formatted(m.mre_hold_pct)] for m in tables.axis_means
+    ]
+    mse = [
+        [r.source, r.samples, *(formatted(v) for v in (r.mse_roll, r.mse_pitch, r.mse_yaw)),
+         *(formatted(v) for v in (r.reduction_roll_pct, r.reduction_pitch_pct, r.reduction_yaw_pct))]
+        for r in tables.mse
+    ]  # fmt: skip
+    intro = (
+        f"<p>{html.escape(p.name)}: {html.escape(p.description)}. {len(tables.windows)} of {len(p.steps)} steps "
+        f"completed. Every source against the target: mean relative error over the last {p.last_samples} samples "
+        "(seed 000) and over the whole hold, %; absolute error, degrees; MSE per axis against the step's "
+        "reference attitude, deg² (seed 004); rise (10–90 %) and settling time, s; cross-axis disturbance, "
+        "degrees. accel_mag: the raw accelerometer/magnetometer angles. Definitions: docs/protocols.md.</p>"
+    )
+    return [
+        f"<h2>Test protocol</h2>{intro}",
+        "<h3>Seed 000: per step</h3>" + _table(list(STEP_COLUMNS), steps, "protocol-steps"),
+        "<h3>Seed 000: per axis (mean over the axis's steps)</h3>"
+        + _table(["source", "axis", "steps", "mre_last_pct", "mre_hold_pct"], means, "protocol-axis-means"),
+        "<h3>Seed 004: MSE per axis over the holds and reduction relative to accel_mag</h3>"
+        + _table(
+            ["source", "samples", "mse_roll", "mse_pitch", "mse_yaw"]
+            + ["reduction_roll_pct", "reduction_pitch_pct", "reduction_yaw_pct"],
+            mse,
+            "protocol-mse",
+        ),
+        f"<h3>The holds</h3><img src='{plot_holds(tables, series)}'>",
+    ]
 
 
 def accuracy_rows(pipeline) -> list[list]:
@@ -124,7 +197,7 @@ def loss_rows(source) -> list[list]:
     ]
 
 
-def render(source, series: dict[str, np.ndarray], pipeline) -> str:
+def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTables | None = None) -> str:
 
     estimators = list(pipeline.estimators)
     reference = next((r for r in ERROR_REFERENCES if r in series), None)
@@ -160,6 +233,8 @@ def render(source, series: dict[str, np.ndarray], pipeline) -> str:
         reliable, reason = comparison.reliability()
         if not reliable:
             sections.append(f"<p class='warn'>{html.escape(name)}: {html.escape(reason)}</p>")
+    if protocol is not None:
+        sections += protocol_sections(protocol, series)
     sections.append("<h2>Rates</h2>" + _table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
     if source.framing is not None:
         sections.append("<h2>Packets and loss</h2>" + _table(["", ""], loss_rows(source)))
@@ -176,7 +251,10 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 def write_report(path: str, out: str, progress=None) -> None:
     source = open_source(path)
     series, pipeline = collect(source, progress)
-    text = render(source, series, pipeline)
+    tables = None
+    if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
+        tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
+    text = render(source, series, pipeline, tables)
     partial = f"{out}.partial"  # a failed write leaves any earlier report as it was
     try:
         with open(partial, "w") as fh:

@@ -6,12 +6,14 @@ tcp:HOST:PORT           dial a TCP server (SITL, a telemetry bridge)
 tcpin:0.0.0.0:5760      listen for one TCP client
 /dev/ttyUSB0            a serial device (baud rate given separately)
 flight.tlog             a telemetry log replayed as if it were live
+ascii:ADDRESS           any of the above carrying plain-text attitude lines instead of MAVLink
+                        (seed 000's `pitch,yaw,roll` firmware: gcs.mavlink.ascii)
 """
 
 from __future__ import annotations
 
 import socket
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 class AddressError(ValueError):
@@ -24,8 +26,11 @@ class Address:
     host: str = ""
     port: int = 0
     path: str = ""
+    framing: str = "mavlink"  # "mavlink" | "ascii": what the bytes are
 
     def __str__(self) -> str:
+        if self.framing == "ascii":
+            return f"ascii:{replace(self, framing='mavlink')}"
         if self.kind in ("serial", "tlog"):
             return self.path
         if self.kind == "pty":
@@ -42,6 +47,11 @@ def parse_address(text: str) -> Address:
     if not text:
         raise AddressError("empty connection string")
     scheme, sep, rest = text.partition(":")
+    if sep and scheme == "ascii":
+        inner = parse_address(rest)
+        if inner.framing == "ascii" or inner.kind == "tlog":
+            raise AddressError(f"{text!r}: ascii: takes a serial device, pty:, udpin:, udpout:, tcp: or tcpin:")
+        return replace(inner, framing="ascii")
     if sep and scheme in _NETWORK_KINDS:
         host, sep2, port_text = rest.rpartition(":")
         if not sep2 or not host:
@@ -60,7 +70,8 @@ def parse_address(text: str) -> Address:
         return Address("tlog", path=text)
     if sep and scheme not in ("COM",) and not text.startswith("/"):
         raise AddressError(
-            f"{text!r}: unknown scheme {scheme!r}; use udpin:, udpout:, tcp:, tcpin:, a serial device or a .tlog"
+            f"{text!r}: unknown scheme {scheme!r}; "
+            "use udpin:, udpout:, tcp:, tcpin:, ascii:, a serial device or a .tlog"
         )
     return Address("serial", path=text)
 

@@ -1,6 +1,6 @@
 // The side panels besides the live view: vehicle tuning (/api/tuning, /api/params), recording and
 // sessions (/api/recording, /api/sessions, export links), replay control (/api/replay) and what-if
-// (/api/whatif). Uses api(), $, fmt and escapeHtml from dashboard.js.
+// (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js.
 "use strict";
 
 // One request, never throwing: {ok, status, data, message} (message: the server's detail).
@@ -39,6 +39,7 @@ function showTab(name) {
   if (name === "tuning") refreshTuning();
   if (name === "sessions") { refreshSessions(); refreshRecording(); }
   if (name === "whatif") refreshSessions();
+  if (name === "protocol") refreshProtocol();
 }
 
 // ---- tuning --------------------------------------------------------------------------------
@@ -338,6 +339,43 @@ function drawWhatif() {
   }, data, box);
 }
 
+// ---- test protocol (/api/protocol) ------------------------------------------------------------
+async function refreshProtocol() {
+  const r = await call("GET", "/api/protocol");
+  if (!r.ok) { say("protocol-message", `protocol: ${r.message}`, "error"); return; }
+  const select = $("protocol-name");
+  if (!select.options.length) select.innerHTML = r.data.available.map((n) => `<option>${html(n)}</option>`).join("");
+  showProtocol(r.data.run);
+}
+
+function showProtocol(run) {
+  panelState.protocol = run;
+  if (!run) { $("protocol-prompt").textContent = "no protocol run yet"; return; }
+  const s = run.state;
+  $("protocol-prompt").textContent = run.running ? `Step ${s.step + 1}: ${s.prompt}` : s.finished ? "protocol finished" : "protocol stopped";
+  $("protocol-progress").max = s.steps; $("protocol-progress").value = s.completed;
+  $("protocol-step").textContent = `${s.protocol}: ${s.completed} of ${s.steps} steps done, ${s.skipped} skipped`
+    + `${s.attempt > 1 && run.running ? `, attempt ${s.attempt}` : ""}; holds seen by ${run.detect_source}`;
+  for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run.running || !canChange();
+  const sources = [...new Set(run.results.map((m) => m.source))];
+  const steps = [...new Set(run.results.map((m) => m.step))];
+  const cell = new Map(run.results.map((m) => [`${m.step}/${m.source}`, m]));
+  $("protocol-table").innerHTML = !steps.length ? "" : `<tr><th>step</th>${sources.map((s) => `<th>${html(s)}</th>`).join("")}</tr>`
+    + steps.map((k) => {
+      const label = cell.get(`${k}/${sources.find((s) => cell.has(`${k}/${s}`))}`).label;
+      return `<tr data-step="${k}"><td>${html(label)}</td>${sources.map((s) => `<td>${pct(cell.get(`${k}/${s}`)?.mre_last_pct)}</td>`).join("")}</tr>`;
+    }).join("");
+}
+
+const pct = (x) => x == null ? "–" : Number(x).toFixed(2);
+
+async function protocolAction(path, body) {
+  const r = await call("POST", path, body);
+  if (!r.ok) { say("protocol-message", r.message, "error"); return; }
+  say("protocol-message", "");
+  showProtocol(r.data.run);
+}
+
 // ---- start ---------------------------------------------------------------------------------
 function canChange() { return panelState.authorised; }
 
@@ -377,6 +415,12 @@ async function initPanels() {
   buildWhatifGains();
   $("whatif-run").addEventListener("click", runWhatif);
   $("whatif-axis").addEventListener("change", drawWhatif);
+  $("protocol-start").addEventListener("click", () => protocolAction("/api/protocol/start",
+    { name: $("protocol-name").value, detect_source: $("protocol-detect").value.trim() || null }));
+  $("protocol-skip").addEventListener("click", () => protocolAction("/api/protocol/skip"));
+  $("protocol-repeat").addEventListener("click", () => protocolAction("/api/protocol/repeat"));
+  $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
+  setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
   refreshRecording(); refreshReplay(); refreshSessions();
   setInterval(refreshRecording, 2000);
   setInterval(refreshReplay, 1000);

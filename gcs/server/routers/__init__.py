@@ -9,4 +9,5 @@ ROUTERS: list[str] = [
     "gcs.server.routers.stream",
     "gcs.server.routers.params",
     "gcs.server.routers.sessions",
+    "gcs.server.routers.protocol",
 ]
