@@ -21,7 +21,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 import scipy.io
-from live import running_sim, running_station, wait_for
+from live import running_station, sim_process, wait_for
 from mcap.reader import make_reader
 from pymavlink import mavutil
 
@@ -44,7 +44,7 @@ def recorded(tmp_path_factory) -> dict:
 async def record(port: int, root: Path) -> dict:
     async with (
         running_station(f"udpin:127.0.0.1:{port}", record_dir=str(root)) as station,
-        running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0),
+        sim_process(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0),
     ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()

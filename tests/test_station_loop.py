@@ -42,7 +42,7 @@ def dependency_calls(dependant: Dependant) -> list:
 
 def test_every_route_and_dependency_is_a_coroutine():
     """A plain `def` route or dependency would run in Starlette's thread pool, off the loop."""
-    create_app(Station(StationConfig(connect="udpin:127.0.0.1:0")))  # every router, as the app includes them
+    create_app(Station(StationConfig(connect="udpin:127.0.0.1:0")), token="t")  # every router, as the app has them
     routers = [importlib.import_module(module).router for module in ROUTERS]
     routes = [r for router in routers for r in router.routes if isinstance(r, APIRoute | APIWebSocketRoute)]
     assert len(routes) > 25
