@@ -36,6 +36,10 @@ class LinkCounters:
     lost_by_source: dict[str, int]
     mavlink1_packets: int
     mavlink2_packets: int
+    #: packets refused by the link for inf/NaN in a field the station reads (gcs.mavlink.finite), per type
+    nonfinite_rejected: dict[str, int] = field(default_factory=dict)
+    #: datagrams the kernel dropped on the UDP socket because we read too slowly (SO_RXQ_OVFL)
+    kernel_drops: int = 0
 
 
 @dataclass(frozen=True, slots=True)

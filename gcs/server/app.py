@@ -5,11 +5,14 @@ fetched from a CDN, so the page works with no internet)."""
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 from fastapi import FastAPI, Response
+from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
+from gcs.core import strict_json
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
@@ -40,6 +43,7 @@ def create_app(
         description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.",
         docs_url=None,  # Swagger UI and ReDoc load their scripts from a CDN; /openapi.json stays
         redoc_url=None,
+        default_response_class=StrictJSONResponse,
     )
     app.state.station = station
     app.state.hub = hub
@@ -60,6 +64,14 @@ def create_app(
     app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
     app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")
     return app
+
+
+class StrictJSONResponse(JSONResponse):
+    """Every REST answer as strict JSON (gcs.core.strict_json): a non-finite number is null,
+    never an invalid `NaN` token nor a 500 from Starlette's own allow_nan=False."""
+
+    def render(self, content: Any) -> bytes:
+        return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode()
 
 
 async def colors_js() -> Response:

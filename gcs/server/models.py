@@ -41,6 +41,10 @@ class LinkStatus(BaseModel):
     loss_fraction: float
     crc_errors: int
     malformed: int
+    nonfinite_rejected: dict[str, int] = Field(
+        default_factory=dict, description="packets refused for inf/NaN in a field the station reads, per type"
+    )
+    kernel_drops: int = Field(default=0, description="UDP datagrams the kernel dropped before they were read")
     bytes_per_s: float
     rates_hz: dict[str, float]
     stream_method: str | None

@@ -27,6 +27,8 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
             loss_fraction=stats.loss_fraction,
             crc_errors=stats.crc_errors,
             malformed=stats.malformed,
+            nonfinite_rejected=stats.nonfinite_rejected,
+            kernel_drops=stats.kernel_drops,
             bytes_per_s=stats.bytes_per_s,
             rates_hz=stats.rates_hz,
             stream_method=streams.method,
