@@ -162,7 +162,8 @@ class EstimationSnapshot:
     estimators: dict[str, EstimatorSnapshot]
     latest: dict[str, SourceAttitude]
     refused_inputs: dict[str, int] = field(default_factory=dict)  # implausible samples, by reason
-    restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state
+    restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state or an error
+    restart_reasons: dict[str, str] = field(default_factory=dict)  # why each last restarted
     #: where declination_rad came from: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none"
     declination_source: str = "none"
 

@@ -74,7 +74,10 @@ class StatusResponse(BaseModel):
         default_factory=dict,
         description="samples kept from the estimators as implausible (inf, NaN, beyond any sensor), by reason",
     )
-    estimator_restarts: dict[str, int] = Field(default_factory=dict, description="restarts after a non-finite state")
+    estimator_restarts: dict[str, int] = Field(
+        default_factory=dict, description="restarts after a non-finite state or an error in the estimator"
+    )
+    estimator_restart_reasons: dict[str, str] = Field(default_factory=dict, description="why each last restarted")
     parts: list[PartStatus] = Field(description="the station's supervised parts; a failed one carries its error")
     clients: list[ClientSnapshot]
     viser_port: int | None

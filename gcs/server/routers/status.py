@@ -52,6 +52,7 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
         },
         refused_inputs=estimation.refused_inputs if estimation else {},
         estimator_restarts=estimation.restarts if estimation else {},
+        estimator_restart_reasons=estimation.restart_reasons if estimation else {},
         parts=snap.parts,
         clients=[c.snapshot() for c in hub.clients.values()],
         viser_port=request.app.state.viser_port,
