@@ -229,3 +229,12 @@ async def poll_json(api: httpx.AsyncClient, report: dict, rss: list, process: ps
             report["json_answers"] += 1
         rss.append(process.memory_info().rss / 2**20)
         await asyncio.sleep(0.2)
+
+
+def test_rest_answers_are_strict_json_even_for_values_no_model_declares():
+    """FastAPI's own encoder cleans only the floats a response model declares; the app's
+    response class cleans the rest (free-form health dicts, routes without a model)."""
+    from gcs.server.app import StrictJSONResponse
+
+    body = StrictJSONResponse({"health": {"innovation": math.inf}, "lag_s": math.nan}).body
+    assert strict_loads(body) == {"health": {"innovation": None}, "lag_s": None, "nonfinite": 2}
