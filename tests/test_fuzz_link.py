@@ -1,6 +1,7 @@
 """No input stops the station: a real `gcs serve` is fed, over real UDP, every message type of
 the dialect with random payloads and with inf, NaN and extreme values in every field, beside a
-simulated vehicle sending good data from the same system id. Then only good data.
+simulated vehicle sending good data from the same system id (and a binary and a garbled frame
+on the WebSocket). Then only good data.
 
 Asserted: the estimators resume within 1 s of good data (their points advance with the vehicle
 clock again; timed from the last hostile packet, against the autopilot's own attitude, which
@@ -145,8 +146,23 @@ async def scenario(udp_port: int, http_port: int, pid: int) -> dict:
             names = await wait_estimating(api)
             async with websockets.connect(f"ws://127.0.0.1:{http_port}/ws/live", max_size=None) as ws:
                 reader = asyncio.create_task(read_frames(ws, frames, report))
+
+                def alive(predicate):
+                    """predicate, failing at once when the reader or the poller has stopped."""
+
+                    def check() -> bool:
+                        for task in (poller, reader):
+                            if task.done():
+                                task.result()  # what it found wrong (non-strict JSON, an error status)
+                                raise AssertionError(f"{task.get_coro().__name__} stopped: the server closed")
+                        return predicate()
+
+                    return check
+
+                await ws.send(bytes(range(256)))  # hostile input on the WebSocket too: binary, then not JSON
+                await ws.send("{not json")
                 poller = asyncio.create_task(poll_json(api, report, rss, process))
-                await wait_for(lambda: len(rss) >= 3, 30, "RSS samples after warm-up")
+                await wait_for(alive(lambda: len(rss) >= 3), 30, "RSS samples after warm-up")
                 report["rss_warm_mb"] = round(max(rss), 1)
 
                 sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -181,18 +197,14 @@ async def scenario(udp_port: int, http_port: int, pid: int) -> dict:
                             return arrival - ended
                     return None
 
-                await wait_for(lambda: resumed(names) is not None, 30, "every estimator's points on the vehicle clock")
+                await wait_for(alive(lambda: resumed(names) is not None), 30, "every estimator back on the clock")
                 report["resume_s"] = round(resumed(names) or math.inf, 3)
                 # the same for the autopilot's own attitude, which no estimator computes: the
                 # station's delay in working through the hostile backlog, for comparison
-                await wait_for(
-                    lambda: resumed({"onboard"}) is not None, 30, "the onboard attitude on the vehicle clock"
-                )
+                await wait_for(alive(lambda: resumed({"onboard"}) is not None), 30, "onboard back on the clock")
                 report["onboard_resume_s"] = round(resumed({"onboard"}) or math.inf, 3)
                 await asyncio.sleep(3.0)  # good data only: JSON, RSS and parts keep being checked
-                for task in (poller, reader):
-                    if task.done():
-                        task.result()  # what a reader found wrong (non-strict JSON, an error status)
+                alive(lambda: True)()
                 poller.cancel()
                 reader.cancel()
                 await asyncio.gather(poller, reader, return_exceptions=True)

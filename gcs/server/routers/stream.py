@@ -48,8 +48,10 @@ async def live(ws: WebSocket, hub: HubDep) -> None:
     sender = asyncio.create_task(send_feed(ws, feed))
     try:
         await ws.send_text(strict_json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
-        while True:  # the page sends nothing we need; reading notices the disconnect
-            await ws.receive_text()
+        # The page sends nothing we need; reading notices the disconnect. Whatever a client sends
+        # (text or binary) is read and ignored, never an error.
+        while (await ws.receive())["type"] != "websocket.disconnect":
+            pass
     except WebSocketDisconnect:
         pass
     finally:
