@@ -7,7 +7,9 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from fastapi import FastAPI, Response
+from fastapi import FastAPI, Request, Response
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -49,6 +51,7 @@ def create_app(
     app.state.hub = hub
     app.state.token = token
     app.state.viser_port = viser_port
+    app.add_exception_handler(RequestValidationError, refuse_invalid)
     app.add_middleware(
         RequestGuard,
         bound_host=bound_host,
@@ -71,7 +74,15 @@ class StrictJSONResponse(JSONResponse):
     never an invalid `NaN` token nor a 500 from Starlette's own allow_nan=False."""
 
     def render(self, content: Any) -> bytes:
-        return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode()
+        # a lone surrogate (from a \\ud800 escape in a request) cannot be UTF-8: it becomes "?"
+        return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode(errors="replace")
+
+
+async def refuse_invalid(request: Request, exc: Exception) -> Response:
+    """422 for a body or query that fails validation, as FastAPI answers, but strict: its
+    answer quotes the input, which may be NaN, Infinity or a lone surrogate (a 500 before)."""
+    assert isinstance(exc, RequestValidationError)
+    return StrictJSONResponse({"detail": jsonable_encoder(exc.errors())}, status_code=422)
 
 
 async def colors_js() -> Response:
