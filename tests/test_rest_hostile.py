@@ -7,6 +7,7 @@ whenever the server has one."""
 from __future__ import annotations
 
 import asyncio
+import shutil
 
 import httpx
 from live import running_station
@@ -27,13 +28,21 @@ REQUESTS = [
     ("GET", "/api/history?seconds=nan", None),
     ("GET", "/api/history?seconds=inf", None),
     ("GET", "/api/history?seconds=1e400", None),
+    ("POST", "/api/replay", '{"source": "fragment.bin", "speed": Infinity}'),
+    ("POST", "/api/replay", '{"source": "fragment.bin", "speed": 0}'),  # loaded: a valid request, for the next
+    *(("POST", "/api/replay/seek", f'{{"offset_s": {v}}}') for v in ("Infinity", "1e400", "NaN")),
+    *(("POST", "/api/replay/speed", f'{{"speed": {v}}}') for v in ("Infinity", "1e400", "NaN")),
 ]
 
 
-def test_hostile_request_values_get_a_strict_4xx(udp_port, tmp_path):
+def test_hostile_request_values_get_a_strict_4xx(udp_port, tmp_path, logs_dir):
+    shutil.copy(logs_dir / "ardupilot-fragment.bin", tmp_path / "fragment.bin")  # a source to replay
     answers = asyncio.run(scenario(udp_port, tmp_path))
     for (method, path, body), (code, text) in zip(REQUESTS, answers, strict=True):
-        assert 400 <= code < 500, (method, path, body, code, text)
+        if body is not None and '"speed": 0}' in body:
+            assert code == 200, (path, body, code, text)  # the replay the requests after it meet
+        else:
+            assert 400 <= code < 500, (method, path, body, code, text)
         strict_loads(text)  # raises on NaN/Infinity tokens
 
 

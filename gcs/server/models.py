@@ -107,7 +107,7 @@ class EstimatorGains(BaseModel):
 
 
 class GainUpdate(BaseModel):
-    value: float = Field(description="new value, in the gain's unit, within its declared bounds")
+    value: float = Field(allow_inf_nan=False, description="new value, in the gain's unit, within its declared bounds")
 
 
 class GainChange(BaseModel):
