@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import subprocess
+import sys
 import time
 
 from gcs.runtime.station import Station, StationConfig
@@ -19,6 +21,27 @@ async def running_sim(address: str, profile: str = "apm25", **kwargs):
     finally:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
+
+
+@contextlib.asynccontextmanager
+async def sim_process(address: str, profile: str = "pixhawk", script: str = "quad", speed: float = 1.0):
+    """The simulator as `gcs sim` in a process of its own. Scenarios with a browser use it: the
+    test's event loop then carries only the station, the server and Playwright, and a loaded
+    machine slows the page, never the vehicle's clock (one loop for all of them fell behind for
+    good at load 8-12 on two cores)."""
+    command = [sys.executable, "-m", "gcs", "sim", "--profile", profile, "--script", script]
+    proc = subprocess.Popen(
+        [*command, "--speed", str(speed), "--link", address], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 @contextlib.asynccontextmanager

@@ -11,7 +11,7 @@ import time
 
 import pytest
 from conftest import free_port
-from live import running_sim, running_station
+from live import running_station, sim_process
 from PIL import Image
 from playwright.async_api import TimeoutError as PlaywrightTimeout
 from playwright.async_api import async_playwright
@@ -64,7 +64,7 @@ async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
     report: dict = {"console_errors": []}
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
-        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
     ):
         server = DashboardServer(station, port=0, viser_port=free_port())
         await server.start()

@@ -10,7 +10,7 @@ import os
 
 import pyarrow.parquet as pq
 import pytest
-from live import running_sim, running_station, wait_for
+from live import running_sim, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
 from test_browser import CHROMIUM, CHROMIUM_ARGS
 
@@ -22,9 +22,6 @@ def _chromium_installed() -> None:
     """A missing browser fails these tests (CI must have it), it never skips them."""
     if not os.path.exists(CHROMIUM):
         pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
-
-
-TOKEN = "s3cret-panel-token"
 
 
 def unexpected_errors(errors: list[str], statuses: tuple[int, ...]) -> list[str]:
@@ -61,8 +58,6 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
     ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
-        # As if reachable from other machines: every change needs the token the page got in its URL.
-        server.token = server._server.config.app.state.token = TOKEN
         try:
             await wait_for(lambda: station.link.target_system is not None, 30, "the vehicle's heartbeat")
             before = sim.params.as_dict()
@@ -164,7 +159,7 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
         try:
             async with async_playwright() as pw:
                 browser, page = await open_page(pw, server.url, errors)
-                async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0):
+                async with sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0):
                     await page.click("#tabs button[data-tab=sessions]")
                     await page.wait_for_function(
                         "document.querySelector('#rec-status').textContent.includes('recording')", timeout=30_000

@@ -15,14 +15,15 @@ from gcs.server.deps import TOKEN_HEADER
 TOKEN = "s3cret-token"
 
 
-async def _client(station, token):
-    app = create_app(station, token=token, bound_host="0.0.0.0")  # reachable from other machines
+async def _client(station, token, bound_host="0.0.0.0", address="10.0.0.7"):
+    app = create_app(station, token=token, bound_host=bound_host)  # default: reachable from other machines
+    host = "127.0.0.1" if bound_host == "127.0.0.1" else "gcs"
     return app, httpx.AsyncClient(
-        transport=httpx.ASGITransport(app=app, client=("10.0.0.7", 5000)), base_url="http://gcs"
+        transport=httpx.ASGITransport(app=app, client=(address, 5000)), base_url=f"http://{host}"
     )
 
 
-def test_tuning_over_rest_needs_the_token_when_not_local():
+def test_tuning_over_rest_needs_the_token():
     async def scenario():
         async with station_and_sim("apm25", estimate=True, param_clamp={"STB_RLL_P": 4.6}) as (station, sim):
             app, client = await _client(station, TOKEN)
@@ -90,12 +91,18 @@ def test_tuning_over_rest_needs_the_token_when_not_local():
     asyncio.run(asyncio.wait_for(scenario(), 90))
 
 
-def test_local_server_needs_no_token():
+def test_a_loopback_server_needs_the_token_too():
+    """Any page the engineer has open can send requests to 127.0.0.1: loopback is no credential."""
+
     async def scenario():
         async with station_and_sim("px4", estimate=True) as (station, sim):
-            _, client = await _client(station, None)
+            _, client = await _client(station, TOKEN, bound_host="127.0.0.1", address="127.0.0.1")
+            before = sim.params["MC_ROLL_P"]
             async with client:
-                ok = await client.put("/api/tuning/MC_ROLL_P", json={"value": 6.0})
+                refused = await client.put("/api/tuning/MC_ROLL_P", json={"value": 6.0})
+                assert refused.status_code == 401, refused.text
+                assert sim.params["MC_ROLL_P"] == before and "PARAM_SET" not in sim.received
+                ok = await client.put("/api/tuning/MC_ROLL_P", json={"value": 6.0}, headers={TOKEN_HEADER: TOKEN})
                 assert ok.status_code == 200, ok.text
             assert sim.params["MC_ROLL_P"] == 6.0
 

@@ -9,6 +9,7 @@ from live import running_sim, running_station, wait_for
 
 from gcs.runtime.snapshots import StreamRate
 from gcs.server.dashboard import DashboardServer
+from gcs.server.deps import TOKEN_HEADER, token_id
 
 NO_RATE = StreamRate(0.0, 0.0, None, None)
 
@@ -25,7 +26,9 @@ async def api_scenario(udp_port: int) -> None:
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         try:
-            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:
+            async with httpx.AsyncClient(
+                base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers
+            ) as api:
                 await wait_for(
                     lambda: {"onboard", "truth", "dcm", "kf", "ekf"} <= set(station.estimation.pipeline.latest),
                     15,
@@ -58,7 +61,7 @@ async def api_scenario(udp_port: int) -> None:
                 assert (await api.put(url, json={"value": 0.02}, headers={"X-GCS-Token": "wrong"})).status_code == 401
                 ok = await api.put(url, json={"value": 0.02}, headers={"X-GCS-Token": exposed.token})
                 assert ok.status_code == 200
-                assert (await api.get("/api/status")).json()["token_required"] is True
+                assert (await api.get("/api/status")).json()["authorised"] is False
                 assert (await api.get("/api/estimates")).status_code == 200  # reading needs no token
         finally:
             await exposed.stop()
@@ -72,7 +75,7 @@ async def check_status_and_estimates(api: httpx.AsyncClient) -> None:
     assert 0 <= status["data_age_ms"] < 1000
     assert set(status["estimators"]) == {"dcm", "kf", "ekf"}
     assert all(isinstance(e["reliable"], bool) for e in status["estimators"].values())
-    assert status["token_required"] is False
+    assert status["authorised"] is True
     sources = (await api.get("/api/estimates")).json()["sources"]
     assert {"onboard", "ahrs2", "truth", "dcm", "kf", "ekf"} <= set(sources)
     assert sources["onboard"]["kind"] == "reference" and sources["onboard"]["errors"] == {}
@@ -90,8 +93,12 @@ async def check_gains(api: httpx.AsyncClient, station) -> None:
     assert r.status_code == 200 and r.json() == {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5}
     assert station.estimation.pipeline.estimators["dcm"].gains["kp_rp"] == 0.5
     event = station.events.recent[-1]
-    assert (event.kind, event.client, event.data) == (
-        "gain",
-        "api:127.0.0.1",
-        {"estimator": "dcm", "gain": "kp_rp", "old": 0.2, "new": 0.5},
-    )
+    assert (event.kind, event.client) == ("gain", "api:127.0.0.1")
+    assert event.data == {
+        "estimator": "dcm",
+        "gain": "kp_rp",
+        "old": 0.2,
+        "new": 0.5,
+        "user_agent": api.headers["user-agent"],
+        "token_id": token_id(api.headers[TOKEN_HEADER]),
+    }

@@ -31,8 +31,9 @@ from gcs.runtime.snapshots import (
 )
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.app import create_app
-from gcs.server.deps import TOKEN_HEADER
+from gcs.server.deps import TOKEN_HEADER, token_id
 from gcs.server.guard import MAX_BODY
+from gcs.server.ratelimit import MAX_CLIENTS, RateLimit
 
 RECORDING_OFF = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
 
@@ -146,9 +147,18 @@ def station() -> FakeStation:
     return FakeStation()
 
 
+TOKEN = "s3cret"
+
+
+def client_of(station: FakeStation, **options) -> TestClient:
+    """A client of the app that carries the token, as a script given it does."""
+    app = create_app(station, token=TOKEN, **options)  # type: ignore[arg-type]
+    return TestClient(app, base_url="http://127.0.0.1", headers={TOKEN_HEADER: TOKEN})
+
+
 @pytest.fixture
 def api(station: FakeStation) -> TestClient:
-    return TestClient(create_app(station), base_url="http://127.0.0.1")  # type: ignore[arg-type]
+    return client_of(station)
 
 
 def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation):
@@ -165,7 +175,7 @@ def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation)
     assert status["estimators"]["kf"]["reliable"] is False and "20.0 Hz" in status["estimators"]["kf"]["reason"]
     failed = [p for p in status["parts"] if p["state"] == "failed"]
     assert failed == [{"name": "estimation", "state": "failed", "error": "RuntimeError: boom", "since": 1.0}]
-    assert status["token_required"] is False and status["clients"] == []
+    assert status["authorised"] is True and status["clients"] == []
 
 
 def test_estimates_report_errors_against_onboard_and_truth_only(api: TestClient):
@@ -186,6 +196,8 @@ def test_gain_listing_change_and_refusals(api: TestClient, station: FakeStation)
     assert station.estimators["dcm"].gains["kp_rp"] == 0.5
     event = station.events.recent[-1]
     assert (event.kind, event.client, event.data["new"]) == ("gain", "api:testclient", 0.5)
+    # the audit names the client: its user agent and which token it carried (an id, never the token)
+    assert event.data["user_agent"] == "testclient" and event.data["token_id"] == token_id(TOKEN) != TOKEN
 
     assert api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 99}).status_code == 422
     assert station.estimators["dcm"].gains["kp_rp"] == 0.5  # a refused value changes nothing
@@ -197,18 +209,42 @@ def test_gain_listing_change_and_refusals(api: TestClient, station: FakeStation)
     assert {"gain": "kp_rp", "old": 0.5, "new": 0.2, "estimator": "dcm"} in reset["changes"]
 
 
-def test_changes_need_the_token_when_one_is_set(station: FakeStation):
-    api = TestClient(create_app(station, token="s3cret"), base_url="http://127.0.0.1")  # type: ignore[arg-type]
+def test_changes_need_the_token_even_on_loopback(station: FakeStation):
+    api = TestClient(create_app(station, token=TOKEN), base_url="http://127.0.0.1")  # type: ignore[arg-type]
     url = "/api/estimators/dcm/gains/kp_rp"
     assert api.put(url, json={"value": 0.3}).status_code == 401
     assert api.put(url, json={"value": 0.3}, headers={TOKEN_HEADER: "wrong"}).status_code == 401
     assert api.put(url, json={"value": 0.3}, headers={"Authorization": "Bearer s3cret"}).status_code == 200
     assert api.put(url, json={"value": 0.4}, params={"token": "s3cret"}).status_code == 200
-    assert api.get("/api/status").json()["token_required"] is True  # reading needs no token
+    assert api.get("/api/status").json()["authorised"] is False  # reading needs no token
     assert station.estimators["dcm"].gains["kp_rp"] == 0.4
     refused = [e.data for e in station.events.recent if e.kind == "refused"]
-    assert refused == [{"reason": "token", "path": url}] * 2  # every refused change is in the audit log
+    assert refused == [{"reason": "token", "path": url, "user_agent": "testclient"}] * 2  # each in the audit log
     assert api.put(url, json={"value": 0.3}, params={"token": "sécret"}).status_code == 401  # not a 500
+    # JSON only as JSON: a text/plain body (a form or no-cors post needs no preflight) is refused even
+    # with the token (fastapi >= 0.132 checks the Content-Type: the floor in pyproject.toml)
+    plain = api.put(url, content=b'{"value": 0.3}', headers={"content-type": "text/plain", TOKEN_HEADER: TOKEN})
+    assert plain.status_code == 422 and station.estimators["dcm"].gains["kp_rp"] == 0.4
+
+
+def test_the_startup_url_trades_the_token_for_a_strict_cookie(station: FakeStation):
+    api = TestClient(create_app(station, token=TOKEN), base_url="http://127.0.0.1:8000")  # type: ignore[arg-type]
+    opened = api.get("/", params={"token": TOKEN}, follow_redirects=False)
+    assert opened.status_code == 303 and opened.headers["location"] == "/"  # the token leaves the address bar
+    cookie = opened.headers["set-cookie"]
+    assert cookie.startswith(f"gcs_token_8000={TOKEN};")  # per port: two servers on one host keep their own
+    assert "HttpOnly" in cookie and "SameSite=strict" in cookie and "Path=/" in cookie
+    assert api.get("/api/status").json()["authorised"] is True  # the cookie is the page's credential
+    url = "/api/estimators/dcm/gains/kp_rp"
+    assert api.put(url, json={"value": 0.3}).status_code == 200
+    other_port = TestClient(api.app, base_url="http://127.0.0.1:8010", cookies={"gcs_token_8000": TOKEN})
+    assert other_port.put(url, json={"value": 0.4}).status_code == 401  # another server's cookie is not ours
+
+    fresh = TestClient(create_app(station, token=TOKEN), base_url="http://127.0.0.1:8000")  # type: ignore[arg-type]
+    wrong = fresh.get("/", params={"token": "guess"}, follow_redirects=False)
+    assert wrong.status_code == 303 and "set-cookie" not in wrong.headers  # opens read-only
+    assert fresh.get("/api/status").json()["authorised"] is False
+    assert station.events.recent[-1].kind == "refused" and station.events.recent[-1].data["path"] == "/"
 
 
 def test_page_and_its_scripts_are_served_locally(api: TestClient):
@@ -232,7 +268,7 @@ def test_points_reach_the_history(api: TestClient, station: FakeStation):
 
 
 def test_foreign_host_and_origin_are_refused_and_logged(station: FakeStation):
-    api = TestClient(create_app(station, allow_origins=("http://laptop.local:9000",)), base_url="http://127.0.0.1")  # type: ignore[arg-type]
+    api = client_of(station, allow_origins=("http://laptop.local:9000",))
     url = "/api/estimators/dcm/gains/kp_rp"
     # DNS rebinding: a foreign name that resolves to loopback
     rebound = api.put(url, json={"value": 0.3}, headers={"Host": "evil.example:8000"})
@@ -280,3 +316,28 @@ def test_large_bodies_are_refused_with_413(api: TestClient, station: FakeStation
     assert api.put(url, content=chunks(), headers={"content-type": "application/json"}).status_code == 413
     assert station.estimators["dcm"].gains["kp_rp"] == 0.2
     assert [e.data["reason"] for e in station.events.recent if e.kind == "refused"] == ["size", "size"]
+
+
+def test_expensive_requests_are_limited_per_client(api: TestClient, station: FakeStation):
+    """What-if, export, replay and parameter downloads cost seconds of work each: past a burst, a
+    client gets 429 with Retry-After (and an audit entry) before any work is queued."""
+    codes = [
+        api.post("/api/whatif", json={"source": "nope", "estimator": "dcm", "gains": {}}).status_code for _ in range(6)
+    ]
+    assert codes == [404] * 4 + [429] * 2  # the burst reaches the handler (no such session), then refused
+    refused = api.post("/api/whatif", json={"source": "nope", "estimator": "dcm", "gains": {}})
+    assert 1 <= int(refused.headers["retry-after"]) <= 6 and "a minute" in refused.json()["detail"]
+    assert api.get("/api/sessions/nope/export").status_code == 404  # each endpoint has its own bucket
+    rate = [e for e in station.events.recent if e.kind == "refused" and e.data["reason"] == "rate"]
+    assert len(rate) == 3 and rate[0].data["path"] == "/api/whatif" and rate[0].client == "api:testclient"
+
+
+def test_a_rate_limit_refills_and_keeps_clients_apart():
+    limit = RateLimit("export", per_minute=30, burst=2)
+    assert [limit.take("a", 0.0), limit.take("a", 0.0)] == [0.0, 0.0]
+    assert limit.take("a", 0.0) == pytest.approx(2.0)  # one request refills in 60/30 s
+    assert limit.take("b", 0.0) == 0.0  # another client has its own bucket
+    assert limit.take("a", 2.0) == 0.0  # refilled
+    for k in range(5000):  # spoofed addresses do not grow memory without bound
+        limit.take(f"10.0.{k // 256}.{k % 256}", 3.0)
+    assert len(limit._buckets) <= MAX_CLIENTS

@@ -29,7 +29,9 @@ async def scenario(udp_port: int, root) -> None:
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         try:
-            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", timeout=30) as api:
+            async with httpx.AsyncClient(
+                base_url=f"http://127.0.0.1:{server.port}", timeout=30, headers=server.auth_headers
+            ) as api:
                 await wait_for(lambda: station.estimation.pipeline.imu_samples > 300, 60, "IMU samples")
                 assert (await api.get("/api/recording")).json()["state"] == "recording"
                 assert (await api.post("/api/recording/note", json={"text": "gusty"})).status_code == 200
@@ -77,9 +79,7 @@ async def scenario(udp_port: int, root) -> None:
                 bad = await api.post("/api/whatif", json={"source": name, "estimator": "dcm", "gains": {"kp_rp": -5}})
                 assert bad.status_code == 422 and "kp_rp" in bad.text
 
-            server.token = "s3cret"
-            server._server.config.app.state.token = "s3cret"
-            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:
+            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:  # no token
                 assert (await api.post("/api/recording/stop")).status_code == 401
                 assert (await api.post("/api/replay/play")).status_code == 401
                 assert (await api.get("/api/sessions")).status_code == 200

@@ -9,6 +9,7 @@ import dataclasses
 import importlib.metadata
 import json
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -21,8 +22,12 @@ from live import running_sim, running_station, wait_for
 from pymavlink import mavutil
 
 from gcs import __version__ as GCS_VERSION
+from gcs.logs.logfile import InputError
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import columnar, layout
+from gcs.sessions.contents import read_events
+from gcs.sessions.recovery import recover_sessions
+from gcs.sessions.sources import open_source
 
 PY = sys.executable
 #: Wall seconds recorded before the kill; the simulator runs 2.5x, so this is 30 s of flight.
@@ -202,3 +207,31 @@ def test_a_malformed_meta_json_does_not_stop_start_up(tmp_path, bad):
         assert meta["vehicle"] == 5 and meta["recovered"] is True and meta["end"] is None
     else:  # not an object: reported, left as it was
         assert (damaged / layout.META).read_bytes() == bad
+
+
+def test_links_inside_a_session_folder_are_never_followed(tmp_path, logs_dir):
+    """A session folder from a stick may link to any file of this machine: replay, the event reader
+    and crash recovery refuse the link with one line, and never read or append to its target."""
+    secret = tmp_path / "secret.txt"
+    secret.write_text('{"kind": "gain", "input_index": 0, "estimator": "dcm", "gain": "kp_rp", "new": 9}\n')
+    folder = tmp_path / "sessions" / "2026-01-01_00-00-00_linked"
+    folder.mkdir(parents=True)
+    (folder / layout.META).write_text(json.dumps({"start": "2026-01-01T00:00:00", "end": None, "vehicle": "x"}))
+    shutil.copy(logs_dir / "arducopter-sitl-hop.tlog", folder / layout.TLOG)
+    (folder / layout.EVENTS).symlink_to(secret)
+
+    with pytest.raises(InputError, match="symbolic link"):
+        open_source(folder)
+    with pytest.raises(InputError, match="symbolic link"):
+        read_events(folder)
+    replay = subprocess.run([PY, "-m", "gcs", "replay", str(folder), "--fast"], capture_output=True, text=True)
+    assert replay.returncode == 2 and "symbolic link" in replay.stderr and "Traceback" not in replay.stderr
+
+    reports = recover_sessions(folder.parent)  # left open: recovery would append its line to events.jsonl
+    assert len(reports) == 1 and "symbolic link" in reports[0]["error"]
+    assert secret.read_text().count("\n") == 1  # the target is untouched
+
+    (folder / layout.EVENTS).unlink()
+    (folder / layout.META).rename(tmp_path / "meta.json")
+    (folder / layout.META).symlink_to(tmp_path / "meta.json")
+    assert "symbolic link" in layout.read_meta(folder)["error"]  # the session is listed as damaged

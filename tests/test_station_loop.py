@@ -79,7 +79,9 @@ def test_gain_changes_at_400_hz_land_on_the_loop_and_replay_reproduces_live(tmp_
             try:
                 pipeline = station.estimation.pipeline
                 await wait_for(lambda: station.link.stats.rates().get("HIGHRES_IMU", 0) > 300, 60, "400 Hz IMU")
-                async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", timeout=30) as api:
+                async with httpx.AsyncClient(
+                    base_url=f"http://127.0.0.1:{server.port}", timeout=30, headers=server.auth_headers
+                ) as api:
                     for i in range(200):
                         estimator, gain, values = CHANGES[i % len(CHANGES)]
                         url = f"/api/estimators/{estimator}/gains/{gain}"

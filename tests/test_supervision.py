@@ -8,7 +8,7 @@ import json
 import time
 
 import httpx
-from live import running_sim, running_station, wait_for
+from live import running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
 from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
 
@@ -26,7 +26,7 @@ async def scenario(udp_port: int, root) -> dict:
     report: dict = {}
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
-        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=2.0),
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=2.0),
     ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()

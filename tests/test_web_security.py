@@ -1,7 +1,7 @@
 """Another web page the engineer has open cannot change anything: a page served from a second
 origin on loopback, in real Chromium, tries every state-changing endpoint (fetch with text/plain
-and no-cors, with and without credentials; form posts) and the live WebSocket. Nothing changes,
-and each attempt is refused and logged with its origin."""
+and no-cors, with and without credentials; form posts) and the live WebSocket, while the engineer's own tab
+holds the token cookie. Nothing changes, and each attempt is refused and logged with its origin."""
 
 from __future__ import annotations
 
@@ -15,11 +15,12 @@ import threading
 
 import pytest
 from fastapi.routing import APIRoute
-from live import running_sim, running_station, wait_for
+from live import running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
 from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.server.dashboard import DashboardServer
+from gcs.server.deps import TOKEN_HEADER
 from gcs.server.routers import ROUTERS
 
 ATTACK = """<!doctype html><html><body><iframe name="sink"></iframe><script>
@@ -87,7 +88,7 @@ def test_a_page_of_another_origin_changes_nothing(udp_port, tmp_path, attacker_s
 async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(record_dir)) as station,
-        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
     ):
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
@@ -103,7 +104,14 @@ async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
             recording = station.recorder.snapshot().state
             async with async_playwright() as pw:
                 browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                page = await browser.new_page()
+                context = await browser.new_context()
+                # The engineer's own tab holds the token cookie; the attacker's page, same site (another
+                # loopback port, which SameSite does not tell apart), sends it along with credentials.
+                dashboard = await context.new_page()
+                await dashboard.goto(server.url)
+                assert (await dashboard.evaluate("fetch('/api/status').then((r) => r.json())"))["authorised"]
+                assert any(c["name"] == f"gcs_token_{server.port}" for c in await context.cookies())
+                page = await context.new_page()
                 await page.goto(f"{site}/attack.html")
                 assert await page.evaluate("window.done") is True
                 assert await page.evaluate("window.socket") == "refused"
@@ -117,3 +125,31 @@ async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
             assert {e.data["path"] for e in refused} >= {path for _, path in state_changing()} | {"/ws/live"}
         finally:
             await server.stop()
+
+
+def test_a_50_mb_body_is_refused_at_once(udp_port):
+    """The guard answers 413 from the headers: the server never waits for, or holds, the 50 MB."""
+
+    async def scenario() -> None:
+        async with running_station(f"udpin:127.0.0.1:{udp_port}") as station:
+            server = DashboardServer(station, port=0, viser=False)
+            await server.start()
+            try:
+                for framing in (b"Content-Length: 52428800\r\n", b"Transfer-Encoding: chunked\r\n"):
+                    reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+                    writer.write(
+                        b"PUT /api/estimators/dcm/gains/kp_rp HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                        + framing
+                        + f"Content-Type: application/json\r\n{TOKEN_HEADER}: {server.token}\r\n\r\n".encode()
+                    )
+                    chunk = b"x" * 65536 if b"Length" in framing else b"10000\r\n" + b"x" * 65536 + b"\r\n"
+                    writer.write(chunk + chunk)  # 128 KiB past the limit, of the 50 MB announced or to come
+                    await writer.drain()
+                    status = await asyncio.wait_for(reader.readline(), 30)
+                    assert status.startswith(b"HTTP/1.1 413"), (framing, status)
+                    writer.close()
+                assert station.estimation.pipeline.estimators["dcm"].gains["kp_rp"] == 0.2
+            finally:
+                await server.stop()
+
+    asyncio.run(scenario())

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import sys
 
 from gcs.commands.options import add_link_arguments, station_config_or_report
@@ -18,8 +19,13 @@ def add_server_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--host",
         default="127.0.0.1",
-        help="address to serve on (default 127.0.0.1: this machine only; any other address "
-        "prints a token that changes require)",
+        help="address to serve on (default 127.0.0.1: this machine only)",
+    )
+    parser.add_argument(
+        "--token",
+        default=os.environ.get("GCS_TOKEN"),
+        help="the token every change (gains, parameters, recording, replay) needs (default: $GCS_TOKEN, else a "
+        "new random one); printed in the start-up URL",
     )
     parser.add_argument("--port", type=int, default=8000, help="dashboard port (default 8000)")
     parser.add_argument(
@@ -66,6 +72,7 @@ def dashboard(station, args: argparse.Namespace):
         viser_port=args.viser_port,
         hub=LiveHub(seconds=args.history),
         allow_origins=tuple(args.allow_origin),
+        token=args.token,
     )
 
 

@@ -146,16 +146,23 @@ class _Stats:
             self.max[i] = max(self.max[i], abs(e))
 
     def summary(self) -> ReferenceSummary:
-        w = list(self.recent)
-        n = len(w)
-        window_rms = [math.sqrt(sum(r[i] ** 2 for r in w) / n) if n else math.nan for i in (1, 2, 3)]
-        window_max = [max(abs(r[i]) for r in w) if n else math.nan for i in (1, 2, 3)]
+        n = len(self.recent)
+        if n:
+            errors = np.array(self.recent)[:, 1:]
+            window_rms = np.sqrt(np.mean(errors * errors, axis=0)).tolist()
+            window_max = np.abs(errors).max(axis=0).tolist()
+        else:
+            window_rms = window_max = [math.nan] * 3
         session_rms = [math.sqrt(s / self.n) if self.n else math.nan for s in self.sum_sq]
         return {
             "n": self.n,
             "window": {"n": n, "rms": window_rms, "max": window_max},
             "session": {"n": self.n, "rms": session_rms, "max": list(self.max) if self.n else [math.nan] * 3},
         }
+
+
+#: References the lag search uses at most (30 s of 50 Hz ATTITUDE is 1500; more add nothing).
+LAG_POINTS = 500
 
 
 class Comparison:
@@ -172,9 +179,12 @@ class Comparison:
         lag_max: float = 0.5,
         lag_step: float = 0.01,
         min_imu_rate: float = 50.0,
+        lag_period: float = 5.0,
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate
+        self.lag_period = lag_period
+        self._lag: tuple[float, float | None] | None = None  # (newest onboard t when searched, lag)
         self.estimates: deque[tuple[float, Quat]] = deque()
         self.pending: deque[AttitudeSample] = deque()
         self.onboard: deque[tuple[float, float, float]] = deque()  # (t, roll, pitch) for the lag search
@@ -192,8 +202,9 @@ class Comparison:
             return
         w, x, y, z = (float(c) for c in q)
         self.estimates.append((t, (w, x, y, z)))
-        roll, pitch, _ = quat_to_euler(q)
-        self.est_euler.append((t, roll, pitch))
+        if not self.est_euler or t >= self.est_euler[-1][0] + self.lag_step:  # the lag search's resolution
+            roll, pitch, _ = quat_to_euler(q)
+            self.est_euler.append((t, roll, pitch))
         for buf in (self.estimates, self.est_euler):
             while buf[0][0] < t - self.history:
                 buf.popleft()
@@ -243,11 +254,21 @@ class Comparison:
     def lag(self) -> float | None:
         """How late the estimator is behind ATTITUDE, s: the shift L for which the estimator at t + L
         best matches ATTITUDE at t (roll and pitch). Positive: the estimator is behind (late);
-        negative: ahead. None without overlap."""
+        negative: ahead. None without overlap.
+
+        Searched again once every `lag_period` s of vehicle time (a lag moves slowly, and the search
+        is the costliest part of a snapshot), on at most LAG_POINTS evenly spread references."""
         if len(self.onboard) < 10 or len(self.est_euler) < 2:
             return None
+        newest = self.onboard[-1][0]
+        if self._lag is None or not self._lag[0] <= newest < self._lag[0] + self.lag_period:
+            self._lag = (newest, self._search_lag())
+        return self._lag[1]
+
+    def _search_lag(self) -> float | None:
         est = np.array(self.est_euler)
         ref = np.array(self.onboard)
+        ref = ref[:: max(1, len(ref) // LAG_POINTS)]
         steps = int(round(self.lag_max / self.lag_step))
         best, best_cost = None, math.inf
         for k in range(-steps, steps + 1):

@@ -15,6 +15,24 @@ from typing import Any
 from gcs.runtime.signal import Signal
 
 
+class Client(str):
+    """Who asked for a change: its name as the event log shows it ("api:127.0.0.1", "viser", "cli"),
+    with what a request also tells of its sender (the browser's user agent, which token it carried)
+    so that the audit names the client of every change and every refusal. A `str`, so it passes
+    through every command that takes a client name."""
+
+    user_agent: str | None
+    token_id: str | None
+
+    def __new__(cls, name: str, *, user_agent: str | None = None, token_id: str | None = None) -> Client:
+        client = super().__new__(cls, name)
+        client.user_agent, client.token_id = user_agent, token_id
+        return client
+
+    def details(self) -> dict[str, str]:
+        return {k: v for k, v in (("user_agent", self.user_agent), ("token_id", self.token_id)) if v is not None}
+
+
 @dataclass(frozen=True, slots=True)
 class Event:
     wall_time: float  # UNIX time, s
@@ -39,7 +57,9 @@ class EventLog:
         self.recorded: Signal[[Event]] = Signal()
 
     def record(self, kind: str, client: str, **data: Any) -> Event:
-        event = Event(time.time(), time.monotonic(), kind, client, data)
+        if isinstance(client, Client):
+            data = {**data, **client.details()}
+        event = Event(time.time(), time.monotonic(), kind, str(client), data)
         self.recent.append(event)
         self.recorded.emit(event)
         return event

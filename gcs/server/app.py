@@ -15,13 +15,14 @@ from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
 from gcs.core import strict_json
-from gcs.runtime.events import Event
+from gcs.runtime.events import Client, Event
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
 from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
 from gcs.server.guard import Refusal, RequestGuard
 from gcs.server.live import LiveHub
+from gcs.server.ratelimit import default_limits
 from gcs.server.routers import ROUTERS
 
 
@@ -29,13 +30,13 @@ def create_app(
     station: StationFacade,
     hub: LiveHub | None = None,
     *,
-    token: str | None = None,
+    token: str,
     viser_port: int | None = None,
     bound_host: str = "127.0.0.1",
     allow_origins: tuple[str, ...] = (),
 ) -> FastAPI:
-    """The app for one running station. `token`: required on state-changing requests (None when
-    only this machine can connect). `bound_host` and `allow_origins` set which Host and Origin
+    """The app for one running station. `token`: required on every state-changing request.
+    `bound_host` and `allow_origins` set which Host and Origin
     headers the guard accepts. The hub follows the station's estimation, replays and events."""
     assets = web_assets()
     hub = hub or LiveHub()
@@ -50,6 +51,8 @@ def create_app(
     app.state.station = station
     app.state.hub = hub
     app.state.token = token
+    app.state.assets = assets
+    app.state.rate_limits = default_limits()
     app.state.viser_port = viser_port
     app.add_exception_handler(RequestValidationError, refuse_invalid)
     app.add_middleware(
@@ -98,7 +101,7 @@ def record_refusal(station: StationFacade, refusal: Refusal) -> None:
     """Every refused request goes to the event log, with where it came from."""
     station.events.record(
         "refused",
-        f"api:{refusal.client}",
+        Client(f"api:{refusal.client}", user_agent=refusal.user_agent),
         reason=refusal.reason,
         origin=refusal.origin,
         host=refusal.host,

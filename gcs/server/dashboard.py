@@ -13,7 +13,7 @@ import uvicorn
 
 from gcs.runtime.facade import StationFacade
 from gcs.server.app import create_app
-from gcs.server.guard import is_loopback
+from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
 from gcs.sessions.workbench import warm_up
 
@@ -42,6 +42,7 @@ class DashboardServer:
         hub: LiveHub | None = None,
         send_buffer: int = 256 * 1024,
         allow_origins: tuple[str, ...] = (),
+        token: str | None = None,
     ) -> None:
         self.station = station
         self.host = host
@@ -51,15 +52,20 @@ class DashboardServer:
         self.hub = hub or LiveHub()
         self.send_buffer = send_buffer
         self.allow_origins = allow_origins
-        self.token = None if is_loopback(host) else secrets.token_urlsafe(16)
+        self.token = token or secrets.token_urlsafe(16)
         self.viser: ViserServer | None = None
         self._server: uvicorn.Server | None = None
         self._tasks: list[asyncio.Task] = []
 
     @property
     def url(self) -> str:
-        base = f"http://{self.host}:{self.port}/"
-        return f"{base}?token={self.token}" if self.token else base
+        """The start-up URL: opening it gives the browser the token (as a cookie)."""
+        return f"http://{self.host}:{self.port}/?token={self.token}"
+
+    @property
+    def auth_headers(self) -> dict[str, str]:
+        """What a script sends with a change."""
+        return {TOKEN_HEADER: self.token}
 
     async def start(self) -> None:
         sock = socket.socket(socket.AF_INET6 if ":" in self.host else socket.AF_INET)
@@ -87,18 +93,13 @@ class DashboardServer:
         self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
 
     def _start_viser(self) -> None:
-        import viser  # noqa: PLC0415 - heavy (three.js server); not imported when the 3-D view is off
+        from gcs.server.scene import GainTable, LocalViserServer, PoseView  # noqa: PLC0415 - imports viser
 
-        from gcs.server.scene import GainPanel, PoseView  # noqa: PLC0415 - imports viser
-
-        server = viser.ViserServer(
-            host=self.host, port=self.viser_port or self.port + 1, verbose=False, label="gcs pose"
-        )
+        server = LocalViserServer(self.host, self.viser_port or self.port + 1)
         self.viser = server
         self.viser_port = server.get_port()
         self.pose: PoseView = PoseView(server, self.station.estimator_names())
-        panel = GainPanel(server, self.station, asyncio.get_running_loop(), editable=self.token is None)
-        self.station.events.recorded.connect(panel.reflect)
+        self.station.events.recorded.connect(GainTable(server, self.station).reflect)
 
     async def _pose_loop(self) -> None:
         while True:

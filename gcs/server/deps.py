@@ -1,22 +1,26 @@
-"""What every router is given: the running Station (as its facade), the live hub, and the token check.
+"""What every router is given: the running Station (as its facade), the live hub, who is asking,
+and the token check.
 
 Every dependency and every route is `async def`, so all of them run on the event loop thread,
 where the Station's state lives (a plain `def` would run in Starlette's thread pool).
 
-The token is None when the server is bound to a loopback address (only this machine can reach
-it); otherwise every state-changing request must carry it, as the `X-GCS-Token` header, an
-`Authorization: Bearer` header or a `token` query parameter (the start-up URL
-`http://HOST:PORT/?token=...` gives it to the page).
+Every state-changing request needs the token printed at start-up, wherever the server is bound
+(a page the engineer has open elsewhere can reach 127.0.0.1 too: docs/security.md). Scripts send
+it as the `X-GCS-Token` header, an `Authorization: Bearer` header or a `token` query parameter;
+the page gets it from the start-up URL, which trades it for an HttpOnly, SameSite=Strict cookie
+(`routers/page.py`), so the token never sits in the page's address or in its scripts.
 """
 
 from __future__ import annotations
 
+import hashlib
 import secrets
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
+from gcs.runtime.events import Client
 from gcs.runtime.facade import StationFacade
 from gcs.server.live import LiveHub
 
@@ -35,40 +39,63 @@ async def get_hub(conn: HTTPConnection) -> LiveHub:
     return hub
 
 
-def presented_token(request: Request) -> str | None:
-    """The token a request carries, from the header, a bearer header or the query string."""
-    token = request.headers.get(TOKEN_HEADER)
+def cookie_name(conn: HTTPConnection) -> str:
+    """The token cookie of this server. Browsers keep cookies per host, not per port, so two
+    servers on one machine (8000, 8010) must not overwrite each other's."""
+    return f"gcs_token_{conn.url.port or 80}"
+
+
+def presented_token(conn: HTTPConnection) -> str | None:
+    """The token a request carries: header, bearer header, the page's cookie, or the query."""
+    token = conn.headers.get(TOKEN_HEADER)
     if token:
         return token
-    auth = request.headers.get("authorization", "")
+    auth = conn.headers.get("authorization", "")
     if auth.lower().startswith("bearer "):
         return auth[7:].strip()
-    return request.query_params.get("token")
+    return conn.cookies.get(cookie_name(conn)) or conn.query_params.get("token")
+
+
+def token_matches(given: str | None, expected: str) -> bool:
+    return given is not None and secrets.compare_digest(given.encode(), expected.encode())
+
+
+def token_id(token: str) -> str:
+    """A short, stable name for a token in the audit log (never the token itself)."""
+    return hashlib.sha256(token.encode()).hexdigest()[:8]
+
+
+def is_authorised(conn: HTTPConnection) -> bool:
+    """Does this request carry the token that changes need?"""
+    return token_matches(presented_token(conn), conn.app.state.token)
+
+
+async def get_client(request: Request) -> Client:
+    """Who made a request, as the event log records it: "api:ADDRESS", with its user agent and,
+    when it carried the right token, that token's id."""
+    given = presented_token(request)
+    return Client(
+        f"api:{request.client.host if request.client else '?'}",
+        user_agent=request.headers.get("user-agent"),
+        token_id=token_id(given) if given is not None and token_matches(given, request.app.state.token) else None,
+    )
 
 
 async def require_token(request: Request) -> None:
-    """Reject a state-changing request without the start-up token when one is required."""
-    expected: str | None = request.app.state.token
-    if expected is None:
+    """Refuse (401, and an entry in the audit log) a state-changing request without the token."""
+    if is_authorised(request):
         return
-    given = presented_token(request)
-    if given is None or not secrets.compare_digest(given.encode(), expected.encode()):
-        station: StationFacade = request.app.state.station
-        station.events.record("refused", await get_client(request), reason="token", path=request.url.path)
-        raise HTTPException(
-            status.HTTP_401_UNAUTHORIZED,
-            detail=f"this server is reachable from other machines: changes need the token printed at "
-            f"start-up ({TOKEN_HEADER} header or ?token=)",
-        )
-
-
-async def get_client(request: Request) -> str:
-    """Who made a request, as recorded in the event log ("api:ADDRESS")."""
-    return f"api:{request.client.host if request.client else '?'}"
+    station: StationFacade = request.app.state.station
+    station.events.record("refused", await get_client(request), reason="token", path=request.url.path)
+    raise HTTPException(
+        status.HTTP_401_UNAUTHORIZED,
+        detail=f"changes need the token printed at start-up: open the URL with ?token=, or send the "
+        f"{TOKEN_HEADER} header",
+    )
 
 
 StationDep = Annotated[StationFacade, Depends(get_station)]
 HubDep = Annotated[LiveHub, Depends(get_hub)]
-ClientDep = Annotated[str, Depends(get_client)]
+ClientDep = Annotated[Client, Depends(get_client)]
 #: For the `dependencies=[...]` of every route that changes state.
 TOKEN = Depends(require_token)

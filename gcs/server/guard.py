@@ -50,6 +50,7 @@ class Refusal:
     origin: str | None
     host: str | None
     path: str
+    user_agent: str | None
 
 
 def is_loopback(host: str) -> bool:
@@ -130,7 +131,8 @@ class RequestGuard:
     def _refuse(self, scope: Scope, reason: str, origin: str | None, host: str | None) -> None:
         if self.on_refused is not None:
             client = scope.get("client") or ("?", 0)
-            self.on_refused(Refusal(reason, f"{client[0]}:{client[1]}", origin, host, scope.get("path", "")))
+            agent = Headers(scope=scope).get("user-agent")
+            self.on_refused(Refusal(reason, f"{client[0]}:{client[1]}", origin, host, scope.get("path", ""), agent))
 
 
 def _too_long(headers: Headers) -> bool:

@@ -81,7 +81,7 @@ class StatusResponse(BaseModel):
     parts: list[PartStatus] = Field(description="the station's supervised parts; a failed one carries its error")
     clients: list[ClientSnapshot]
     viser_port: int | None
-    token_required: bool
+    authorised: bool = Field(description="this request carries the token that changes need")
 
 
 class GainInfo(BaseModel):

@@ -4,17 +4,14 @@
 which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
 The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
 ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs at
-about 30 Hz on the event loop (viser handles are thread-safe). The panel: one slider per declared gain
-(log10 for wide ranges, see gcs.server.gains) and a reset per estimator, following the gain events.
-viser callbacks run on viser's threads and hop to the event loop with call_soon_threadsafe; viser has
-no authentication, so the panel is read-only when the server needs a token.
+about 30 Hz on the event loop (viser handles are thread-safe). The panel: every estimator's gains as
+read-only text in their own units, following the gain events (viser has no authentication: changes
+are made on the page).
 """
 
 from __future__ import annotations
 
-import asyncio
 import math
-from collections.abc import Callable
 
 import numpy as np
 import viser
@@ -24,9 +21,22 @@ from gcs.core.rotation import euler_to_quat
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.server.colors import COLORS, OTHER
-from gcs.server.sliders import slider_spec
 
 GHOST_OPACITY = 0.35
+
+
+class LocalViserServer(viser.ViserServer):
+    """viser, kept on this network: its share button asks viser's relay for a public URL to the
+    view, and any client may send that request (viser has no authentication). At the field there
+    is no internet, and nobody but the operator may publish the view, so the button is hidden and the
+    request refused."""
+
+    def __init__(self, host: str, port: int) -> None:
+        super().__init__(host=host, port=port, verbose=False, label="gcs pose")
+        self.gui.configure_theme(show_share_button=False)
+
+    def request_share_url(self, verbose: bool = True) -> str | None:
+        return None
 
 
 def display_wxyz(q) -> tuple[float, float, float, float]:
@@ -82,93 +92,26 @@ class PoseView:
                 ghost.wxyz = display_wxyz(quaternions[name])
 
 
-class GainPanel:
-    """viser sliders for every declared gain, driving the Station's gain commands on the event
-    loop. Read-only (no handlers at all, since viser does not enforce `disabled`) when the server
-    needs a token."""
+class GainTable:
+    """The estimators' gains in viser's panel, as text in their own units, following every gain
+    event. Read-only by construction: viser has no authentication and does not enforce `disabled`,
+    so the panel has no inputs at all; gains change on the page, which needs the token."""
 
-    def __init__(
-        self, server: viser.ViserServer, station: StationFacade, loop: asyncio.AbstractEventLoop, editable: bool
-    ) -> None:
+    def __init__(self, server: viser.ViserServer, station: StationFacade) -> None:
         self.station = station
-        self.loop = loop
-        self.sliders: dict[tuple[str, str], tuple[viser.GuiSliderHandle[float], str]] = {}
-        self._reflecting = False
-        with server.gui.add_folder("Estimator gains"):
-            if not editable:
-                server.gui.add_markdown("Read-only here: this server needs a token, change gains on the page.")
+        self.tables: dict[str, viser.GuiMarkdownHandle] = {}
+        with server.gui.add_folder("Estimator gains", expand_by_default=False):
+            server.gui.add_markdown("Read-only here: change gains on the dashboard page.")
             for name in station.estimator_names():
-                est = station.estimator(name)
-                with server.gui.add_folder(name, expand_by_default=False):
-                    for gain in est.gains.declarations.values():
-                        self._add_slider(server, name, gain, est, editable)
-                    reset = server.gui.add_button(f"reset {name} to {est.DEFAULT_PRESET}", disabled=not editable)
-                    if editable:
-                        reset.on_click(self._on_reset(name))
+                self.tables[name] = server.gui.add_markdown(self.table(name))
 
-    def _add_slider(self, server, estimator: str, gain, est, editable: bool) -> None:
-        spec = slider_spec(gain, est.gains.presets)
-        label = (
-            f"{gain.name} (log₁₀ {gain.unit})"
-            if spec.scale == "log"
-            else f"{gain.name} ({gain.unit})"
-            if gain.unit
-            else gain.name
-        )
-        slider = server.gui.add_slider(
-            label,
-            min=spec.lo,
-            max=spec.hi,
-            step=spec.step,
-            initial_value=self._position(spec.scale, spec.lo, spec.hi, est.gains[gain.name]),
-            hint=f"{gain.meaning} [{gain.min:g} … {gain.max:g} {gain.unit}]",
-            disabled=not editable,
-        )
-        self.sliders[(estimator, gain.name)] = (slider, spec.scale)
-        if editable:
-            slider.on_update(self._on_slider(estimator, gain.name, slider, spec.scale))
-
-    @staticmethod
-    def _position(scale: str, lo: float, hi: float, value: float) -> float:
-        if scale == "log":
-            return min(hi, max(lo, math.log10(value))) if value > 0 else lo
-        return value
-
-    def _on_slider(self, estimator: str, gain: str, slider, scale: str) -> Callable:
-        def changed(_event) -> None:
-            if self._reflecting:
-                return
-            value = 10**slider.value if scale == "log" else slider.value
-            self.loop.call_soon_threadsafe(self._apply, estimator, gain, value)
-
-        return changed
-
-    def _apply(self, estimator: str, gain: str, value: float) -> None:
-        """Apply a slider position (clamped: 10**log10(max) may round past max), unless it only
-        echoes the current value."""
-        gains = self.station.estimator(estimator).gains
-        declared = gains.declarations[gain]
-        value = min(declared.max, max(declared.min, value))
-        if not math.isclose(gains[gain], value, rel_tol=1e-9, abs_tol=1e-15):
-            self.station.set_gain(estimator, gain, value, "viser")
-
-    def _on_reset(self, estimator: str) -> Callable:
-        def clicked(_event) -> None:
-            self.loop.call_soon_threadsafe(self.station.reset_gains, estimator, None, "viser")
-
-        return clicked
+    def table(self, estimator: str) -> str:
+        est = self.station.estimator(estimator)
+        rows = [f"| {g.name} | {est.gains[g.name]:.4g} {g.unit} |" for g in est.gains.declarations.values()]
+        return "\n".join([f"**{estimator}** ({est.preset})", "", "| gain | value |", "|---|---|", *rows])
 
     def reflect(self, event: Event) -> None:
-        """Move a slider to a gain value changed elsewhere (event-log listener, event loop)."""
-        if event.kind != "gain":
-            return
-        entry = self.sliders.get((event.data["estimator"], event.data["gain"]))
-        if entry is None:
-            return
-        slider, scale = entry
-        self._reflecting = True
-        try:
-            position = self._position(scale, slider.min, slider.max, event.data["new"])
-            slider.value = position  # type: ignore[misc]  # viser's stub marks it read-only; the handle sets it
-        finally:
-            self._reflecting = False
+        """Show a gain changed on the page or by a script (event-log listener, event loop)."""
+        estimator = event.data.get("estimator")
+        if event.kind == "gain" and estimator in self.tables:
+            self.tables[estimator].content = self.table(estimator)

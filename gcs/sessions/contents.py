@@ -74,7 +74,7 @@ Decode = Callable[[str | os.PathLike], ReplaySource]
 def read_events(folder: Path) -> list[dict]:
     """A session's events.jsonl, one dict per line; an incomplete last line (a crash mid-write)
     or a damaged one is skipped."""
-    path = folder / layout.EVENTS
+    path = layout.session_file(folder, layout.EVENTS)
     if not path.exists():
         return []
     events = []

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gcs.core import strict_json
+from gcs.logs.logfile import InputError
 
 TLOG = "telemetry.tlog"
 EVENTS = "events.jsonl"
@@ -48,12 +49,23 @@ def unique_folder(root: Path, name: str) -> Path:
     return candidate
 
 
+def session_file(folder: Path, name: str) -> Path:
+    """folder/name, refused (InputError) when it is a symbolic link: a session's files are its own.
+    A folder copied from a stick or a colleague could link to any file on this machine, which
+    replay, export or the dashboard would then read (or recovery append to), or to a device that
+    never ends."""
+    path = folder / name
+    if path.is_symlink():
+        raise InputError(f"{path}: a symbolic link inside a session folder (not followed)")
+    return path
+
+
 def stream_path(folder: Path, table: str) -> Path:
-    return folder / f"{table}{STREAM_SUFFIX}"
+    return session_file(folder, f"{table}{STREAM_SUFFIX}")
 
 
 def parquet_path(folder: Path, table: str) -> Path:
-    return folder / f"{table}{PARQUET_SUFFIX}"
+    return session_file(folder, f"{table}{PARQUET_SUFFIX}")
 
 
 def is_session(path: Path) -> bool:
@@ -63,8 +75,8 @@ def is_session(path: Path) -> bool:
 def read_meta(folder: Path) -> dict:
     """meta.json of a session; an unreadable one is reported as such, not raised."""
     try:
-        meta = json.loads((folder / META).read_text())
-    except (OSError, ValueError) as exc:
+        meta = json.loads(session_file(folder, META).read_text())
+    except (OSError, ValueError, InputError) as exc:
         return {"error": f"{folder / META}: unreadable meta.json ({exc})"}
     if not isinstance(meta, dict):
         return {"error": f"{folder / META}: meta.json holds a {type(meta).__name__}, not an object"}

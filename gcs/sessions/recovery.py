@@ -14,13 +14,14 @@ import os
 import time
 from pathlib import Path
 
+from gcs.logs.logfile import InputError
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions import columnar, layout
 
 
 def take_lock(folder: Path) -> int | None:
     """An fd holding the session's lock, or None when a live process holds it."""
-    fd = os.open(folder / layout.LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = os.open(folder / layout.LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -57,7 +58,7 @@ def close_session(folder: Path, meta: dict, recovered: bool) -> dict:
     tables = {table: columnar.finish_table(folder, table) for table in layout.TABLES}
     meta = dict(meta, tables=tables)
     if recovered:
-        end, found = last_tlog_time(folder / layout.TLOG)
+        end, found = last_tlog_time(layout.session_file(folder, layout.TLOG))
         meta.update(end=end if end is not None else layout.meta_time(meta.get("start")), recovered=True, recovery=found)
     layout.write_meta(folder, meta)
     return meta
@@ -93,12 +94,12 @@ def recover_sessions(root: Path) -> list[dict]:
                 "end": meta["end"],
                 **meta["recovery"],
             }
-            with open(folder / layout.EVENTS, "a+b") as fh:
+            with open(layout.session_file(folder, layout.EVENTS), "a+b") as fh:
                 fh.seek(0, os.SEEK_END)
                 cut = fh.tell() > 0 and (fh.seek(-1, os.SEEK_END), fh.read(1))[1] != b"\n"
                 fh.write((("\n" if cut else "") + json.dumps(line) + "\n").encode())  # end a line the crash cut
             reports.append({"session": info.name, "end": meta["end"], **meta["recovery"]})
-        except OSError as exc:
+        except (OSError, InputError) as exc:
             reports.append({"session": info.name, "error": f"cannot recover {folder}: {exc}"})
         finally:
             release_lock(fd)

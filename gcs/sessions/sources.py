@@ -250,7 +250,7 @@ def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     """Gain changes recorded in a session's events.jsonl with the input index they were applied at.
     An incomplete last line (a crash mid-write) is ignored."""
     events: list[tuple[int, GainChange]] = []
-    path = folder / layout.EVENTS
+    path = layout.session_file(folder, layout.EVENTS)
     if not path.exists():
         return events
     for line in path.read_text().splitlines():
@@ -306,7 +306,7 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
         if "error" in meta:
             raise InputError(meta["error"])
         config = meta.get("estimation") or {}
-        tlog = str(folder / layout.TLOG)
+        tlog = str(layout.session_file(folder, layout.TLOG))
         if not os.path.isfile(tlog):
             raise InputError(f"{path}: session has no {layout.TLOG}")
         d = _decode_tlog(tlog, config, _gain_events(folder))

@@ -2,15 +2,14 @@
 // sliders built from the gain declarations (/api/estimators), the viser 3-D view in an iframe.
 "use strict";
 
-const TOKEN = new URLSearchParams(location.search).get("token");
 const $ = (id) => document.getElementById(id);
 // For tests and the curious: samples received over the WebSocket per source, frames, fps.
 const gcsStats = (window.gcsStats = { received: {}, messages: 0, fps: 0, dropped: 0, client: null, lastFrameAt: 0 });
 let plots = null;
 
 async function api(method, path, body) {
+  // The token travels as the HttpOnly cookie the start-up URL set: scripts never hold it.
   const headers = { "Content-Type": "application/json" };
-  if (TOKEN) headers["X-GCS-Token"] = TOKEN;
   const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
   const data = await res.json().catch(() => ({}));
   if (!res.ok) throw new Error(typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail || res.status));
@@ -80,7 +79,7 @@ function showStatus(s) {
     + `<div class="note">lag +20 ms = estimator 20 ms behind onboard ATTITUDE (negative: ahead) · declination ${dec}</div>`;
   const frame = $("pose");
   if (s.viser_port && !frame.src) frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
-  if (s.token_required && !TOKEN) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+  if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
 }
 
 function escapeHtml(s) { return s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }

@@ -1,12 +1,11 @@
 // The side panels besides the live view: vehicle tuning (/api/tuning, /api/params), recording and
 // sessions (/api/recording, /api/sessions, export links), replay control (/api/replay) and what-if
-// (/api/whatif). Uses api(), $, TOKEN, fmt and escapeHtml from dashboard.js.
+// (/api/whatif). Uses api(), $, fmt and escapeHtml from dashboard.js.
 "use strict";
 
 // One request, never throwing: {ok, status, data, message} (message: the server's detail).
 async function call(method, path, body) {
   const headers = { "Content-Type": "application/json" };
-  if (TOKEN) headers["X-GCS-Token"] = TOKEN;
   try {
     const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
     const data = await res.json().catch(() => ({}));
@@ -30,7 +29,7 @@ function bytes(n) {
   for (const u of ["B", "KiB", "MiB", "GiB"]) { if (n < 1024 || u === "GiB") return u === "B" ? `${n} B` : `${n.toFixed(1)} ${u}`; n /= 1024; }
 }
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
-const panelState = (window.gcsPanels = { tab: "live", tokenRequired: false, tuning: null, replay: null, sessions: [], whatif: null });
+const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, replay: null, sessions: [], whatif: null });
 
 // ---- tabs ----------------------------------------------------------------------------------
 function showTab(name) {
@@ -340,12 +339,12 @@ function drawWhatif() {
 }
 
 // ---- start ---------------------------------------------------------------------------------
-function canChange() { return !panelState.tokenRequired || !!TOKEN; }
+function canChange() { return panelState.authorised; }
 
 async function initPanels() {
   for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
   const st = await call("GET", "/api/status");
-  panelState.tokenRequired = st.ok && st.data.token_required;
+  panelState.authorised = st.ok && st.data.authorised;
   if (!canChange()) {
     for (const el of document.querySelectorAll(".needs-token")) el.disabled = true;
     for (const el of document.querySelectorAll(".readonly-note")) el.hidden = false;

@@ -2,6 +2,7 @@
 `router`, a fastapi.APIRouter). Add yours with one line."""
 
 ROUTERS: list[str] = [
+    "gcs.server.routers.page",
     "gcs.server.routers.status",
     "gcs.server.routers.estimates",
     "gcs.server.routers.gains",

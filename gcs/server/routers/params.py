@@ -22,6 +22,7 @@ from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
 from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, TuningSnapshot
 from gcs.server.deps import TOKEN, ClientDep, StationDep
+from gcs.server.ratelimit import rate_limited
 
 router = APIRouter(tags=["params"])
 
@@ -69,7 +70,11 @@ async def get_params(station: StationDep) -> dict:
     }
 
 
-@router.post("/api/params/download", status_code=status.HTTP_202_ACCEPTED, dependencies=[TOKEN])
+@router.post(
+    "/api/params/download",
+    status_code=status.HTTP_202_ACCEPTED,
+    dependencies=[TOKEN, Depends(rate_limited("params download"))],
+)
 async def start_download(station: StationDep) -> dict:
     started = station.start_param_download()
     return {"download": "started" if started else "already running", "progress": station.params.progress()}

@@ -3,8 +3,8 @@ add a note, list log files beside the sessions, drive a replay (play, pause, see
 
 Sources are named, never given as paths: a session folder name or a log file name inside the
 recording folder, so a remote page cannot read arbitrary files. State-changing requests need the
-token when one is required. Exports and what-if run in the station's worker process, so the link
-reader and the live view never wait on them.
+token. Exports and what-if run in the station's worker process, so the link reader and the live
+view never wait on them, and each client may ask for only so many a minute (`server.ratelimit`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, status
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from starlette.background import BackgroundTask
@@ -26,6 +26,7 @@ from gcs.runtime.replay import ReplaySession, ReplaySnapshot
 from gcs.runtime.snapshots import RecordingSnapshot
 from gcs.runtime.station import StationError
 from gcs.server.deps import TOKEN, ClientDep, StationDep
+from gcs.server.ratelimit import rate_limited
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS
 from gcs.sessions.sources import KINDS
@@ -98,7 +99,7 @@ async def list_logs(station: StationDep) -> list[dict[str, Any]]:
     ]
 
 
-@router.get("/sessions/{name}/export", response_class=FileResponse)
+@router.get("/sessions/{name}/export", response_class=FileResponse, dependencies=[Depends(rate_limited("export"))])
 async def export(name: str, station: StationDep, format: str = "csv") -> FileResponse:
     if format not in FORMATS:
         raise HTTPException(422, detail=f"format {format!r}: use one of {', '.join(FORMATS)}")
@@ -145,7 +146,7 @@ async def add_note(note: Note, station: StationDep, client: ClientDep) -> dict[s
     return {"ok": True}
 
 
-@router.post("/replay", dependencies=[TOKEN])
+@router.post("/replay", dependencies=[TOKEN, Depends(rate_limited("replay"))])
 async def load_replay(body: ReplayRequest, station: StationDep) -> ReplaySnapshot:
     """Load a source and start playing it (replacing any replay already loaded)."""
     path = named_source(station, body.source)
@@ -203,7 +204,7 @@ async def unload_replay(station: StationDep) -> dict[str, bool]:
     return {"ok": True}
 
 
-@router.post("/whatif", dependencies=[TOKEN])
+@router.post("/whatif", dependencies=[TOKEN, Depends(rate_limited("whatif"))])
 async def whatif(body: WhatIfRequest, station: StationDep) -> WhatIfView:
     """Old and new output of one estimator over a whole session with other gains, and the RMS table."""
     path = named_source(station, body.source)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from gcs.server.deps import HubDep, StationDep
+from gcs.server.deps import HubDep, StationDep, is_authorised
 from gcs.server.models import EstimatorStatus, LinkStatus, StatusResponse
 
 router = APIRouter(prefix="/api", tags=["status"])
@@ -56,5 +56,5 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
         parts=snap.parts,
         clients=[c.snapshot() for c in hub.clients.values()],
         viser_port=request.app.state.viser_port,
-        token_required=request.app.state.token is not None,
+        authorised=is_authorised(request),
     )
