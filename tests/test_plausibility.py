@@ -8,7 +8,9 @@ import json
 import math
 
 import numpy as np
+import pytest
 
+from gcs.core import strict_json
 from gcs.core.estimation import EstimationPipeline, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
@@ -58,3 +60,31 @@ def test_the_offline_loop_refuses_the_same_samples():
         seen = [item for item, _ in run_estimator(estimator, stream())]
         assert not any(item is bad for item in seen for bad in BAD)
         assert len(seen) == 201 and np.all(np.isfinite(estimator.quaternion))
+
+
+def test_an_estimator_that_raises_restarts_from_the_next_sample_and_the_others_go_on():
+    """No real input makes an estimator raise today (that is the point), so a fault is injected
+    into one instance; the restart builds a fresh, real one from the registry."""
+    pipeline = EstimationPipeline()
+    name = registry.names()[0]
+    broken = pipeline.estimators[name]
+    broken.set_gain("max_gap", 2.0)  # a gain the restart must keep
+
+    def fault(sample):
+        raise FloatingPointError("injected fault")
+
+    broken.update_imu = fault  # the injected fault
+    points = [p for k in range(100) for p in pipeline.feed(good(k * 0.01))]
+    assert pipeline.restarts == {name: 1}
+    assert pipeline.restart_reasons[name] == "FloatingPointError: injected fault"
+    assert pipeline.estimators[name] is not broken and pipeline.estimators[name].gains["max_gap"] == 2.0
+    assert {p.source for p in points} == set(registry.names())  # the restarted one produces again
+    assert {p.source for p in points[:10]} >= set(registry.names()) - {name}  # the others never stopped
+
+
+def test_strict_json_turns_non_finite_numbers_into_null_with_a_count():
+    text = strict_json.dumps({"roll": [1.5, math.nan], "lag": math.inf, "ok": 2.0}, separators=(",", ":"))
+    assert strict_json.loads(text) == {"roll": [1.5, None], "lag": None, "ok": 2.0, "nonfinite": 2}
+    assert strict_json.loads(strict_json.dumps({"ok": 1.0})) == {"ok": 1.0}  # no flag when nothing changed
+    with pytest.raises(ValueError, match="NaN"):
+        strict_json.loads('{"roll": NaN}')

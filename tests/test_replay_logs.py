@@ -122,3 +122,43 @@ def test_px4_flight_estimators_follow_onboard_ekf2_roll_and_pitch(logs_dir):
         roll, pitch, _ = onboard["rms"]
         assert onboard["n"] > 6000
         assert roll < limit and pitch < limit, f"{name}: roll/pitch RMS {roll:.2f}/{pitch:.2f} deg vs EKF2"
+
+
+def ulog_message_starts(data: bytes) -> list[int]:
+    """Offsets of the messages of an undamaged ULog: a 16-byte file header, then each message a
+    3-byte header (uint16 body size, uint8 type) and its body (the ULog file format)."""
+    starts, pos = [], 16
+    while pos + 3 <= len(data):
+        starts.append(pos)
+        pos += 3 + int.from_bytes(data[pos : pos + 2], "little")
+    assert pos == len(data), "the sample log itself is damaged"
+    return starts
+
+
+@pytest.mark.parametrize("where", [0.5, 0.999])
+def test_truncated_ulog_replays_up_to_the_damage_and_says_where(logs_dir, tmp_path, where, capsys):
+    data = (logs_dir / "px4-flight-sample.ulg").read_bytes()
+    starts = ulog_message_starts(data)
+    k = int(len(starts) * where)
+    cut = starts[k] + 5  # inside message k
+    path = tmp_path / "cut.ulg"
+    path.write_bytes(data[:cut])
+    source = open_source(path)
+    assert source.damage.startswith(f"{path}: offset {starts[k]}: log ends inside a message (5 of its "), source.damage
+    assert source.counts["sensor_combined"] > 0
+    assert open_source(logs_dir / "px4-flight-sample.ulg").damage is None
+    assert main(["replay", str(path), "--fast"]) == 0
+    assert f"offset {starts[k]}" in capsys.readouterr().err
+
+
+def test_dataflash_with_a_garbled_header_says_where_in_one_line(logs_dir, tmp_path, capfd):
+    """DFReader's fast indexer prints every bad byte on file descriptor 2 itself (capfd sees it)."""
+    data = bytearray((logs_dir / "arducopter-sitl-hop.BIN").read_bytes())
+    at = data.index(b"\xa3\x95", len(data) // 2)  # a record's header, half way through
+    data[at : at + 2] = b"\x00\x00"
+    path = tmp_path / "garbled.bin"
+    path.write_bytes(bytes(data))
+    assert open_source(path).damage == f"{path}: offset {at}: damaged data skipped (bad header 0x0000)"
+    assert main(["replay", str(path), "--fast"]) == 0
+    err = capfd.readouterr().err
+    assert f"offset {at}" in err and "bad header 0x0000 at" not in err  # DFReader's own lines are not passed on

@@ -4,10 +4,10 @@ a crash left open are shown as such (the next `gcs status`/server start recovers
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
+from gcs.core import strict_json
 from gcs.sessions.layout import list_sessions
 
 
@@ -40,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     sessions = list_sessions(args.dir)
     if args.json:
-        json.dump([s.as_dict() for s in sessions], sys.stdout, indent=2)
-        print()
+        print(strict_json.dumps([s.as_dict() for s in sessions], indent=2))
     elif sessions:
         print(format_table(sessions))
     else:

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
-import json
-import sys
 
 from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.core import strict_json
 from gcs.runtime.snapshots import StationSnapshot
 from gcs.runtime.station import Station, StationConfig
 
@@ -27,8 +26,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     snapshot = asyncio.run(_collect(config, args.duration))
     if args.json:
-        json.dump(dataclasses.asdict(snapshot), sys.stdout, indent=2)
-        print()
+        print(strict_json.dumps(dataclasses.asdict(snapshot), indent=2))
     else:
         print(format_report(snapshot))
     return 0 if snapshot.vehicle.heartbeats else 1
@@ -53,7 +51,8 @@ def format_report(snap: StationSnapshot) -> str:
         f"MAVLink {vehicle.mavlink_version}  {'ARMED' if vehicle.armed else 'disarmed'}  "
         f"firmware {vehicle.firmware or '?'}",
         f"traffic    {stats.packets} packets  {stats.bytes_per_s:.0f} B/s  CRC errors {stats.crc_errors}  "
-        f"malformed {stats.malformed}  lost {stats.packets_lost} ({100 * stats.loss_fraction:.2f} %)",
+        f"malformed {stats.malformed}  lost {stats.packets_lost} ({100 * stats.loss_fraction:.2f} %)  "
+        f"kernel drops {stats.kernel_drops}",
         f"streams    via {streams.method}  ({streams.requests_sent} requests sent)",
     ]
     for name, row in streams.messages.items():
@@ -62,6 +61,10 @@ def format_report(snap: StationSnapshot) -> str:
     others = {k: v for k, v in stats.rates_hz.items() if k not in streams.messages}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
+    if stats.nonfinite_rejected:
+        lines.append(
+            "rejected   non-finite values: " + ", ".join(f"{k} {n}" for k, n in stats.nonfinite_rejected.items())
+        )
     lines.append(f"recording  {recording.state}  {recording.folder or ''}  {recording.error or ''}")
     lines += [f"part       {p.name} failed: {p.error}" for p in snap.parts if p.state == "failed"]
     lines.append("events")

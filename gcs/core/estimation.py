@@ -85,7 +85,8 @@ class EstimationPipeline:
         self.imu_samples = 0
         self.declination: float | None = None  # the vehicle's, once a GainChange for every estimator set it
         self.refused: Counter[str] = Counter()  # implausible inputs, by reason
-        self.restarts: Counter[str] = Counter()  # estimators restarted after their state went non-finite
+        self.restarts: Counter[str] = Counter()  # estimators restarted after a non-finite state or an error
+        self.restart_reasons: dict[str, str] = {}  # estimator -> why it last restarted
 
     def feed(self, item: EstimationInput) -> list[AttitudePoint]:
         """Fuse one input; returns the attitudes it produced (none, one reference, or one per
@@ -99,8 +100,11 @@ class EstimationPipeline:
         if isinstance(item, ImuSample):
             return self._imu(item)
         if isinstance(item, GpsSample):
-            for est in self.estimators.values():
-                est.update_gps(item)
+            for name, est in list(self.estimators.items()):
+                try:
+                    est.update_gps(item)
+                except Exception as exc:  # one estimator's fault: it restarts, the others go on
+                    self._restart(name, est, f"{type(exc).__name__}: {exc}")
             return []
         if isinstance(item, GainChange):
             self._gain_change(item)
@@ -125,10 +129,14 @@ class EstimationPipeline:
         self.imu_samples += 1
         points = []
         for name, est in list(self.estimators.items()):
-            valid = est.update_imu(sample)
+            try:
+                valid = est.update_imu(sample)
+            except Exception as exc:  # one estimator's fault: it restarts, the others go on
+                self._restart(name, est, f"{type(exc).__name__}: {exc}")
+                continue
             q = est.quaternion
             if not all(math.isfinite(v) for v in q.tolist()):
-                self._restart(name, est)
+                self._restart(name, est, f"non-finite state at t={sample.t:.3f} s")
                 continue
             self.comparisons[name].add_estimate(sample.t, q)
             if valid:
@@ -137,10 +145,12 @@ class EstimationPipeline:
                 points.append(point)
         return points
 
-    def _restart(self, name: str, broken: AttitudeEstimator) -> None:
-        """A filter whose state went non-finite starts again, same preset and gains, from the next sample."""
+    def _restart(self, name: str, broken: AttitudeEstimator, reason: str) -> None:
+        """A filter whose state went non-finite, or that raised, starts again with the same preset
+        and gains from the next sample; the count and the reason are in the status."""
         self.estimators[name] = registry.create(name, broken.preset, **broken.gains.values)
         self.restarts[name] += 1
+        self.restart_reasons[name] = reason
 
     def _reference(self, ref: AttitudeSample) -> AttitudePoint:
         for comparison in self.comparisons.values():

@@ -16,7 +16,13 @@ byte offset it is.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import os
+import re
+import sys
+import tempfile
 from collections.abc import Iterator
 from typing import TypeAlias
 
@@ -123,13 +129,57 @@ def attitude_from_dataflash(record: DataflashRecord, source: str) -> AttitudeSam
     )
 
 
+#: What DFReader prints when it skips damage, with the offset: the first one is where the damage is.
+_SKIP_NOTICE = re.compile(
+    r"(bad header \S+(?: \S+)?|unknown msg type \S+ \(\d+\)|Skipped \d+ bad bytes) (?:in log )?at (?:offset )?(\d+)"
+)
+
+
+class DFReaderNotices:
+    """DFReader prints every damaged spot it skips (one line per bad byte in a garbled header);
+    a command answers in one line, so they are collected here and the first becomes the damage."""
+
+    def __init__(self) -> None:
+        self.text = io.StringIO()
+
+    @contextlib.contextmanager
+    def collected(self) -> Iterator[None]:
+        with contextlib.redirect_stdout(self.text), contextlib.redirect_stderr(self.text):
+            yield
+
+    @contextlib.contextmanager
+    def collected_from_fd(self) -> Iterator[None]:
+        """Also what C code writes to file descriptor 2 (DFReader's fast indexer); anything else
+        written there meanwhile is passed on afterwards."""
+        sys.stderr.flush()
+        saved = os.dup(2)
+        with tempfile.TemporaryFile() as tmp:
+            os.dup2(tmp.fileno(), 2)
+            try:
+                with self.collected():
+                    yield
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                tmp.seek(0)
+                for line in tmp.read().decode(errors="replace").splitlines(keepends=True):
+                    (self.text if _SKIP_NOTICE.search(line) else sys.stderr).write(line)
+
+    def first(self) -> tuple[int, str] | None:
+        """(offset, what DFReader said) of the first skipped damage, or None."""
+        found = _SKIP_NOTICE.search(self.text.getvalue())
+        return None if found is None else (int(found.group(2)), found.group(1))
+
+
 class DataflashLog(LogFile):
     """Iterates the samples of a .bin log in file order (see LogFile for what it reports): IMU
     instance `imu`, MAG and GPS instance 0, every reference."""
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+        notices = DFReaderNotices()
         try:
-            log = DFReader_binary(self.path)  # never mavlink_connection: it treats some paths as devices
+            with notices.collected_from_fd():
+                log = DFReader_binary(self.path)  # never mavlink_connection: it treats some paths as devices
         except Exception as exc:  # DFReader raises bare Exceptions on a bad header
             raise InputError(f"{self.path}: offset 0: not a DataFlash log ({exc})") from None
         mag: MagSample | None = None
@@ -137,7 +187,8 @@ class DataflashLog(LogFile):
         untimed: set[str] = set()
         while True:
             try:
-                record = log.recv_match(type=list(TYPES))
+                with notices.collected():
+                    record = log.recv_match(type=list(TYPES))
             except Exception as exc:  # a record cut or garbled in a way DFReader cannot skip
                 self.damage = f"{self.path}: offset {log.offset}: unreadable record ({exc}); stopped there"
                 break
@@ -165,6 +216,9 @@ class DataflashLog(LogFile):
             else:
                 self._seen(kind, time_us)
                 yield attitude_from_dataflash(record, REFERENCES[kind])
+        skipped = notices.first()
+        if self.damage is None and skipped is not None:
+            self.damage = f"{self.path}: offset {skipped[0]}: damaged data skipped ({skipped[1]})"
         if self.damage is None and log.offset < log.data_len:
             self.damage = (
                 f"{self.path}: offset {log.offset}: log ends inside a record "

@@ -6,14 +6,16 @@ carrying the latest magnetometer reading (see gcs.logs.magnetometer) from `vehic
 older logs, `vehicle_gps_position` → `GpsSample`; `vehicle_attitude` (the onboard EKF2,
 quaternion body→NED, w first) → the "onboard" reference. The topics are merged in timestamp
 order (at equal timestamps a magnetometer reading first, so the IMU sample carries it). pyulog
-reads a damaged file up to the damage and flags it; `damage` says so.
+reads a damaged file up to the damage and flags corruption, but stops silently at a cut end;
+`CutWatch` finds where a cut message starts, and `damage` says either.
 """
 
 from __future__ import annotations
 
 import heapq
+import struct
 from collections.abc import Iterator
-from typing import TypeAlias
+from typing import BinaryIO, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -114,17 +116,65 @@ def _attitude_rows(data: Columns) -> Iterator[Row]:
         yield timestamp, 3, ATTITUDE_TOPIC, attitude_from_ulog(timestamp, q[k])
 
 
+class CutWatch:
+    """The file object pyulog reads through, noting a read the file's end cut short.
+
+    pyulog reads every message as a 3-byte header (uint16 size, uint8 type), then `size` bytes,
+    and ends quietly on a short read, whether at the clean end (no header byte left) or in the
+    middle of a message. A short read that got some bytes, or a body read that got none after
+    its header, is a cut: `cut` is (offset of the cut message, its length, bytes present).
+    """
+
+    def __init__(self, fh: BinaryIO) -> None:
+        self.fh = fh
+        self.cut: tuple[int, int, int] | None = None
+        self._header: tuple[int, int] | None = None  # (offset, body size) of the last header read
+
+    def read(self, n: int = -1) -> bytes:
+        at = self.fh.tell()
+        data = self.fh.read(n)
+        header, self._header = self._header, None
+        if 0 <= len(data) < n:
+            if header is not None and header[1] == n:  # a body after its header
+                self.cut = (header[0], 3 + n, 3 + len(data))
+            elif data and n == 3:
+                self.cut = (at, 3, len(data))
+        elif n == 3 and len(data) == 3:
+            self._header = (at, struct.unpack_from("<H", data)[0])
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self._header = None
+        return self.fh.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self.fh.tell()
+
+    def close(self) -> None:
+        pass  # the reader's `with` closes the file
+
+
 class UlogFile(LogFile):
     """Iterates the samples of a .ulg in timestamp order (see LogFile for what it reports);
     `imu` selects the sensor_combined instance (multi_id)."""
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
         try:
-            ulog = ULog(self.path, [IMU_TOPIC, ATTITUDE_TOPIC, *MAG_TOPICS, *GPS_TOPICS])
+            with open(self.path, "rb") as fh:
+                watch = CutWatch(fh)
+                ulog = ULog(watch, [IMU_TOPIC, ATTITUDE_TOPIC, *MAG_TOPICS, *GPS_TOPICS])
+        except OSError as exc:
+            raise InputError(f"{self.path}: offset 0: cannot read ({exc.strerror})") from None
         except Exception as exc:  # pyulog raises plain Exceptions for a bad header or version
             raise InputError(f"{self.path}: offset 0: not a ULog file ({exc})") from None
         if ulog.file_corruption:
             self.damage = f"{self.path}: pyulog found corrupt data and skipped it; samples up to the damage are used"
+        elif watch.cut is not None:
+            at, length, present = watch.cut
+            self.damage = (
+                f"{self.path}: offset {at}: log ends inside a message ({present} of its {length} bytes); "
+                "samples up to there are used"
+            )
         imus = {d.multi_id: d.data for d in ulog.data_list if d.name == IMU_TOPIC and len(d.data["timestamp"])}
         if self.imu not in imus:
             found = f"instances in the log: {', '.join(map(str, sorted(imus)))}" if imus else "none"

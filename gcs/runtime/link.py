@@ -18,6 +18,7 @@ from enum import StrEnum
 
 from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
+from gcs.mavlink.finite import nonfinite_field
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.link_stats import LinkStats
@@ -45,7 +46,7 @@ class LinkEvent:
 
     host_time: float
     wall_time: float
-    kind: str  # "state", "transport", "baud", "error"
+    kind: str  # "state", "transport", "baud", "error", "rejected"
     detail: str
 
 
@@ -122,6 +123,7 @@ class Link:
         self.last_heartbeat: float | None = None  # host monotonic s
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         self._transport: Transport | None = None
+        self._closed_drops = 0  # kernel drops of transports closed since
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
         #: (old, new) on every state change, in the event loop.
         self.state_changed: Signal[[LinkState, LinkState]] = Signal()
@@ -166,6 +168,7 @@ class Link:
 
     def snapshot(self) -> LinkSnapshot:
         now = time.monotonic()
+        self.stats.kernel_drops = self._closed_drops + (self._transport.kernel_drops if self._transport else 0)
         return LinkSnapshot(
             name=self.name,
             address=str(self.address),
@@ -188,6 +191,10 @@ class Link:
         for msg in self.decoder.feed(data, final=self._datagram):
             msg_type = msg.get_type()
             self.stats.count(msg_type)
+            field = nonfinite_field(msg, msg_type)
+            if field is not None:
+                self._reject(msg_type, field)
+                continue
             if self.outputs:
                 raw = msg.get_msgbuf()
                 for out in self.outputs:
@@ -198,6 +205,14 @@ class Link:
             if msg_type == "HEARTBEAT":
                 self._on_heartbeat(msg, sysid, compid, now)
             self.bus.publish(Message(msg, msg_type, now, wall, vehicle_time_of(msg), sysid, compid, self.name))
+
+    def _reject(self, msg_type: str, field: str) -> None:
+        """A message with a non-finite value where the station needs a number goes nowhere;
+        the first of each type is also a link event, so the status page says what arrived."""
+        first = msg_type not in self.stats.nonfinite
+        self.stats.nonfinite[msg_type] = self.stats.nonfinite.get(msg_type, 0) + 1
+        if first:
+            self._event("rejected", f"{msg_type} with non-finite {field} (counted, not used)")
 
     def _on_heartbeat(self, msg, sysid: int, compid: int, now: float) -> None:
         if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID or msg.type == mavlink.MAV_TYPE_GCS:
@@ -249,6 +264,8 @@ class Link:
         return make_transport(self.address, baud=baud, speed=self.speed)
 
     def _set_transport(self, transport: Transport | None) -> None:
+        if self._transport is not None:  # closed: its drops stay counted
+            self._closed_drops += self._transport.kernel_drops
         self._transport = transport
 
     def _set_state(self, new: LinkState) -> None:

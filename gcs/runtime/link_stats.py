@@ -13,6 +13,8 @@ from gcs.runtime.snapshots import LinkCounters
 @dataclass
 class LinkStats:
     counts: dict[str, int] = field(default_factory=dict)  # packets received per message type
+    nonfinite: dict[str, int] = field(default_factory=dict)  # packets refused for a non-finite value, per type
+    kernel_drops: int = 0  # datagrams the kernel dropped before we read them (SO_RXQ_OVFL), this link
     bytes_in: int = 0
     bytes_out: int = 0
     packets_out: int = 0
@@ -74,4 +76,6 @@ class LinkStats:
             lost_by_source={f"{s}/{c}": n for (s, c), n in sorted(f.lost.items())},
             mavlink1_packets=f.mavlink1,
             mavlink2_packets=f.mavlink2,
+            nonfinite_rejected=dict(sorted(self.nonfinite.items())),
+            kernel_drops=self.kernel_drops,
         )

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import json
 import logging
 import math
 import os
@@ -24,6 +23,7 @@ from pathlib import Path
 from typing import Protocol
 
 from gcs import __version__
+from gcs.core import strict_json
 from gcs.mavlink.params import param_name
 from gcs.mavlink.tlog import tlog_record
 from gcs.provenance import provenance
@@ -292,7 +292,7 @@ class SessionRecorder:
         line = event.as_dict()
         if event.kind == "gain" and self.station.estimation is not None:
             line["input_index"] = max(0, self.station.estimation.messages_fed - self._input_base)
-        self.session.writer.append(layout.EVENTS, (json.dumps(line, default=str) + "\n").encode())
+        self.session.writer.append(layout.EVENTS, (strict_json.dumps(line, default=str) + "\n").encode())
 
     def _on_param(self, msg) -> None:
         name = param_name(msg)

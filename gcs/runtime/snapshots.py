@@ -36,6 +36,10 @@ class LinkCounters:
     lost_by_source: dict[str, int]
     mavlink1_packets: int
     mavlink2_packets: int
+    #: packets refused by the link for inf/NaN in a field the station reads (gcs.mavlink.finite), per type
+    nonfinite_rejected: dict[str, int] = field(default_factory=dict)
+    #: datagrams the kernel dropped on the UDP socket because we read too slowly (SO_RXQ_OVFL)
+    kernel_drops: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +162,8 @@ class EstimationSnapshot:
     estimators: dict[str, EstimatorSnapshot]
     latest: dict[str, SourceAttitude]
     refused_inputs: dict[str, int] = field(default_factory=dict)  # implausible samples, by reason
-    restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state
+    restarts: dict[str, int] = field(default_factory=dict)  # estimators restarted after a non-finite state or an error
+    restart_reasons: dict[str, str] = field(default_factory=dict)  # why each last restarted
     #: where declination_rad came from: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none"
     declination_source: str = "none"
 

@@ -419,5 +419,6 @@ def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
         latest,
         refused_inputs=dict(pipeline.refused),
         restarts=dict(pipeline.restarts),
+        restart_reasons=dict(pipeline.restart_reasons),
         declination_source=estimation.inputs.declination_source,
     )

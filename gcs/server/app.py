@@ -5,11 +5,16 @@ fetched from a CDN, so the page works with no internet)."""
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
-from fastapi import FastAPI, Response
+from fastapi import FastAPI, Request, Response
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
+from gcs.core import strict_json
 from gcs.runtime.events import Client, Event
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.replay import ReplaySession
@@ -41,6 +46,7 @@ def create_app(
         description="Live attitude of the vehicle and of the ground-side estimators; gain tuning.",
         docs_url=None,  # Swagger UI and ReDoc load their scripts from a CDN; /openapi.json stays
         redoc_url=None,
+        default_response_class=StrictJSONResponse,
     )
     app.state.station = station
     app.state.hub = hub
@@ -48,6 +54,7 @@ def create_app(
     app.state.assets = assets
     app.state.rate_limits = default_limits()
     app.state.viser_port = viser_port
+    app.add_exception_handler(RequestValidationError, refuse_invalid)
     app.add_middleware(
         RequestGuard,
         bound_host=bound_host,
@@ -63,6 +70,22 @@ def create_app(
     app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
     app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")
     return app
+
+
+class StrictJSONResponse(JSONResponse):
+    """Every REST answer as strict JSON (gcs.core.strict_json): a non-finite number is null,
+    never an invalid `NaN` token nor a 500 from Starlette's own allow_nan=False."""
+
+    def render(self, content: Any) -> bytes:
+        # a lone surrogate (from a \\ud800 escape in a request) cannot be UTF-8: it becomes "?"
+        return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode(errors="replace")
+
+
+async def refuse_invalid(request: Request, exc: Exception) -> Response:
+    """422 for a body or query that fails validation, as FastAPI answers, but strict: its
+    answer quotes the input, which may be NaN, Infinity or a lone surrogate (a 500 before)."""
+    assert isinstance(exc, RequestValidationError)
+    return StrictJSONResponse({"detail": jsonable_encoder(exc.errors())}, status_code=422)
 
 
 async def colors_js() -> Response:

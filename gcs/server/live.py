@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import json
 import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint
 from gcs.runtime.dropqueue import DropOldestQueue
 
@@ -183,7 +183,7 @@ class LiveHub:
         if self._flush_handle is not None:
             self._flush_handle.cancel()
         self._flush()
-        text = json.dumps(message)
+        text = strict_json.dumps(message)
         for client in self.clients.values():
             client.offer(text, 0)
 
@@ -192,7 +192,7 @@ class LiveHub:
         if not self._pending_n:
             return
         self._last_flush = time.monotonic()
-        text = json.dumps(
+        text = strict_json.dumps(
             {"type": "points", "seq": next(self._seq), "server_time": self._last_flush, "points": self._pending},
             separators=(",", ":"),
         )

@@ -42,6 +42,10 @@ class LinkStatus(BaseModel):
     loss_fraction: float
     crc_errors: int
     malformed: int
+    nonfinite_rejected: dict[str, int] = Field(
+        default_factory=dict, description="packets refused for inf/NaN in a field the station reads, per type"
+    )
+    kernel_drops: int = Field(default=0, description="UDP datagrams the kernel dropped before they were read")
     bytes_per_s: float
     rates_hz: dict[str, float]
     stream_method: str | None
@@ -71,7 +75,10 @@ class StatusResponse(BaseModel):
         default_factory=dict,
         description="samples kept from the estimators as implausible (inf, NaN, beyond any sensor), by reason",
     )
-    estimator_restarts: dict[str, int] = Field(default_factory=dict, description="restarts after a non-finite state")
+    estimator_restarts: dict[str, int] = Field(
+        default_factory=dict, description="restarts after a non-finite state or an error in the estimator"
+    )
+    estimator_restart_reasons: dict[str, str] = Field(default_factory=dict, description="why each last restarted")
     parts: list[PartStatus] = Field(description="the station's supervised parts; a failed one carries its error")
     clients: list[ClientSnapshot]
     viser_port: int | None
@@ -101,7 +108,7 @@ class EstimatorGains(BaseModel):
 
 
 class GainUpdate(BaseModel):
-    value: float = Field(description="new value, in the gain's unit, within its declared bounds")
+    value: float = Field(allow_inf_nan=False, description="new value, in the gain's unit, within its declared bounds")
 
 
 class GainChange(BaseModel):

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from gcs.core import strict_json
 from gcs.logs.logfile import InputError
 
 TLOG = "telemetry.tlog"
@@ -87,7 +88,7 @@ def write_meta(folder: Path, meta: dict) -> None:
     disk leaves the previous complete version in place."""
     tmp = folder / (META + ".tmp")
     with open(tmp, "w") as fh:
-        json.dump(meta, fh, indent=2, default=str)
+        fh.write(strict_json.dumps(meta, indent=2, default=str))
     os.replace(tmp, folder / META)
 
 

@@ -18,6 +18,7 @@ import errno
 import os
 import socket
 import struct
+import sys
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 
@@ -33,6 +34,12 @@ TCP_WRITE_LIMIT = 1 << 20
 #: UDP receive buffer asked of the kernel: at 400 Hz of telemetry the default ~208 KB fills in
 #: a fraction of a second if the event loop is starved (a busy laptop), and packets are lost.
 UDP_RECEIVE_BUFFER = 4 << 20
+#: Datagrams read per wake-up at most: a flood is drained without holding the event loop.
+UDP_READ_BATCH = 64
+UDP_MAX_DATAGRAM = 65535
+#: Linux's SO_RXQ_OVFL (socket(7); Python has no constant for it): the drop count per datagram.
+SO_RXQ_OVFL = 40
+_DROPS_CMSG_SPACE = socket.CMSG_SPACE(4)
 
 
 class Transport(ABC):
@@ -43,6 +50,7 @@ class Transport(ABC):
     def __init__(self, address: Address) -> None:
         self.address = address
         self.dropped_writes = 0
+        self.kernel_drops = 0  # received datagrams the kernel dropped before we read them (UDP on Linux)
         self._closed: asyncio.Future[None] | None = None
 
     @abstractmethod
@@ -69,70 +77,91 @@ class Transport(ABC):
         return f"{type(self).__name__}({self.address})"
 
 
-class _DatagramProtocol(asyncio.DatagramProtocol):
-    def __init__(self, owner: UdpTransport) -> None:
-        self.owner = owner
-
-    def datagram_received(self, data: bytes, addr) -> None:
-        self.owner._received(data, addr)
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP "port unreachable" while the peer is not listening yet: not a reason to close.
-        pass
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.owner._mark_closed()
-
-
 class UdpTransport(Transport):
     """`udpin` binds and answers whoever sent last; `udpout` sends to a fixed peer.
 
     A UDP pipe never "closes" when the peer goes away: the link notices silence by the
     missing heartbeats and resumes as soon as packets return.
+
+    The socket is read with recvmsg from the loop's reader callback (asyncio's datagram
+    transport hides ancillary data), up to UDP_READ_BATCH datagrams per wake-up. On Linux
+    SO_RXQ_OVFL makes every datagram carry the socket's cumulative count of datagrams the
+    kernel dropped for want of receive buffer: `kernel_drops`, the loss a flood or a starved
+    loop causes before any sequence number can show it.
     """
 
     def __init__(self, address: Address) -> None:
         super().__init__(address)
-        self.peer: tuple | None = None if address.kind == "udpin" else (address.host, address.port)
-        self._transport: asyncio.DatagramTransport | None = None
+        self.peer: tuple | None = None
+        self._sock: socket.socket | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._on_data: DataCallback | None = None
 
     async def open(self, on_data: DataCallback) -> None:
         loop = asyncio.get_running_loop()
-        self._on_data = on_data
+        host, port = self.address.host, self.address.port
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET  # "localhost" is 127.0.0.1, as before
+        family, _, _, _, sockaddr = (await loop.getaddrinfo(host, port, family=family, type=socket.SOCK_DGRAM))[0]
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.setblocking(False)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER)  # capped by rmem_max
+            if sys.platform == "linux":
+                sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            if self.address.kind == "udpin":
+                sock.bind(sockaddr)
+            else:
+                self.peer = sockaddr
+        except OSError:
+            sock.close()
+            raise
+        self._sock, self._loop, self._on_data = sock, loop, on_data
         self._new_closed_future()
-        local_addr: tuple[str, int] | None = None  # the defaults of create_datagram_endpoint
-        family = 0
-        if self.address.kind == "udpin":
-            local_addr = (self.address.host, self.address.port)
-        else:
-            family = socket.AF_INET6 if ":" in self.address.host else socket.AF_INET
-        self._transport, _ = await loop.create_datagram_endpoint(
-            lambda: _DatagramProtocol(self), local_addr=local_addr, family=family
-        )
-        sock = self._transport.get_extra_info("socket")
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER)  # capped by rmem_max
+        loop.add_reader(sock.fileno(), self._readable)
 
     @property
     def local_port(self) -> int:
-        assert self._transport is not None
-        return self._transport.get_extra_info("sockname")[1]
+        assert self._sock is not None
+        port: int = self._sock.getsockname()[1]
+        return port
 
-    def _received(self, data: bytes, addr) -> None:
-        if self.address.kind == "udpin":
-            self.peer = addr
-        assert self._on_data is not None  # set by open() before the endpoint exists
-        self._on_data(data)
+    def _readable(self) -> None:
+        for _ in range(UDP_READ_BATCH):
+            sock = self._sock
+            if sock is None:
+                return
+            try:
+                data, ancdata, _flags, addr = sock.recvmsg(UDP_MAX_DATAGRAM, _DROPS_CMSG_SPACE)
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionRefusedError:
+                continue  # ICMP "port unreachable" while the peer is not listening yet
+            except OSError:
+                self.close()
+                return
+            for level, kind, payload in ancdata:
+                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
+                    self.kernel_drops = struct.unpack("=I", payload[:4])[0]
+            if self.address.kind == "udpin":
+                self.peer = addr
+            assert self._on_data is not None  # set by open() before the reader exists
+            self._on_data(data)
 
     def write(self, data: bytes) -> None:
-        if self._transport is None or self.peer is None or self._transport.is_closing():
+        if self._sock is None or self.peer is None:
             self.dropped_writes += 1
             return
-        self._transport.sendto(data, self.peer)
+        try:
+            self._sock.sendto(data, self.peer)
+        except OSError:  # full send buffer, unreachable peer: dropped, never waited for
+            self.dropped_writes += 1
 
     def close(self) -> None:
-        if self._transport is not None:
-            self._transport.close()
+        if self._sock is not None:
+            if self._loop is not None and not self._loop.is_closed():
+                self._loop.remove_reader(self._sock.fileno())
+            self._sock.close()
+            self._sock = None
         self._mark_closed()
 
 

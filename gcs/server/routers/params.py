@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, status
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
@@ -28,7 +28,7 @@ router = APIRouter(tags=["params"])
 
 
 class TunedValue(BaseModel):
-    value: float
+    value: float = Field(allow_inf_nan=False)
 
 
 def http_error(exc: Exception) -> HTTPException:

@@ -42,17 +42,17 @@ class Note(BaseModel):
 
 class ReplayRequest(BaseModel):
     source: str = Field(description="session folder name or log file name in the recording folder")
-    speed: float = Field(1.0, ge=0, description="0 = as fast as possible")
+    speed: float = Field(1.0, ge=0, allow_inf_nan=False, description="0 = as fast as possible")
     estimators: list[str] | None = None
     gains: dict[str, dict[str, float]] = Field(default_factory=dict, description="{estimator: {gain: value}}")
 
 
 class Seek(BaseModel):
-    offset_s: float = Field(ge=0)
+    offset_s: float = Field(ge=0, allow_inf_nan=False)
 
 
 class Speed(BaseModel):
-    speed: float = Field(ge=0)
+    speed: float = Field(ge=0, allow_inf_nan=False)
 
 
 class WhatIfRequest(BaseModel):

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import json
 import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 
+from gcs.core import strict_json
 from gcs.server.deps import HubDep
 from gcs.server.live import ClientFeed
 from gcs.server.models import History
@@ -37,7 +37,7 @@ async def get_history(
     seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
 ) -> Response:
     # Encoded here, not validated by pydantic: a 10-minute window is a million numbers.
-    body = json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
+    body = strict_json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
     return Response(body, media_type="application/json")
 
 
@@ -47,9 +47,11 @@ async def live(ws: WebSocket, hub: HubDep) -> None:
     feed = hub.connect(f"{ws.client.host}:{ws.client.port}" if ws.client else "?")
     sender = asyncio.create_task(send_feed(ws, feed))
     try:
-        await ws.send_text(json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
-        while True:  # the page sends nothing we need; reading notices the disconnect
-            await ws.receive_text()
+        await ws.send_text(strict_json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
+        # The page sends nothing we need; reading notices the disconnect. Whatever a client sends
+        # (text or binary) is read and ignored, never an error.
+        while (await ws.receive())["type"] != "websocket.disconnect":
+            pass
     except WebSocketDisconnect:
         pass
     finally:
@@ -68,4 +70,4 @@ async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
         now = time.monotonic()
         if now - last_stats >= CLIENT_STATS_PERIOD:
             last_stats = now
-            await ws.send_text(json.dumps({"type": "client", **dataclasses.asdict(feed.snapshot())}))
+            await ws.send_text(strict_json.dumps({"type": "client", **dataclasses.asdict(feed.snapshot())}))

@@ -1,0 +1,42 @@
+"""Which fields of a received message must be finite before the station may use it.
+
+The link refuses a message whose field here is inf or NaN: it is counted per message type and
+never published, so it reaches no live state (estimation, references, the parameter table),
+no plot, no comparison, no recording and no JSON. Only fields the station reads are listed:
+MAVLink uses NaN as "unknown" in many others (COMMAND_LONG params, SET_*_TARGET fields
+behind an ignore mask, HIGHRES_IMU pressures, AHRS2 altitude), and those pass untouched. The
+estimation's own range checks (gcs.core.plausibility) still apply to what passes here.
+"""
+
+from __future__ import annotations
+
+import math
+
+from gcs.mavlink.dialect import MAVLinkMessage, mavlink
+
+_ANGLES = ("roll", "pitch", "yaw")
+
+#: message type → float fields the station reads from it and which must therefore be finite.
+#: (RAW_IMU, SCALED_IMU* and GPS_RAW_INT carry integers only.)
+FINITE_FIELDS: dict[str, tuple[str, ...]] = {
+    "ATTITUDE": _ANGLES,  # the onboard reference
+    "AHRS2": _ANGLES,  # the secondary reference
+    "SIMSTATE": _ANGLES,  # the simulator's truth
+    "HIGHRES_IMU": ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"),
+}
+
+#: PARAM_VALUE types whose param_value is a real number; the integer types carry their bytes
+#: inside the float (PX4's bytewise encoding), where a NaN bit pattern is a legitimate integer.
+_REAL_PARAM_TYPES = (mavlink.MAV_PARAM_TYPE_REAL32, mavlink.MAV_PARAM_TYPE_REAL64)
+
+
+def nonfinite_field(msg: MAVLinkMessage, msg_type: str) -> str | None:
+    """The first field of msg that must be finite and is not, or None when msg may be used."""
+    if msg_type == "PARAM_VALUE":
+        if msg.param_type in _REAL_PARAM_TYPES and not math.isfinite(msg.param_value):
+            return "param_value"
+        return None
+    for name in FINITE_FIELDS.get(msg_type, ()):
+        if not math.isfinite(getattr(msg, name)):
+            return name
+    return None

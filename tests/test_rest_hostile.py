@@ -1,0 +1,64 @@
+"""Hostile values in requests get a 4xx with a strict JSON answer, never a 500: NaN, Infinity,
+numbers beyond float64 or float32, lone surrogates, wrong fields. FastAPI's own validation answer
+quotes the input, which is where NaN and surrogates used to turn a 422 into a 500. Real server
+under uvicorn, no vehicle (the tuning routes wait for one: not here); the token is sent
+whenever the server has one."""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+
+import httpx
+from live import running_station
+
+from gcs.core.strict_json import loads as strict_loads
+from gcs.server.dashboard import DashboardServer
+
+NUMBERS = ["NaN", "Infinity", "-Infinity", "1e400", "3.5e38", '"x"', "null"]
+REQUESTS = [
+    *(("PUT", "/api/estimators/dcm/gains/kp_rp", f'{{"value": {v}}}') for v in NUMBERS),
+    *(("POST", "/api/replay/seek", f'{{"offset_s": {v}}}') for v in NUMBERS),
+    *(("POST", "/api/replay/speed", f'{{"speed": {v}}}') for v in NUMBERS),
+    ("POST", "/api/replay", '{"source": "x", "speed": NaN}'),
+    ("POST", "/api/whatif", '{"source": "x", "estimator": "dcm", "gains": {"kp_rp": NaN}}'),
+    ("POST", "/api/recording/note", '{"text": "\\ud800"}'),
+    ("POST", "/api/recording/note", '{"note": "\\ud800", "x": NaN}'),
+    ("POST", "/api/estimators/dcm/preset", '{"preset": "\\u0000\\ud800"}'),
+    ("GET", "/api/history?seconds=nan", None),
+    ("GET", "/api/history?seconds=inf", None),
+    ("GET", "/api/history?seconds=1e400", None),
+    ("POST", "/api/replay", '{"source": "fragment.bin", "speed": Infinity}'),
+    ("POST", "/api/replay", '{"source": "fragment.bin", "speed": 0}'),  # loaded: a valid request, for the next
+    *(("POST", "/api/replay/seek", f'{{"offset_s": {v}}}') for v in ("Infinity", "1e400", "NaN")),
+    *(("POST", "/api/replay/speed", f'{{"speed": {v}}}') for v in ("Infinity", "1e400", "NaN")),
+]
+
+
+def test_hostile_request_values_get_a_strict_4xx(udp_port, tmp_path, logs_dir):
+    shutil.copy(logs_dir / "ardupilot-fragment.bin", tmp_path / "fragment.bin")  # a source to replay
+    answers = asyncio.run(scenario(udp_port, tmp_path))
+    for (method, path, body), (code, text) in zip(REQUESTS, answers, strict=True):
+        if body is not None and '"speed": 0}' in body:
+            assert code == 200, (path, body, code, text)  # the replay the requests after it meet
+        else:
+            assert 400 <= code < 500, (method, path, body, code, text)
+        strict_loads(text)  # raises on NaN/Infinity tokens
+
+
+async def scenario(udp_port: int, tmp_path) -> list[tuple[int, str]]:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station:
+        server = DashboardServer(station, port=0, viser=False)
+        await server.start()
+        headers = {"Content-Type": "application/json"}
+        if server.token:
+            headers["X-GCS-Token"] = server.token
+        try:
+            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", timeout=30) as api:
+                answers = []
+                for method, path, body in REQUESTS:
+                    response = await api.request(method, path, content=body, headers=headers)
+                    answers.append((response.status_code, response.text))
+                return answers
+        finally:
+            await server.stop()
