@@ -109,8 +109,10 @@ def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
         out += sampler.feed(_raw_imu(t_ms * 1000 + 344))
         out += sampler.feed(wire(mavlink.MAVLink_simstate_message(0.12, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0)))
     refs = [(s.source, s.t) for s in out if isinstance(s, AttitudeSample)]
-    # the first AHRS2 and ATTITUDE came before any IMU message (the vehicle is not chosen yet)
+    # the first AHRS2 came before any IMU message (the vehicle is not chosen yet) and is dropped;
+    # the first ATTITUDE is passed on (a device that sends only its attitude is followed)
     assert refs == [
+        ("onboard", 1.0),
         ("truth", pytest.approx(1.000344)),
         ("ahrs2", 1.04),
         ("onboard", 1.04),
