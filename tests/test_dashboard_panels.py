@@ -147,8 +147,9 @@ async def tuning_scenario(udp_port: int, artifacts_dir) -> None:
 
 
 # ---- sessions, replay, what-if -------------------------------------------------------------
+@pytest.mark.timeout(480)  # the longest browser scenario: record, export four formats, replay, what-if
 def test_sessions_panel(udp_port, tmp_path, artifacts_dir, logs_dir):
-    asyncio.run(asyncio.wait_for(sessions_scenario(udp_port, tmp_path, artifacts_dir, logs_dir), 240))
+    asyncio.run(asyncio.wait_for(sessions_scenario(udp_port, tmp_path, artifacts_dir, logs_dir), 420))
 
 
 async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> None:
