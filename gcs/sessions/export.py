@@ -19,8 +19,10 @@ import contextlib
 import math
 import os
 import secrets
+import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -35,6 +37,8 @@ from gcs.sessions.sources import ReplaySource, open_source
 FORMATS = ("csv", "parquet", "mat", "mcap")
 #: What `export` counts in its result, per format.
 UNITS = {"csv": "rows", "parquet": "rows", "mat": "attitude rows", "mcap": "messages"}
+
+T = TypeVar("T")
 
 
 def degrees_table(table: pa.Table) -> pa.Table:
@@ -87,17 +91,24 @@ def export(
     """Export the session or log at `path` to `out` in `fmt`; returns what UNITS[fmt] counts.
     InputError for bad input; `out` is replaced only when the whole file was written."""
     contents = open_contents(path, decode)
-    target = Path(out)
-    # beside the output (same file system: the rename is atomic), created with the umask's mode
+    return write_beside(Path(out), lambda tmp: write_contents(contents, fmt, tmp))
+
+
+def write_beside(target: Path, write: Callable[[Path], T]) -> T:
+    """write(tmp) on a temporary path beside target (same file system: the rename is atomic),
+    then rename it to target; on any error target is untouched and tmp removed. An OSError names
+    target, not the temporary path. tmp may be a file or a folder."""
     tmp = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
-        count = write_contents(contents, fmt, tmp)
+        result = write(tmp)
         os.replace(tmp, target)
     except OSError as exc:
         if exc.filename == str(tmp):  # name the file the user asked for, not the temporary one
             exc.filename = str(target)
         raise
     finally:
-        with contextlib.suppress(FileNotFoundError):
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             os.unlink(tmp)
-    return count
+    return result
