@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
-from gcs.batch.cluster import connect
-from gcs.batch.flight import FlightResult
-from gcs.batch.run import find_flights, run_batch
 from gcs.commands.replay import parse_gains
 from gcs.core.estimators import registry
+
+if TYPE_CHECKING:
+    from gcs.batch.flight import FlightResult
 
 
 def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,6 +47,9 @@ def _line(result: FlightResult) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from gcs.batch.cluster import connect  # noqa: PLC0415 - Dask loads only when a batch runs
+    from gcs.batch.run import find_flights, run_batch  # noqa: PLC0415
+
     names = args.estimator or registry.names()
     try:
         for name in names:

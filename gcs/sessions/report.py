@@ -41,7 +41,7 @@ def collect(source, progress=None) -> tuple[dict[str, np.ndarray], object]:
     return {name: np.array(rows) for name, rows in series.items()}, pipeline
 
 
-def _png(fig) -> str:
+def png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
@@ -60,7 +60,7 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8, ncol=4)
     axes[-1].set_xlabel("vehicle time (s)")
-    return _png(fig)
+    return png(fig)
 
 
 def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference: str) -> str:
@@ -81,10 +81,10 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title(f"estimator − {reference}")
     axes[-1].set_xlabel("vehicle time (s)")
-    return _png(fig)
+    return png(fig)
 
 
-def _table(header: list[str], rows: list[list]) -> str:
+def html_table(header: list[str], rows: list[list]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
     return f"<table><tr>{head}</tr>{body}</table>"
@@ -144,14 +144,14 @@ def render(source, series: dict[str, np.ndarray], pipeline) -> str:
             ["link", (meta.get("link") or {}).get("address")],
             ["recovered", meta.get("recovered")],
         ]
-    sections = [f"<h2>Summary</h2>{_table(['', ''], facts)}"]
+    sections = [f"<h2>Summary</h2>{html_table(['', ''], facts)}"]
     if series:
         sections.append(f"<h2>Attitude, every source</h2><img src='{plot_attitude(series)}'>")
     if reference is not None:
         sections.append(f"<h2>Errors against {reference}</h2><img src='{plot_errors(series, estimators, reference)}'>")
     sections.append(
         "<h2>Accuracy (whole run, degrees)</h2>"
-        + _table(
+        + html_table(
             ["estimator", "reference", "n", "RMS roll", "RMS pitch", "RMS yaw", "max roll", "max pitch", "max yaw"],
             accuracy_rows(pipeline),
         )
@@ -160,10 +160,14 @@ def render(source, series: dict[str, np.ndarray], pipeline) -> str:
         reliable, reason = comparison.reliability()
         if not reliable:
             sections.append(f"<p class='warn'>{html.escape(name)}: {html.escape(reason)}</p>")
-    sections.append("<h2>Rates</h2>" + _table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
+    sections.append("<h2>Rates</h2>" + html_table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
     if source.framing is not None:
-        sections.append("<h2>Packets and loss</h2>" + _table(["", ""], loss_rows(source)))
-    title = f"gcs report: {source.path}"
+        sections.append("<h2>Packets and loss</h2>" + html_table(["", ""], loss_rows(source)))
+    return page(f"gcs report: {source.path}", sections)
+
+
+def page(title: str, sections: list[str]) -> str:
+    """The one self-contained HTML page style of gcs reports: title, provenance, sections."""
     deps = ", ".join(f"{name} {version}" for name, version in provenance().dependencies.items())
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse;margin:8px 0}}
