@@ -58,13 +58,16 @@ def plot_per_flight(rows: list[dict], flights: list[str], estimators: list[str])
 
 
 def plot_over_time(rows: list[dict], estimators: list[str]) -> str:
-    from matplotlib.figure import Figure  # noqa: PLC0415 - ~0.5 s to import; only reports plot
+    from matplotlib.dates import date2num  # noqa: PLC0415 - ~0.5 s to import; only reports plot
+    from matplotlib.figure import Figure  # noqa: PLC0415
 
     fig = Figure(figsize=(11, 4))
     ax = fig.subplots()
     for est in estimators:
         mine = sorted((r["started"], total_rms(r)) for r in rows if r["estimator"] == est)
-        ax.plot([datetime.fromtimestamp(t) for t, _ in mine], [v for _, v in mine], "o-", label=est)
+        days = [date2num(datetime.fromtimestamp(t)) for t, _ in mine]
+        ax.plot(days, [v for _, v in mine], "o", label=est)
+    ax.xaxis_date()
     ax.set_ylabel("total RMS error (deg)")
     ax.set_xlabel("flight start")
     ax.grid(alpha=0.3)
@@ -134,13 +137,13 @@ def write_fleet_report(path: str | os.PathLike, out: str | os.PathLike, worst: i
     if rows:
         sections.append(f"<h2>Estimator error per flight</h2><img src='{plot_per_flight(rows, flights, estimators)}'>")
         sections.append(f"<h2>Estimator error over time</h2><img src='{plot_over_time(rows, estimators)}'>")
-        ranked = sorted(rows, key=total_rms, reverse=True)[: max(0, worst)]
+        worst_row = {r["flight"]: r for r in sorted(rows, key=total_rms)}  # each flight's worst estimator
+        ranked = sorted(worst_row.values(), key=total_rms, reverse=True)[: max(0, worst)]
         pages = target.with_name(f"{target.stem}_flights")
         linked = []
         for r in ranked:
-            if not (pages / f"{r['flight']}.html").exists():
-                pages.mkdir(exist_ok=True)
-                write_report(r["path"], str(pages / f"{r['flight']}.html"))
+            pages.mkdir(exist_ok=True)
+            write_report(r["path"], str(pages / f"{r['flight']}.html"), estimators=estimators)
             href = f"{pages.name}/{r['flight']}.html"
             linked.append(
                 (

@@ -52,7 +52,8 @@ class FlightFacts:
 def facts(source: ReplaySource) -> FlightFacts:
     """Vehicle and firmware from a session's meta.json ("unknown" for a bare log), start time (the
     session's, else the file's mtime) and the mean IMU rate over the IMU samples' span."""
-    vehicle = source.meta.get("vehicle") if isinstance(source.meta.get("vehicle"), dict) else {}
+    recorded = source.meta.get("vehicle")
+    vehicle: dict = recorded if isinstance(recorded, dict) else {}
     started = layout.meta_time(source.meta.get("start"))
     if started is None:
         started = os.stat(source.packet_file or source.path).st_mtime

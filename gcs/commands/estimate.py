@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(exc) if isinstance(exc, GainError) else f"{args.preset_file}: {exc.strerror}")
     if preset is not None and args.estimator not in (None, preset.estimator):
         return _fail(f"--preset-file {args.preset_file} is for {preset.estimator}, not --estimator {args.estimator}")
-    name = args.estimator or (preset.estimator if preset else None)
+    name: str = args.estimator or (preset.estimator if preset else "")
     for flag, value in (("INPUT", args.input), ("--estimator", name), ("--out", args.out)):
         if not value:
             return _fail(f"{flag} is required (or use --list)")

@@ -28,16 +28,16 @@ AXES = ("roll", "pitch", "yaw")
 ERROR_REFERENCES = ("truth", "onboard", "ahrs2")
 
 
-def collect(source, progress=None) -> tuple[dict[str, np.ndarray], object]:
-    """Replay source through every estimator; returns {source name: N×4 array t, roll, pitch, yaw}
-    and the pipeline (for its comparisons)."""
+def collect(source, progress=None, estimators: list[str] | None = None) -> tuple[dict[str, np.ndarray], object]:
+    """Replay source through `estimators` (default every one); returns {source name: N×4 array t,
+    roll, pitch, yaw} and the pipeline (for its comparisons)."""
     series: dict[str, list] = {}
 
     def keep(points: list[AttitudePoint]) -> None:
         for p in points:
             series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
 
-    pipeline = source.replay(source.new_pipeline(), keep, progress)
+    pipeline = source.replay(source.new_pipeline(estimators), keep, progress)
     return {name: np.array(rows) for name, rows in series.items()}, pipeline
 
 
@@ -177,9 +177,9 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 {"".join(sections)}</body></html>"""
 
 
-def write_report(path: str, out: str, progress=None) -> None:
+def write_report(path: str, out: str, progress=None, estimators: list[str] | None = None) -> None:
     source = open_source(path)
-    series, pipeline = collect(source, progress)
+    series, pipeline = collect(source, progress, estimators)
     text = render(source, series, pipeline)
     partial = f"{out}.partial"  # a failed write leaves any earlier report as it was
     try:
