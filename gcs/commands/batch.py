@@ -7,8 +7,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from gcs.commands.replay import parse_gains
-from gcs.core.estimators import registry
+from gcs.commands.replay import selection
 
 if TYPE_CHECKING:
     from gcs.batch.flight import FlightResult
@@ -50,11 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from gcs.batch.cluster import connect  # noqa: PLC0415 - Dask loads only when a batch runs
     from gcs.batch.run import find_flights, run_batch  # noqa: PLC0415
 
-    names = args.estimator or registry.names()
     try:
-        for name in names:
-            registry.get(name)
-        gains = parse_gains(args.gain, names)
+        names, gains = selection(args.estimator, args.gain)
     except (KeyError, ValueError) as exc:
         print(f"gcs batch: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
