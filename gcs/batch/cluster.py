@@ -9,6 +9,7 @@ text progress bar is shown when stderr is a terminal, and nothing in CI logs or 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Iterator, Sequence
@@ -33,6 +34,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, dashboard:
             threads_per_worker=1,
             processes=True,
             dashboard_address=":0" if dashboard else None,
+            silence_logs=logging.ERROR,  # not the nanny's "still alive after 4 s, killing" at close
         ) as cluster,
         Client(cluster) as client,
     ):
