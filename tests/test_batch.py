@@ -3,6 +3,8 @@ over the shared recordings, short simulator sessions, a truncated and an unreada
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
 import shutil
@@ -10,6 +12,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -17,23 +20,33 @@ import pytest
 from distributed import Client
 
 from gcs.batch import dataset
+from gcs.commands.cli import main
 from gcs.runtime.replay import ReplaySession
 from gcs.sessions import layout
 from gcs.sessions.sources import open_source
 from gcs.sim.recording import write_tlog
 from gcs.transport.address import free_port
 
-GCS = [sys.executable, "-m", "gcs"]
 DASK = str(Path(sys.executable).with_name("dask"))
 #: A deliberately bad recorded DCM gain: the sweep must find better on flights it did not see.
 BAD_KP_RP = 0.005
 SIM_SECONDS = 15
 
 
-def _cli(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
-    done = subprocess.run([*GCS, *args], capture_output=True, text=True, timeout=timeout)
-    assert done.returncode == 0, done.stderr[-3000:]
-    return done
+@dataclass(frozen=True)
+class Ran:
+    stdout: str
+    stderr: str
+
+
+def _cli(*args: str) -> Ran:
+    """`gcs ARGS` in this process (the command line's own entry point; a process start less per
+    call), which must succeed."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(args))
+    assert code == 0, err.getvalue()[-3000:]
+    return Ran(out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="module")

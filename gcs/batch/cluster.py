@@ -2,7 +2,8 @@
 scheduler by address (`tcp://host:8786`) for a real cluster.
 
 The local cluster uses processes (the estimators are pure Python: threads would share one GIL),
-one thread each, a few workers, and its dashboard only when asked for (on a free port). Dask's own
+one thread each, a few workers; its HTTP server (and dashboard, with bokeh installed) is on a free
+port, printed when asked for. Dask's own
 text progress bar is shown when stderr is a terminal, and nothing in CI logs or pipes.
 """
 
@@ -33,7 +34,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, dashboard:
             n_workers=workers or DEFAULT_WORKERS,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=":0" if dashboard else None,
+            dashboard_address=":0",  # the scheduler's HTTP server: a free port, never a clash on 8787
             silence_logs=logging.ERROR,  # not the nanny's "still alive after 4 s, killing" at close
         ) as cluster,
         Client(cluster) as client,
