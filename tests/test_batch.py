@@ -217,3 +217,20 @@ def test_sweep_beats_a_bad_default_on_held_out_flights_and_its_preset_loads(batc
     linked = list((tmp_path / "fleet_flights").glob("*.html"))
     assert len(linked) == 1 and linked[0].stem in text
     shutil.rmtree(tmp_path / "fleet_flights")
+
+
+@pytest.mark.parametrize(
+    ("text", "args", "error"),
+    [
+        ('estimator = "kf"\n[gains]\nr_roll = 0.1\n', ["-e", "dcm"], "is for kf, not --estimator dcm"),
+        ('estimator = "dcm"\n[gains]\nkp_rp = "fast"\n', [], "[gains] must hold NAME = number lines"),
+        ('estimator = "dcm"\n[gains]\nkp_rp = 900.0\n', [], "kp_rp: 900 1/s is outside"),
+        ("estimator = dcm\n", [], "not TOML"),
+    ],
+)
+def test_a_bad_preset_file_is_one_clear_line_and_no_output(tmp_path, logs_dir, capsys, text, args, error):
+    preset, out = tmp_path / "p.toml", tmp_path / "out.csv"
+    preset.write_text(text)
+    hop = str(logs_dir / "arducopter-sitl-hop.tlog")
+    assert main(["estimate", hop, "--preset-file", str(preset), *args, "--out", str(out)]) == 2
+    assert error in capsys.readouterr().err and not out.exists()
