@@ -18,10 +18,16 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from distributed import Client
+from fastapi.testclient import TestClient
 
 from gcs.batch import dataset
-from gcs.commands.cli import main
+from gcs.commands.cli import build_parser, main
+from gcs.commands.serve import presets_or_report
+from gcs.core.estimators import registry
+from gcs.core.gains import PresetFile
 from gcs.runtime.replay import ReplaySession
+from gcs.runtime.station import Station, StationConfig
+from gcs.server.app import create_app
 from gcs.sessions import layout
 from gcs.sessions.sources import open_source
 from gcs.sim.recording import write_tlog
@@ -234,3 +240,20 @@ def test_a_bad_preset_file_is_one_clear_line_and_no_output(tmp_path, logs_dir, c
     hop = str(logs_dir / "arducopter-sitl-hop.tlog")
     assert main(["estimate", hop, "--preset-file", str(preset), *args, "--out", str(out)]) == 2
     assert error in capsys.readouterr().err and not out.exists()
+
+
+def test_the_dashboard_starts_from_a_preset_file(tmp_path, udp_port):
+    """`gcs serve/demo --preset-file`: the station's estimator starts with the file's gains, and
+    the dashboard's gain listing shows them (a real Station, its real REST app)."""
+    preset = PresetFile("dcm", "ardupilot", {"kp_rp": 0.37, "ki_rp": 0.02}, "from a sweep")
+    station = Station(StationConfig(f"udpin:127.0.0.1:{udp_port}", presets=[preset]))
+    api = TestClient(create_app(station), base_url="http://127.0.0.1")
+    listing = {e["name"]: e for e in api.get("/api/estimators").json()}
+    gains = {g["name"]: g["value"] for g in listing["dcm"]["gains"]}
+    assert (gains["kp_rp"], gains["ki_rp"]) == (0.37, 0.02)
+    assert {g["name"]: g["value"] for g in listing["kf"]["gains"]} == registry.create("kf").gains.values
+    (tmp_path / "p.toml").write_text(preset.to_toml())
+    parsed = build_parser().parse_args(
+        ["serve", "--connect", "udpin:127.0.0.1:1", "--preset-file", str(tmp_path / "p.toml")]
+    )
+    assert presets_or_report(parsed, "serve") == [preset]

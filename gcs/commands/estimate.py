@@ -28,9 +28,10 @@ from typing import TextIO
 
 from tqdm import tqdm
 
+from gcs.commands.common import load_preset_file
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
-from gcs.core.gains import GainError, PresetFile
+from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
 from gcs.logs.logfile import InputError, LogFile
@@ -167,11 +168,6 @@ def write_atomically(path: str, write: Callable[[TextIO], int]) -> int:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-
-
-def load_preset_file(path: str) -> PresetFile:
-    with open(path) as fh:
-        return PresetFile.from_toml(fh.read(), path)
 
 
 def _fail(message: str) -> int:
