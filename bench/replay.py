@@ -18,13 +18,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from gcs.mavlink.dialect import Encoder, mavlink
-from gcs.mavlink.tlog import tlog_record
 from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
 from gcs.sessions.workbench import Workbench
-from gcs.sim import SimVehicle
+from gcs.sim.recording import write_tlog
 
 LOGS = Path(__file__).resolve().parents[2] / "shared" / "data" / "logs"
 BIN = LOGS / "arducopter-sitl-hop.BIN"
@@ -53,17 +51,7 @@ def replay(path: Path, estimators: list[str]) -> tuple[float, int, float]:
 
 def simulated_session(path: Path, seconds: float = SESSION_S) -> None:
     """A tlog of the simulated quad with every stream at RATE_HZ, written as fast as the CPU allows."""
-    sim = SimVehicle(profile="pixhawk", script="quad", seed=1)
-    sim.handle_bytes(
-        Encoder(255, 190).encode(
-            mavlink.MAVLink_request_data_stream_message(1, 1, mavlink.MAV_DATA_STREAM_ALL, RATE_HZ, 1)
-        )
-    )
-    base_us = 1_700_000_000_000_000
-    with open(path, "wb") as fh:
-        for k in range(1, int(seconds * RATE_HZ) + 1):
-            t = k / RATE_HZ
-            fh.write(b"".join(tlog_record(base_us + int(t * 1e6) & ~3, p) for p in sim.advance(t)))
+    write_tlog(path, seconds, profile="pixhawk", script="quad", seed=1, rate_hz=RATE_HZ)
 
 
 def main() -> list[dict]:

@@ -16,6 +16,7 @@ BENCHMARKS = {
     "soak": "bench.soak",
     "status": "bench.status",
     "replay_memory": "bench.replay_memory",
+    "batch": "bench.batch",
 }
 
 

@@ -26,6 +26,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "export": ("gcs.commands.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
     "report": ("gcs.commands.report", "write a self-contained HTML flight-test report of a session or log"),
+    "batch": (
+        "gcs.commands.batch",
+        "every log or session of a fleet through the estimators into a Parquet dataset (Dask)",
+    ),
+    "sweep": ("gcs.commands.sweep", "search estimator gains over many flights (Dask tasks) and write a preset file"),
+    "fleet": ("gcs.commands.fleet", "fleet datasets: `gcs fleet report DATASET --out FILE.html`"),
     "params": ("gcs.commands.params", "read, write (verified), save, load and diff the vehicle's parameters"),
     "protocol": (
         "gcs.commands.protocol",

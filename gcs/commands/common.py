@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 from tqdm import tqdm
 
+from gcs.core.gains import PresetFile
 from gcs.logs.logfile import InputError
 
 
@@ -40,3 +41,9 @@ def progress_bar(label: str) -> Callable[[int, int], None]:
             bar.close()
 
     return show
+
+
+def load_preset_file(path: str) -> PresetFile:
+    """A preset file (`gcs sweep` writes them); OSError or GainError say what is wrong."""
+    with open(path) as fh:
+        return PresetFile.from_toml(fh.read(), path)

@@ -8,7 +8,8 @@ import asyncio
 import math
 
 from gcs.commands.options import add_record_arguments, record_dir
-from gcs.commands.serve import add_server_arguments, dashboard
+from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
+from gcs.core.gains import PresetFile
 from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
 from gcs.transport.address import free_port
@@ -44,17 +45,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    presets = presets_or_report(args, "demo")
+    if presets is None:
+        return 2
     try:
-        asyncio.run(_demo(args))
+        asyncio.run(_demo(args, presets))
     except KeyboardInterrupt:
         pass
     return 0
 
 
-async def _demo(args: argparse.Namespace) -> None:
+async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
 
     port = free_port()
-    station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args)))
+    config = StationConfig(f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args), presets=presets)
+    station = Station(config)
     sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
     print(
         f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",

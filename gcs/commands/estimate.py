@@ -2,6 +2,7 @@
 
 Contract (other tools call this; keep it stable):
     gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] [--imu N] --out OUT.csv
+    gcs estimate INPUT --preset-file FILE.toml [--gain NAME=VALUE ...] --out OUT.csv
     gcs estimate --list
 INPUT is a .tlog, a DataFlash .bin, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
 IMU instance (default 0, the first). OUT has the header t,qw,qx,qy,qz,roll,pitch,yaw and one row
@@ -27,6 +28,7 @@ from typing import TextIO
 
 from tqdm import tqdm
 
+from gcs.commands.common import load_preset_file
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
@@ -46,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--estimator", "-e", help="estimator name (see --list)")
     parser.add_argument("--preset", "-p", help="gain preset (default: the estimator's default)")
+    parser.add_argument(
+        "--preset-file", metavar="FILE", help="a preset file (TOML, as gcs sweep writes): estimator, preset and gains"
+    )
     parser.add_argument("--gain", "-g", action="append", default=[], metavar="NAME=VALUE", help="override one gain")
     parser.add_argument("--imu", type=int, default=0, metavar="N", help="IMU instance (default 0, the first)")
     parser.add_argument("--out", "-o", help="output CSV path")
@@ -175,12 +180,19 @@ def run(args: argparse.Namespace) -> int:
     if args.list:
         print(list_estimators())
         return 0
-    for flag, value in (("INPUT", args.input), ("--estimator", args.estimator), ("--out", args.out)):
+    try:
+        preset = load_preset_file(args.preset_file) if args.preset_file else None
+    except (OSError, GainError) as exc:
+        return _fail(str(exc) if isinstance(exc, GainError) else f"{args.preset_file}: {exc.strerror}")
+    if preset is not None and args.estimator not in (None, preset.estimator):
+        return _fail(f"--preset-file {args.preset_file} is for {preset.estimator}, not --estimator {args.estimator}")
+    name: str = args.estimator or (preset.estimator if preset else "")
+    for flag, value in (("INPUT", args.input), ("--estimator", name), ("--out", args.out)):
         if not value:
             return _fail(f"{flag} is required (or use --list)")
     try:
-        gains = _parse_gains(args.gain)
-        estimator = registry.create(args.estimator, args.preset, **gains)
+        gains = {**(preset.gains if preset else {}), **_parse_gains(args.gain)}
+        estimator = registry.create(name, args.preset or (preset.preset if preset else None), **gains)
     except (KeyError, GainError, ValueError) as exc:
         return _fail(str(exc).strip("'\""))
     if args.imu < 0:

@@ -70,12 +70,18 @@ def comparison_table(pipeline: EstimationPipeline) -> list[str]:
     return lines
 
 
+def selection(estimators: list[str] | None, gain_items: list[str]) -> tuple[list[str], dict[str, dict[str, float]]]:
+    """`--estimator` (default: all) and `--gain` items → (names, gains per estimator); KeyError
+    names an unknown estimator, ValueError a bad gain item."""
+    names = estimators or registry.names()
+    for name in names:
+        registry.get(name)
+    return names, parse_gains(gain_items, names)
+
+
 def run(args: argparse.Namespace) -> int:
-    names = args.estimator or registry.names()
     try:
-        for name in names:
-            registry.get(name)
-        gains = parse_gains(args.gain, names)
+        names, gains = selection(args.estimator, args.gain)
         source = open_source(args.path)
         session = ReplaySession(source, 0 if args.fast else args.speed, names, gains)
     except (InputError, KeyError, GainError, ValueError) as exc:

@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import os
 import sys
 
+from gcs.commands.common import load_preset_file
 from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.core.estimation import pipeline_from
+from gcs.core.gains import GainError, PresetFile
 from gcs.runtime.station import Station
 from gcs.server.dashboard import DashboardServer
 from gcs.server.live import LiveHub
@@ -41,6 +45,26 @@ def add_server_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--history", type=float, default=600.0, help="seconds of every source kept for newly opened pages (default 600)"
     )
+    parser.add_argument(
+        "--preset-file",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="start that estimator from a preset file's preset and gains (gcs sweep writes them; repeatable)",
+    )
+
+
+def presets_or_report(args: argparse.Namespace, command: str) -> list[PresetFile] | None:
+    """The --preset-file files, checked by building the estimators from them; None after one
+    line on stderr saying what is wrong."""
+    try:
+        presets = [load_preset_file(path) for path in args.preset_file]
+        pipeline_from(presets)
+    except (OSError, KeyError, GainError) as exc:
+        text = f"{exc.filename}: {exc.strerror}" if isinstance(exc, OSError) else str(exc).strip("'\"")
+        print(f"gcs {command}: error: {text}", file=sys.stderr)
+        return None
+    return presets
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,8 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
 
     config = station_config_or_report(args, "serve")
-    if config is None:
+    presets = presets_or_report(args, "serve")
+    if config is None or presets is None:
         return 2
+    config = dataclasses.replace(config, presets=presets)
     try:
         asyncio.run(_serve(config, args))
     except OSError as exc:

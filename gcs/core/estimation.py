@@ -16,6 +16,7 @@ from typing import TypedDict
 from gcs.core.comparison import Comparison, ComparisonSummary
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
+from gcs.core.gains import PresetFile
 from gcs.core.plausibility import refusal
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
@@ -189,6 +190,22 @@ class EstimationPipeline:
                 for source, p in self.latest.items()
             },
         }
+
+
+def pipeline_from(presets: Iterable[PresetFile] = ()) -> EstimationPipeline:
+    """Every registered estimator; one a preset file names starts from that file's preset and
+    gains (the live station with `--preset-file`). KeyError/GainError name a bad file's problem."""
+    chosen = {p.estimator: p for p in presets}
+    for name in chosen:
+        registry.get(name)
+    return EstimationPipeline(
+        {
+            name: registry.create(name, chosen[name].preset, **chosen[name].gains)
+            if name in chosen
+            else registry.create(name)
+            for name in registry.names()
+        }
+    )
 
 
 def run_estimator(

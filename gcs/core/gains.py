@@ -5,7 +5,9 @@ declaration instead of repeating its bounds.
 
 from __future__ import annotations
 
+import json
 import math
+import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -77,3 +79,50 @@ class GainSet:
             raise GainError(f"unknown preset {preset!r}; known: {', '.join(self.presets)}")
         self.values = {name: g.default for name, g in self.declarations.items()}
         self.values.update(self.presets[preset])
+
+
+@dataclass(frozen=True)
+class PresetFile:
+    """A tuning preset kept in a TOML file (`gcs sweep` writes one, `gcs estimate --preset-file`
+    and `gcs replay --preset-file` load it): an estimator's built-in preset and gains over it.
+
+        estimator = "dcm"
+        preset = "ardupilot"
+        note = "gcs sweep over 12 flights, rms_vs_truth 0.41 deg"
+        [gains]
+        kp_rp = 0.37
+    """
+
+    estimator: str
+    preset: str | None
+    gains: dict[str, float]
+    note: str = ""
+
+    def to_toml(self) -> str:
+        lines = [f"estimator = {json.dumps(self.estimator)}"]
+        if self.preset is not None:
+            lines.append(f"preset = {json.dumps(self.preset)}")
+        if self.note:
+            lines.append(f"note = {json.dumps(self.note)}")
+        lines.append("\n[gains]")
+        lines += [f"{name} = {float(value)!r}" for name, value in self.gains.items()]
+        return "\n".join(lines) + "\n"
+
+    @classmethod
+    def from_toml(cls, text: str, origin: str = "preset file") -> PresetFile:
+        """Parse a preset file; GainError names the file and what is wrong (values are checked
+        against the declarations when the estimator is created)."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise GainError(f"{origin}: not TOML ({exc})") from None
+        estimator, preset, gains = data.get("estimator"), data.get("preset"), data.get("gains", {})
+        if not isinstance(estimator, str):
+            raise GainError(f'{origin}: no estimator = "NAME"')
+        if preset is not None and not isinstance(preset, str):
+            raise GainError(f"{origin}: preset must be a string")
+        if not isinstance(gains, dict) or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in gains.values()
+        ):
+            raise GainError(f"{origin}: [gains] must hold NAME = number lines")
+        return cls(estimator, preset, {k: float(v) for k, v in gains.items()}, str(data.get("note", "")))

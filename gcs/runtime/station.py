@@ -24,9 +24,9 @@ from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
-from gcs.core.estimation import AttitudePoint, EstimationPipeline
+from gcs.core.estimation import AttitudePoint, EstimationPipeline, pipeline_from
 from gcs.core.estimators.base import AttitudeEstimator
-from gcs.core.gains import GainSet
+from gcs.core.gains import GainSet, PresetFile
 from gcs.mavlink.ascii import SEED000, AsciiFormat
 from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
@@ -76,6 +76,7 @@ class StationConfig:
     estimate: bool = True
     record_dir: str | None = None  # where sessions are recorded; None: no recording
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
+    presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
 
 
 class StationError(Exception):
@@ -101,7 +102,7 @@ class Station:
         self.vehicle.rebooted.connect(self.streams.request_again)
         self.params = ParamClient(self.link, self.vehicle, self.events)
         self.outputs = [Output(address, self.link) for address in config.outputs]
-        self.estimation = LiveEstimation(self.link) if config.estimate else None
+        self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and

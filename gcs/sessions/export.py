@@ -19,8 +19,10 @@ import contextlib
 import math
 import os
 import secrets
+import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -37,6 +39,8 @@ from gcs.sessions.sources import ReplaySource, open_source
 FORMATS = ("csv", "parquet", "mat", "mcap")
 #: What `export` counts in its result, per format.
 UNITS = {"csv": "rows", "parquet": "rows", "mat": "attitude rows", "mcap": "messages"}
+
+T = TypeVar("T")
 
 
 def degrees_table(table: pa.Table) -> pa.Table:
@@ -89,30 +93,31 @@ def export(
     """Export the session or log at `path` to `out` in `fmt`; returns what UNITS[fmt] counts.
     InputError for bad input; `out` is replaced only when the whole file was written."""
     contents = open_contents(path, decode)
-    return write_replacing(out, lambda tmp: write_contents(contents, fmt, tmp))
+    return write_beside(Path(out), lambda tmp: write_contents(contents, fmt, tmp))
 
 
-def write_replacing(out: str | os.PathLike, write: Callable[[Path], int]) -> int:
-    """write(tmp) to a temporary file beside `out`, then rename it to `out`: a failed run never
-    clobbers the file. Returns what write returns; an OSError names `out`, not the temporary."""
-    target = Path(out)
-    # beside the output (same file system: the rename is atomic), created with the umask's mode
+def write_beside(target: Path, write: Callable[[Path], T]) -> T:
+    """write(tmp) on a temporary path beside target (same file system: the rename is atomic),
+    then rename it to target; on any error target is untouched and tmp removed. An OSError names
+    target, not the temporary path. tmp may be a file or a folder."""
     tmp = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
-        count = write(tmp)
+        result = write(tmp)
         os.replace(tmp, target)
     except OSError as exc:
         if exc.filename == str(tmp):  # name the file the user asked for, not the temporary one
             exc.filename = str(target)
         raise
     finally:
-        with contextlib.suppress(FileNotFoundError):
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
             os.unlink(tmp)
-    return count
+    return result
 
 
 def write_protocol_csv(tables: ProtocolTables, out: str | os.PathLike) -> int:
     """The protocol tables (per step, per-axis means, MSE) as one CSV, replacing `out` only when
     written; returns the rows written."""
     table = csv_table(tables)
-    return write_replacing(out, lambda tmp: pcsv.write_csv(table, tmp) or table.num_rows)
+    return write_beside(Path(out), lambda tmp: pcsv.write_csv(table, tmp) or table.num_rows)

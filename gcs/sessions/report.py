@@ -33,20 +33,20 @@ AXES = ("roll", "pitch", "yaw")
 ERROR_REFERENCES = ("truth", "onboard", "ahrs2")
 
 
-def collect(source, progress=None) -> tuple[dict[str, np.ndarray], object]:
-    """Replay source through every estimator; returns {source name: N×4 array t, roll, pitch, yaw}
-    and the pipeline (for its comparisons)."""
+def collect(source, progress=None, estimators: list[str] | None = None) -> tuple[dict[str, np.ndarray], object]:
+    """Replay source through `estimators` (default every one); returns {source name: N×4 array t,
+    roll, pitch, yaw} and the pipeline (for its comparisons)."""
     series: dict[str, list] = {}
 
     def keep(points: list[AttitudePoint]) -> None:
         for p in points:
             series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
 
-    pipeline = source.replay(source.new_pipeline(), keep, progress)
+    pipeline = source.replay(source.new_pipeline(estimators), keep, progress)
     return {name: np.array(rows) for name, rows in series.items()}, pipeline
 
 
-def _png(fig) -> str:
+def png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
@@ -65,7 +65,7 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8, ncol=4)
     axes[-1].set_xlabel("vehicle time (s)")
-    return _png(fig)
+    return png(fig)
 
 
 def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference: str) -> str:
@@ -86,10 +86,10 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title(f"estimator − {reference}")
     axes[-1].set_xlabel("vehicle time (s)")
-    return _png(fig)
+    return png(fig)
 
 
-def _table(header: list[str], rows: list[list], name: str = "") -> str:
+def html_table(header: list[str], rows: list[list], name: str = "") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
     attribute = f" class='{name}'" if name else ""
@@ -120,7 +120,7 @@ def plot_holds(tables: ProtocolTables, series: dict[str, Series]) -> str:
     for ax in axes[len(windows) :]:
         ax.set_visible(False)
     axes[0].legend(loc="best", fontsize=7, ncol=2)
-    return _png(fig)
+    return png(fig)
 
 
 #: The seed 000 step table's columns (SourceMetrics fields), as shown in the report.
@@ -149,11 +149,11 @@ def protocol_sections(tables: ProtocolTables, series: dict[str, Series]) -> list
     )
     return [
         f"<h2>Test protocol</h2>{intro}",
-        "<h3>Seed 000: per step</h3>" + _table(list(STEP_COLUMNS), steps, "protocol-steps"),
+        "<h3>Seed 000: per step</h3>" + html_table(list(STEP_COLUMNS), steps, "protocol-steps"),
         "<h3>Seed 000: per axis (mean over the axis's steps)</h3>"
-        + _table(["source", "axis", "steps", "mre_last_pct", "mre_hold_pct"], means, "protocol-axis-means"),
+        + html_table(["source", "axis", "steps", "mre_last_pct", "mre_hold_pct"], means, "protocol-axis-means"),
         "<h3>Seed 004: MSE per axis over the holds and reduction relative to accel_mag</h3>"
-        + _table(
+        + html_table(
             ["source", "samples", "mse_roll", "mse_pitch", "mse_yaw"]
             + ["reduction_roll_pct", "reduction_pitch_pct", "reduction_yaw_pct"],
             mse,
@@ -217,14 +217,14 @@ def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTa
             ["link", (meta.get("link") or {}).get("address")],
             ["recovered", meta.get("recovered")],
         ]
-    sections = [f"<h2>Summary</h2>{_table(['', ''], facts)}"]
+    sections = [f"<h2>Summary</h2>{html_table(['', ''], facts)}"]
     if series:
         sections.append(f"<h2>Attitude, every source</h2><img src='{plot_attitude(series)}'>")
     if reference is not None:
         sections.append(f"<h2>Errors against {reference}</h2><img src='{plot_errors(series, estimators, reference)}'>")
     sections.append(
         "<h2>Accuracy (whole run, degrees)</h2>"
-        + _table(
+        + html_table(
             ["estimator", "reference", "n", "RMS roll", "RMS pitch", "RMS yaw", "max roll", "max pitch", "max yaw"],
             accuracy_rows(pipeline),
         )
@@ -235,10 +235,14 @@ def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTa
             sections.append(f"<p class='warn'>{html.escape(name)}: {html.escape(reason)}</p>")
     if protocol is not None:
         sections += protocol_sections(protocol, series)
-    sections.append("<h2>Rates</h2>" + _table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
+    sections.append("<h2>Rates</h2>" + html_table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
     if source.framing is not None:
-        sections.append("<h2>Packets and loss</h2>" + _table(["", ""], loss_rows(source)))
-    title = f"gcs report: {source.path}"
+        sections.append("<h2>Packets and loss</h2>" + html_table(["", ""], loss_rows(source)))
+    return page(f"gcs report: {source.path}", sections)
+
+
+def page(title: str, sections: list[str]) -> str:
+    """The one self-contained HTML page style of gcs reports: title, provenance, sections."""
     deps = ", ".join(f"{name} {version}" for name, version in provenance().dependencies.items())
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse;margin:8px 0}}
@@ -248,9 +252,9 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 {"".join(sections)}</body></html>"""
 
 
-def write_report(path: str, out: str, progress=None) -> None:
+def write_report(path: str, out: str, progress=None, estimators: list[str] | None = None) -> None:
     source = open_source(path)
-    series, pipeline = collect(source, progress)
+    series, pipeline = collect(source, progress, estimators)
     tables = None
     if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
         tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))

@@ -1,0 +1,78 @@
+"""`gcs batch`: every flight given through the estimators into a dataset, one task per flight.
+
+Flights already in the dataset are skipped unless `force`; each task reads, replays and writes
+one flight and returns a `FlightResult`, so the driver's memory does not grow with the fleet.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from distributed import Client
+
+from gcs.batch import dataset
+from gcs.batch.cluster import completed
+from gcs.batch.flight import FlightResult, process_flight
+from gcs.sessions import layout
+from gcs.sessions.sources import KINDS
+
+
+def find_flights(items: Iterable[str]) -> list[str]:
+    """Files, session folders, folders of them and globs → the flights, each once, in order. A
+    folder that is not a session contributes its sessions and logs (not recursively); anything
+    else named is kept, so that a file that cannot be read is reported, not silently dropped."""
+    found: list[str] = []
+    for item in items:
+        matches = sorted(glob.glob(item)) if glob.has_magic(item) else [item]
+        for path in matches:
+            folder = Path(path)
+            if folder.is_dir() and not layout.is_session(folder):
+                found += [
+                    str(p)
+                    for p in sorted(folder.iterdir())
+                    if layout.is_session(p) or (p.is_file() and p.suffix.lower() in KINDS)
+                ]
+            else:
+                found.append(path)
+    return list(dict.fromkeys(found))
+
+
+@dataclass(frozen=True)
+class BatchOutcome:
+    done: list[FlightResult]  # processed now (good and failed)
+    skipped: list[str]  # already in the dataset
+
+
+def run_batch(
+    client: Client,
+    flights: list[str],
+    out: str | os.PathLike,
+    estimators: list[str] | None = None,
+    gains: dict[str, dict[str, float]] | None = None,
+    force: bool = False,
+    on_result: Callable[[FlightResult], None] | None = None,
+) -> BatchOutcome:
+    """One task per flight not yet in the dataset at `out` (every flight with `force`)."""
+    root = Path(out).resolve()
+    root.mkdir(parents=True, exist_ok=True)
+    done = set() if force else dataset.done_flights(root)
+    todo = [f for f in flights if dataset.flight_id(f) not in done]
+    skipped = [f for f in flights if dataset.flight_id(f) in done]
+    futures = [
+        client.submit(
+            process_flight, str(Path(f).resolve()), str(root), estimators, gains, key=f"flight-{k}-{f}", pure=False
+        )
+        for k, f in enumerate(todo)
+    ]
+    results = []
+    for future in completed(futures):
+        result: FlightResult = future.result()
+        future.release()  # nothing of the flight stays on the cluster
+        results.append(result)
+        if on_result is not None:
+            on_result(result)
+    return BatchOutcome(sorted(results, key=lambda r: r.path), skipped)

@@ -1,0 +1,74 @@
+"""`gcs batch`: every log or session of a fleet through the estimators into a Parquet dataset,
+as Dask tasks (a LocalCluster here, or a cluster's scheduler by address)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TYPE_CHECKING
+
+from gcs.commands.replay import selection
+
+if TYPE_CHECKING:
+    from gcs.batch.flight import FlightResult
+
+
+def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:8786)")
+    parser.add_argument(
+        "--workers", type=int, metavar="N", help="local workers when no --scheduler (default: cores, at most 4)"
+    )
+    parser.add_argument("--dashboard", action="store_true", help="serve the local cluster's Dask dashboard (free port)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.ulg files, folders of them, globs"
+    )
+    parser.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder (created; added to)")
+    parser.add_argument(
+        "--estimator", "-e", action="append", metavar="NAME", help="only this estimator (repeatable; default all)"
+    )
+    parser.add_argument("--gain", "-g", action="append", default=[], metavar="[EST.]NAME=VALUE", help="override a gain")
+    parser.add_argument("--force", action="store_true", help="redo flights already in the dataset")
+    add_cluster_arguments(parser)
+
+
+def _line(result: FlightResult) -> str:
+    if not result.ok:
+        return f"failed  {result.path}: {result.reason}"
+    best = ", ".join(
+        f"{est}/{ref} {sum(v * v for v in rms[:2]) ** 0.5 / 2**0.5:.2f}"
+        for (est, ref), rms in sorted(result.rms.items())
+        if ref in ("truth", "onboard")
+    )
+    return f"ok      {result.path}: {result.duration_s:.0f} s, {result.imu_samples} IMU; roll/pitch RMS deg {best}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcs.batch.cluster import connect  # noqa: PLC0415 - Dask loads only when a batch runs
+    from gcs.batch.run import find_flights, run_batch  # noqa: PLC0415
+
+    try:
+        names, gains = selection(args.estimator, args.gain)
+    except (KeyError, ValueError) as exc:
+        print(f"gcs batch: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    flights = find_flights(args.logs)
+    if not flights:
+        print("gcs batch: error: no flights found in " + " ".join(args.logs), file=sys.stderr)
+        return 2
+    try:
+        with connect(args.scheduler, args.workers, args.dashboard) as client:
+            outcome = run_batch(
+                client, flights, args.out, names, gains, args.force, lambda r: print(_line(r), file=sys.stderr)
+            )
+    except OSError as exc:
+        print(f"gcs batch: error: {exc.filename or args.scheduler or args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    failed = [r for r in outcome.done if not r.ok]
+    print(
+        f"{len(outcome.done) - len(failed)} flights written, {len(failed)} failed, "
+        f"{len(outcome.skipped)} already in {args.out} (--force redoes them)"
+    )
+    return 0

@@ -1,0 +1,25 @@
+"""`gcs fleet report DATASET --out FILE.html`: one page across the flights of a dataset."""
+
+from __future__ import annotations
+
+import argparse
+
+from gcs.commands.common import run_reporting_errors
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    report = sub.add_parser("report", help="one self-contained HTML page across the flights of a dataset")
+    report.add_argument("dataset", help="a dataset written by gcs batch (and gcs sweep)")
+    report.add_argument("--out", required=True, help="the HTML file to write")
+    report.add_argument("--worst", type=int, default=3, metavar="N", help="per-flight reports for the N worst flights")
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcs.batch.fleet_report import write_fleet_report  # noqa: PLC0415 - matplotlib, pyarrow only now
+
+    def work() -> str:
+        written = write_fleet_report(args.dataset, args.out, args.worst)
+        return f"wrote {args.out} ({written} flights)"
+
+    return run_reporting_errors("fleet report", args.out, work)

@@ -1,0 +1,259 @@
+"""gcs batch, sweep and fleet report on a real Dask scheduler with two real workers on loopback,
+over the shared recordings, short simulator sessions, a truncated and an unreadable file."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from distributed import Client
+from fastapi.testclient import TestClient
+
+from gcs.batch import dataset
+from gcs.commands.cli import build_parser, main
+from gcs.commands.serve import presets_or_report
+from gcs.core.estimators import registry
+from gcs.core.gains import PresetFile
+from gcs.runtime.replay import ReplaySession
+from gcs.runtime.station import Station, StationConfig
+from gcs.server.app import create_app
+from gcs.sessions import layout
+from gcs.sessions.sources import open_source
+from gcs.sim.recording import write_tlog
+from gcs.transport.address import free_port
+
+DASK = str(Path(sys.executable).with_name("dask"))
+#: A deliberately bad recorded DCM gain: the sweep must find better on flights it did not see.
+BAD_KP_RP = 0.005
+SIM_SECONDS = 15
+
+
+@dataclass(frozen=True)
+class Ran:
+    stdout: str
+    stderr: str
+
+
+def _cli(*args: str) -> Ran:
+    """`gcs ARGS` in this process (the command line's own entry point; a process start less per
+    call), which must succeed."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(args))
+    assert code == 0, err.getvalue()[-3000:]
+    return Ran(out.getvalue(), err.getvalue())
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """`dask scheduler` and two `dask worker` processes on 127.0.0.1, ready (or the test fails)."""
+    port = free_port(socket.SOCK_STREAM)
+    address = f"tcp://127.0.0.1:{port}"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    procs = [
+        subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], **quiet)
+    ]
+    for _ in range(2):
+        procs.append(
+            subprocess.Popen(
+                [DASK, "worker", address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard"], **quiet
+            )
+        )
+    try:
+        deadline = time.monotonic() + 120
+        with Client(address, timeout="120s") as client:
+            client.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
+        yield address
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory, logs_dir) -> dict[str, list[str]]:
+    """good: the shared logs, 4 simulator sessions (recorded with a bad kp_rp, two vehicles) and a
+    truncated copy of the hop; bad: a file with no log in it."""
+    root = tmp_path_factory.mktemp("fleet")
+    sessions = []
+    for seed in range(1, 5):
+        folder = root / f"sim-{seed}"
+        folder.mkdir()
+        write_tlog(folder / layout.TLOG, SIM_SECONDS, seed=seed)
+        layout.write_meta(
+            folder,
+            {
+                "start": 1_700_000_000.0 + 86400 * seed,
+                "vehicle": {"label": f"sim-quad-{'ab'[seed % 2]}", "firmware": "sim"},
+                "estimation": {"estimators": {"dcm": {"preset": "ardupilot", "gains": {"kp_rp": BAD_KP_RP}}}},
+            },
+        )
+        sessions.append(str(folder))
+    cut = root / "hop-cut.tlog"
+    data = (logs_dir / "arducopter-sitl-hop.tlog").read_bytes()
+    cut.write_bytes(data[: len(data) // 3 + 7])  # mid-record
+    junk = root / "junk.bin"
+    junk.write_bytes(b"\x00not a log\xff" * 50)
+    shared = sorted(str(p) for p in logs_dir.iterdir() if p.suffix.lower() in (".tlog", ".bin", ".ulg"))
+    return {"good": [*shared, *sessions, str(cut)], "bad": [str(junk)], "sessions": sessions}
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory, flights, scheduler) -> Path:
+    out = tmp_path_factory.mktemp("ds") / "fleet"
+    _cli("batch", *flights["good"], *flights["bad"], "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
+    return out
+
+
+def _by_key(table) -> dict:
+    return {(r["flight"], r["estimator"], r["reference"]): r for r in table.to_pylist()}
+
+
+def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(batch, flights):
+    assert dataset.done_flights(batch) == {dataset.flight_id(p) for p in flights["good"]}
+    assert len(flights["good"]) + len(flights["bad"]) >= 8
+    failures = dataset.read_failures(batch).to_pylist()
+    assert [f["flight"] for f in failures] == [dataset.flight_id(flights["bad"][0])]
+    assert "junk.bin" in failures[0]["reason"]
+    summary = dataset.read_table(batch, "summary").to_pylist()
+    cut = dataset.flight_id(flights["good"][-1])
+    assert all("last record incomplete" in r["damage"] for r in summary if r["flight"] == cut)
+    sim = [r for r in summary if r["path"] in flights["sessions"]]
+    assert {r["vehicle"] for r in sim} == {"sim-quad-a", "sim-quad-b"}
+    assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
+    attitude = dataset.read_table(batch, "attitude")
+    assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)
+
+
+@pytest.mark.parametrize("which", ["arducopter-sitl-hop.tlog", "arducopter-sitl-hop.BIN", "sim-1", "hop-cut.tlog"])
+def test_per_flight_figures_equal_gcs_replay(batch, flights, which):
+    path = next(p for p in flights["good"] if Path(p).name == which)
+    session = ReplaySession(open_source(path), 0, ["dcm"])
+    session.run_to_end()
+    summary = session.pipeline.comparisons["dcm"].summary()
+    rows = {
+        r["reference"]: r
+        for r in pq.read_table(dataset.flight_dir(batch, dataset.flight_id(path)) / "summary.parquet").to_pylist()
+    }
+    assert set(rows) == set(summary["references"])
+    for ref, stats in summary["references"].items():
+        s = stats["session"]
+        assert rows[ref]["n"] == s["n"]
+        assert [rows[ref][f"rms_{a}"] for a in ("roll", "pitch", "yaw")] == s["rms"]
+        assert [rows[ref][f"max_{a}"] for a in ("roll", "pitch", "yaw")] == s["max"]
+        assert rows[ref]["lag_s"] == summary["lag"]
+    assert rows[next(iter(rows))]["imu_samples"] == session.pipeline.imu_samples
+
+
+def test_local_cluster_gives_the_same_dataset(batch, flights, tmp_path):
+    out = tmp_path / "local"
+    _cli("batch", *flights["good"], *flights["bad"], "--out", str(out), "-e", "dcm", "--workers", "2")
+    for table in ("summary", "comparison"):
+        ours, theirs = _by_key(dataset.read_table(out, table)), _by_key(dataset.read_table(batch, table))
+        assert ours.keys() == theirs.keys()
+        for key in ours:
+            for col, value in ours[key].items():
+                same = value == theirs[key][col] or (
+                    isinstance(value, float) and math.isnan(value) and math.isnan(theirs[key][col])
+                )
+                assert same, (key, col, value, theirs[key][col])
+    one = dataset.flight_id(flights["sessions"][0])
+    ours, theirs = (pq.read_table(dataset.flight_dir(d, one) / "attitude.parquet") for d in (out, batch))
+    assert ours.num_rows > 1000 and ours.drop_columns(["wall_time"]).equals(theirs.drop_columns(["wall_time"]))
+    assert dataset.read_failures(out).to_pylist() == dataset.read_failures(batch).to_pylist()
+
+
+def test_rerun_skips_done_flights_and_force_redoes_them(batch, flights, scheduler):
+    stamps = {f: os.stat(dataset.flight_dir(batch, f)).st_ino for f in dataset.done_flights(batch)}
+    again = _cli("batch", *flights["good"], "--out", str(batch), "-e", "dcm", "--scheduler", scheduler)
+    assert f"0 flights written, 0 failed, {len(flights['good'])} already" in again.stdout
+    assert {f: os.stat(dataset.flight_dir(batch, f)).st_ino for f in stamps} == stamps
+    one = flights["sessions"][1]
+    forced = _cli("batch", one, "--out", str(batch), "-e", "dcm", "--scheduler", scheduler, "--force")
+    assert "1 flights written" in forced.stdout
+    redone = dataset.flight_id(one)
+    assert os.stat(dataset.flight_dir(batch, redone)).st_ino != stamps[redone]
+    assert dataset.done_flights(batch) == set(stamps)
+    assert not [p for p in (batch / dataset.FLIGHTS).iterdir() if p.name.startswith(".")]
+
+
+def test_sweep_beats_a_bad_default_on_held_out_flights_and_its_preset_loads(batch, flights, scheduler, tmp_path):
+    train, holdout = flights["sessions"][:2], flights["sessions"][2:]
+    args = ["sweep", *train, "-e", "dcm", "--gain", "kp_rp=0.05:2.0", "--trials", "10", "--objective", "rms_vs_truth"]
+    args += [a for h in holdout for a in ("--holdout", h)]
+    done = _cli(*args, "--out", str(batch), "--scheduler", scheduler)
+    assert "best for sim-quad-a" in done.stdout and "best for sim-quad-b" in done.stdout
+    (folder,) = (batch / dataset.SWEEPS).iterdir()
+    rows = pq.read_table(folder / "flights.parquet").to_pylist()
+    held = [r for r in rows if r["holdout"]]
+    assert sorted(r["path"] for r in held) == sorted(holdout)
+    assert all(r["best"] < r["current"] for r in held), held
+    assert pq.read_table(folder / "trials.parquet").num_rows == 10
+    # the preset file is what `gcs estimate --preset-file` loads: same output as the gain by hand
+    preset = folder / "preset.toml"
+    best = next(line for line in preset.read_text().splitlines() if line.startswith("kp_rp"))
+    tlog = str(Path(holdout[0]) / layout.TLOG)
+    _cli("estimate", tlog, "--preset-file", str(preset), "--out", str(tmp_path / "a.csv"))
+    _cli("estimate", tlog, "-e", "dcm", "--gain", best.replace(" ", ""), "--out", str(tmp_path / "b.csv"))
+    _cli("estimate", tlog, "-e", "dcm", "--out", str(tmp_path / "c.csv"))
+    a, b, c = ((tmp_path / f"{x}.csv").read_text() for x in "abc")
+    assert a == b != c
+    # the fleet page: every flight, the failure, the worst flight's own report, the sweep
+    page = tmp_path / "fleet.html"
+    _cli("fleet", "report", str(batch), "--out", str(page), "--worst", "1")
+    text = page.read_text()
+    assert all(dataset.flight_id(p) in text for p in flights["good"])
+    assert "junk.bin" in text and folder.name in text and "<img src='data:image/png;base64," in text
+    linked = list((tmp_path / "fleet_flights").glob("*.html"))
+    assert len(linked) == 1 and linked[0].stem in text
+    shutil.rmtree(tmp_path / "fleet_flights")
+
+
+@pytest.mark.parametrize(
+    ("text", "args", "error"),
+    [
+        ('estimator = "kf"\n[gains]\nr_roll = 0.1\n', ["-e", "dcm"], "is for kf, not --estimator dcm"),
+        ('estimator = "dcm"\n[gains]\nkp_rp = "fast"\n', [], "[gains] must hold NAME = number lines"),
+        ('estimator = "dcm"\n[gains]\nkp_rp = 900.0\n', [], "kp_rp: 900 1/s is outside"),
+        ("estimator = dcm\n", [], "not TOML"),
+    ],
+)
+def test_a_bad_preset_file_is_one_clear_line_and_no_output(tmp_path, logs_dir, capsys, text, args, error):
+    preset, out = tmp_path / "p.toml", tmp_path / "out.csv"
+    preset.write_text(text)
+    hop = str(logs_dir / "arducopter-sitl-hop.tlog")
+    assert main(["estimate", hop, "--preset-file", str(preset), *args, "--out", str(out)]) == 2
+    assert error in capsys.readouterr().err and not out.exists()
+
+
+def test_the_dashboard_starts_from_a_preset_file(tmp_path, udp_port):
+    """`gcs serve/demo --preset-file`: the station's estimator starts with the file's gains, and
+    the dashboard's gain listing shows them (a real Station, its real REST app)."""
+    preset = PresetFile("dcm", "ardupilot", {"kp_rp": 0.37, "ki_rp": 0.02}, "from a sweep")
+    station = Station(StationConfig(f"udpin:127.0.0.1:{udp_port}", presets=[preset]))
+    api = TestClient(create_app(station), base_url="http://127.0.0.1")
+    listing = {e["name"]: e for e in api.get("/api/estimators").json()}
+    gains = {g["name"]: g["value"] for g in listing["dcm"]["gains"]}
+    assert (gains["kp_rp"], gains["ki_rp"]) == (0.37, 0.02)
+    assert {g["name"]: g["value"] for g in listing["kf"]["gains"]} == registry.create("kf").gains.values
+    (tmp_path / "p.toml").write_text(preset.to_toml())
+    parsed = build_parser().parse_args(
+        ["serve", "--connect", "udpin:127.0.0.1:1", "--preset-file", str(tmp_path / "p.toml")]
+    )
+    assert presets_or_report(parsed, "serve") == [preset]
