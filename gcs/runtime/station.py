@@ -24,10 +24,10 @@ from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
+from gcs.core.declination import DECLINATION_PARAMS
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet
-from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
