@@ -173,6 +173,11 @@ class DataflashLog(LogFile):
                 break
             kind = record.get_type()
             if kind == PARAM_TYPE:  # untimed in old logs: applied where it stands in the file
+                time_us = record_time_us(record)
+                if time_us is None:
+                    self.counts[kind] += 1
+                else:
+                    self._seen(kind, time_us)
                 change = self.declination.parameter(str(record.Name), float(record.Value))
                 if change is not None:
                     yield change
