@@ -202,6 +202,7 @@ class ReferenceStep:
         F[3:6, 0:3] = -skew(R @ accel) * dt
         sa = self.g["acc_noise"] * (1.0 + ((np.linalg.norm(accel) - G0) / self.g["acc_gate"]) ** 2)
         Q = np.diag(np.repeat([self.g["gyro_noise"] ** 2, sa**2, self.g["bias_walk"] ** 2], 3) * dt)
+        Q[2, 2] = self.g["heading_noise"] ** 2 * dt  # δθ in NED: its down axis is the heading
         self.P = F @ self.P @ F.T + Q
 
     def update(self, H, r, y):

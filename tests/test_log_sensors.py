@@ -18,7 +18,7 @@ from pyulog import ULog
 from ulog_writer import UlogWriter
 
 from gcs.commands.cli import main
-from gcs.core.estimation import compare_stream
+from gcs.core.estimation import GainChange, compare_stream
 from gcs.core.estimators import registry
 from gcs.core.samples import GpsSample, ImuSample
 from gcs.logs.dataflash import DataflashLog
@@ -148,8 +148,9 @@ def test_dataflash_mag_and_gps_reach_the_estimators(name):
 def test_hop_heading_follows_onboard_only_with_the_magnetometer():
     """Yaw RMS against the onboard EKF (ATT) and SITL truth (SIM): with the MAG records every
     estimator holds the heading (measured 5.9/2.9/3.6° vs ATT, 3.3/0.4/1.1° vs SIM for
-    dcm/ekf/kf); gyro-only it starts at an unknown heading and stays off by 13-120°."""
-    samples = list(DataflashLog(str(HOP)))
+    dcm/ekf/kf); gyro-only it starts at an unknown heading and stays off by 13-120°. The
+    declination is the test's throughout (the log's own is tested below)."""
+    samples = [s for s in DataflashLog(str(HOP)) if not isinstance(s, GainChange)]
     gyro_only = [dataclasses.replace(s, mag=None) if isinstance(s, ImuSample) else s for s in samples]
     for name in ESTIMATORS:
         refs = compare_stream(samples, registry.create(name, None, declination=HOP_DECLINATION)).summary()
@@ -184,10 +185,18 @@ GPS_FIELDS = (
 )
 
 
+#: NOAA's wmm-calculator at the fixture's GPS position (Canberra, 2026-11-24; see test_declination).
+CANBERRA_WMM_DEG = 12.6943
+#: EKF2_MAG_DECL (degrees) of the PX4 ≥ 1.14 fixture: initial, and changed at CHANGE_US.
+MAG_DECL_DEG, MAG_DECL_CHANGED_DEG, CHANGE_US = 10.0, 20.0, 1_500_000
+
+
 def _ulog(modern: bool) -> bytes:
-    """PX4 ≥ 1.14 topics (vehicle_magnetometer, sensor_gps in degrees) or older ones (sensor_mag,
-    vehicle_gps_position in degE7 and mm)."""
+    """PX4 ≥ 1.14 topics (vehicle_magnetometer, sensor_gps in degrees) with EKF2_MAG_DECL, or
+    older ones (sensor_mag, vehicle_gps_position in degE7 and mm) without: the WMM then."""
     w = UlogWriter()
+    if modern:
+        w.param("EKF2_MAG_DECL", MAG_DECL_DEG)
     w.topic("sensor_combined", "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2")
     mag, gps = ("vehicle_magnetometer", "sensor_gps") if modern else ("sensor_mag", "vehicle_gps_position")
     w.topic(
@@ -205,6 +214,8 @@ def _ulog(modern: bool) -> bytes:
             field = {"magnetometer_ga": FIELD_BODY} if modern else dict(zip("xyz", FIELD_BODY, strict=True))
             w.add(mag, timestamp=t, **field)
         w.add("sensor_combined", timestamp=t, gyro_rad=(0.0, 0.0, 0.0), accelerometer_m_s2=(0.0, 0.0, -9.80665))
+        if modern and t == CHANGE_US:
+            w.param("EKF2_MAG_DECL", MAG_DECL_CHANGED_DEG)
         if k % 40 == 0:
             where = (
                 {"latitude_deg": -35.3632610, "longitude_deg": 149.1652299, "altitude_msl_m": 584.09}
@@ -232,12 +243,71 @@ def test_ulog_magnetometer_and_gps_topics(tmp_path, modern):
     assert (g.lat, g.lon, g.alt) == pytest.approx((-35.363261, 149.1652299, 584.09))
     assert g.t == 1.0 and g.fix_type == 3 and g.course == pytest.approx(math.radians(45))
     np.testing.assert_allclose(g.vel_ned, VEL_NED, rtol=1e-6)
-    for name in ESTIMATORS:  # the heading comes from the magnetometer topic (0° without it)
+    for name in ESTIMATORS:  # the magnetic heading from the magnetometer topic (0° without it)
         out = tmp_path / f"{name}.csv"
-        assert main(["estimate", str(path), "-e", name, "-o", str(out)]) == 0
+        assert main(["estimate", str(path), "-e", name, "-o", str(out), "--gain", "declination=0"]) == 0
         with open(out) as fh:
             yaw = float(list(csv.reader(fh))[-1][7])
         assert yaw == pytest.approx(60.0, abs=1.0), name
+
+
+@pytest.mark.parametrize("modern", [True, False], ids=["EKF2_MAG_DECL", "no-parameter"])
+def test_ulog_declination_from_parameters_else_wmm(tmp_path, capsys, modern):
+    """EKF2_MAG_DECL (degrees) reaches the estimators as a declination in radians, the initial value
+    at the start and a change where it was logged; without it the WMM at the first 3D fix. The yaw
+    is the magnetic 60° turned by it, and `gcs estimate` names the source."""
+    path = tmp_path / "flight.ulg"
+    path.write_bytes(_ulog(modern))
+    samples = list(UlogFile(str(path)))
+    changes = [(k, s.value) for k, s in enumerate(samples) if isinstance(s, GainChange)]
+    imu_t = [s.t if isinstance(s, ImuSample) else None for s in samples]
+    if modern:
+        logged = [math.radians(MAG_DECL_DEG), math.radians(MAG_DECL_CHANGED_DEG)]
+        assert [v for _, v in changes] == pytest.approx(logged)
+        assert changes[0][0] == 0  # before the first sample
+        assert next(t for t in imu_t[changes[1][0] :] if t is not None) == CHANGE_US / 1e6  # at its time
+        final, source = MAG_DECL_CHANGED_DEG, "vehicle EKF2_MAG_DECL"
+    else:
+        assert len(changes) == 1 and math.degrees(changes[0][1]) == pytest.approx(CANBERRA_WMM_DEG, abs=0.05)
+        final, source = CANBERRA_WMM_DEG, "WMM at -35.3633,149.1652"
+    out = tmp_path / "ekf.csv"
+    assert main(["estimate", str(path), "-e", "ekf", "-o", str(out)]) == 0
+    assert capsys.readouterr().err.strip().endswith(f"deg from {source}")
+    with open(out) as fh:
+        t, yaw = np.array([(float(r[0]), float(r[7])) for r in list(csv.reader(fh))[1:]]).T
+    if modern:  # 70° until the change, then turning to 80° without a jump (78.2° 1.5 s later)
+        before, after = yaw[t < CHANGE_US / 1e6][-1], yaw[t >= CHANGE_US / 1e6]
+        assert before == pytest.approx(60.0 + MAG_DECL_DEG, abs=1.0)
+        assert abs(after[0] - before) < 0.5 and 60.0 + final - 2.5 < after[-1] < 60.0 + final
+    else:
+        assert yaw[-1] == pytest.approx(60.0 + final, abs=1.0)
+
+
+def test_dataflash_compass_dec_from_parm_records(tmp_path, capsys):
+    """The fragment's PARM records hold COMPASS_DEC (radians): `gcs estimate` applies and names it."""
+    path = str(LOGS / "ardupilot-fragment.bin")
+    log = DFReader_binary(path)
+    logged = None
+    while (r := log.recv_match(type=["PARM"])) is not None:
+        logged = r.Value if r.Name == "COMPASS_DEC" else logged
+    assert logged and abs(logged) > 0.1
+    changes = [s for s in DataflashLog(path) if isinstance(s, GainChange)]
+    assert [c.value for c in changes] == pytest.approx([logged])
+    assert main(["estimate", path, "-e", "dcm", "-o", str(tmp_path / "out.csv")]) == 0
+    line = f"gcs estimate: declination {math.degrees(logged):.2f} deg from vehicle COMPASS_DEC"
+    assert line in capsys.readouterr().err.splitlines()
+
+
+def test_hop_bin_yaw_is_true_north_from_the_wmm():
+    """The hop .BIN logs COMPASS_DEC = 0 (SITL writes its parameters before GPS lock: unset), so the
+    WMM at the first 3D fix refers the yaw to true north: with their default (0) declination the
+    estimators follow SIM to 0.9 / 1.2 / 2.1° yaw RMS (dcm / kf / ekf), 11.7-13.3° without it."""
+    reader = DataflashLog(str(HOP))
+    samples = list(reader)
+    assert reader.declination.source == "WMM at -35.3633,149.1652"
+    for name in ESTIMATORS:
+        truth = compare_stream(samples, registry.create(name)).summary()["references"]["truth"]
+        assert truth["session"]["rms"][2] < 3.0, name
 
 
 def test_imu_option_on_a_tlog_and_a_csv(tmp_path, capsys):

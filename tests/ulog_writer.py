@@ -5,7 +5,9 @@ magic "ULog" 01 12 35, version 1, start time in µs), then messages, each a uint
 type byte and the payload. Definitions come first: 'B' flag bits (8 compat + 8 incompat bytes
 and three uint64 appended-data offsets), one 'F' format per topic ("name:type field;..."); then
 the data section: 'A' subscribes a topic (uint8 multi_id, uint16 msg_id, name) and 'D' carries
-one sample (uint16 msg_id, the fields packed in declared order, no padding).
+one sample (uint16 msg_id, the fields packed in declared order, no padding). 'P' is a parameter
+(uint8 key length, key "float NAME", the value): in the definitions an initial value, in the data
+section a change at the time of the sample before it.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ class UlogWriter:
 
     topics: dict[str, Topic] = field(default_factory=dict)
     data: list[bytes] = field(default_factory=list)
+    parameters: list[bytes] = field(default_factory=list)
 
     def topic(self, name: str, spec: str, multi_id: int = 0) -> None:
         """spec: "uint64_t timestamp;float[3] gyro_rad;...", as in an 'F' message."""
@@ -56,13 +59,19 @@ class UlogWriter:
             flat.extend(value if count else [value])  # type: ignore[call-overload]
         self.data.append(_message(b"D", struct.pack("<H", topic.msg_id) + topic.packer.pack(*flat)))
 
+    def param(self, name: str, value: float) -> None:
+        """A float parameter: initial before the first `add`, else a change at that point."""
+        key = f"float {name}".encode()
+        message = _message(b"P", struct.pack("<B", len(key)) + key + struct.pack("<f", value))
+        (self.data if any(m[2:3] == b"D" for m in self.data) else self.parameters).append(message)
+
     def bytes(self) -> bytes:
         header = MAGIC + b"\x01" + struct.pack("<Q", 0)
         flags = _message(b"B", bytes(16) + bytes(24))
         formats = [
             _message(b"F", f"{t.name}:{';'.join(_decl(f) for f in t.fields)};".encode()) for t in self.topics.values()
         ]
-        return header + flags + b"".join(formats) + b"".join(self.data)
+        return header + flags + b"".join(formats) + b"".join(self.parameters) + b"".join(self.data)
 
 
 def _decl(item: tuple[str, str, int]) -> str:

@@ -12,7 +12,8 @@ stderr naming what and where, exit code 2, and no OUT (OUT is written beside its
 when complete, so a failed run never leaves a partial file nor clobbers an existing one). A log
 damaged part-way is estimated up to the damage, with one line on stderr saying where.
 On success one line on stderr says which magnetic declination the yaw is referred to and where it
-came from: the vehicle's COMPASS_DEC / EKF2_MAG_DECL in the .tlog, else the World Magnetic Model
+came from: the vehicle's COMPASS_DEC / EKF2_MAG_DECL in the log (.tlog PARAM_VALUE, DataFlash PARM,
+ULog parameters), else the World Magnetic Model
 at the first 3D GPS fix, else none (magnetic north); a `--gain declination=...` wins over both.
 """
 
@@ -29,6 +30,7 @@ from typing import TextIO
 from tqdm import tqdm
 
 from gcs.commands.common import load_preset_file
+from gcs.core.declination import VehicleDeclination
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.gains import GainError
@@ -100,20 +102,20 @@ class Declination:
         self.value = value
 
 
-def _tlog_inputs(path: str, imu: int, declination: Declination) -> Iterator[Sample | GainChange]:
-    """A .tlog's inputs, noting the declination change the log's parameters (or WMM) give."""
-    inputs = MessageInputs()
-    for item in read_tlog(path, imu, inputs):
+def _noting(samples: Iterable[Sample], source: VehicleDeclination, declination: Declination) -> Iterator[Sample]:
+    """The samples, noting each declination change the log's parameters (or WMM) give."""
+    for item in samples:
         if isinstance(item, GainChange) and item.name == "declination" and not declination.source.startswith("--"):
             declination.value = item.value
-            declination.source = inputs.declination_source
+            declination.source = source.source
         yield item
 
 
 def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination: Declination | None = None) -> int:
     """Feed every sample of input_path (IMU instance imu) to estimator, writing one row per IMU
     sample to out; afterwards one stderr line per damage or note the log reader reported. The
-    declination in a .tlog is applied unless the estimator's `declination` gain was pinned."""
+    declination a log gives (its parameters, else the WMM) is applied unless the estimator's
+    `declination` gain was pinned."""
 
     declination = declination or Declination(False, estimator.gains["declination"])
     pinned = ("declination",) if declination.source.startswith("--") else ()
@@ -121,10 +123,15 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
     rows = 0
     deg = 57.29577951308232
     is_tlog = os.path.splitext(input_path)[1].lower() == ".tlog" and os.path.isfile(input_path)
-    samples: Iterable[Sample | GainChange] = (
-        _tlog_inputs(input_path, imu, declination) if is_tlog else read_samples(input_path, imu)
-    )
-    shown = tqdm(samples, desc="estimate", unit=" samples", disable=not sys.stderr.isatty(), leave=True)
+    samples: Iterable[Sample]
+    if is_tlog:
+        inputs = MessageInputs()
+        samples, source = read_tlog(input_path, imu, inputs), inputs.vehicle_declination
+    else:
+        samples = read_samples(input_path, imu)
+        source = samples.declination if isinstance(samples, LogFile) else VehicleDeclination()
+    noted = _noting(samples, source, declination)
+    shown = tqdm(noted, desc="estimate", unit=" samples", disable=not sys.stderr.isatty(), leave=True)
     for sample, _ in run_estimator(estimator, shown, pinned=pinned):
         if isinstance(sample, ImuSample):
             q = estimator.quaternion

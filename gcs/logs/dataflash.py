@@ -8,7 +8,9 @@ its own type (IMU, IMU2, IMU3; MAG, MAG2; GPS, GPS2). DFReader applies the forma
 
 The chosen IMU instance → `ImuSample`, carrying the latest MAG of instance 0 (see
 gcs.logs.magnetometer); GPS instance 0 → `GpsSample`; the references ATT ("onboard", the
-primary EKF), AHR2 ("ahrs2", DCM) and SIM ("truth", SITL only). Only those types are decoded
+primary EKF), AHR2 ("ahrs2", DCM) and SIM ("truth", SITL only); PARM records' COMPASS_DEC → a
+declination `GainChange` (else the WMM's at the first 3D fix, see `VehicleDeclination`), as from
+a .tlog. Only those types are decoded
 (DFReader skips the others by its index, so this is much faster than a full pass). A log cut
 mid-record (a crash, a partial download) is read up to the damage, and `damage` says at which
 byte offset it is.
@@ -29,8 +31,19 @@ from typing import TypeAlias
 import numpy as np
 from pymavlink.DFReader import DFMessage, DFReader_binary
 
+from gcs.core.declination import WMM_EPOCH, decimal_year
+from gcs.core.estimation import GainChange
 from gcs.core.rotation import wrap_pi
-from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, MagSample, mgauss_to_gauss, ms_to_usec, usec_to_s
+from gcs.core.samples import (
+    AttitudeSample,
+    GpsSample,
+    ImuSample,
+    MagSample,
+    mgauss_to_gauss,
+    ms_to_s,
+    ms_to_usec,
+    usec_to_s,
+)
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.magnetometer import with_latest_mag
 
@@ -40,7 +53,12 @@ MAG_TYPES = ("MAG", "MAG2", "MAG3")
 GPS_TYPES = ("GPS", "GPS2")
 #: DataFlash reference attitude record → reference name.
 REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
-TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES)
+#: Parameter record (Name, Value; untimed in ArduCopter 3.1-3.2): where COMPASS_DEC comes from.
+PARAM_TYPE = "PARM"
+TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES, PARAM_TYPE)
+#: GPS time (week 0 began 1980-01-06) → UNIX time, and GPS − UTC since 2017 (s).
+GPS_EPOCH_UNIX = 315_964_800
+GPS_LEAP_SECONDS = 18
 #: One decoded record. pymavlink ships no type information and creates each record's fields at
 #: run time, so this is Any to mypy: the dynamic boundary of this reader, named here once.
 DataflashRecord: TypeAlias = DFMessage
@@ -117,6 +135,16 @@ def gps_from_dataflash(record: DataflashRecord) -> GpsSample:
     )
 
 
+def gps_year(record: DataflashRecord) -> float:
+    """The decimal year a GPS record was taken (GWk/GMS, or Week/TimeMS in 3.1-3.2 logs, GPS
+    week and ms of the week); the WMM's epoch when the receiver has no time yet (week 0)."""
+    week = getattr(record, "GWk", getattr(record, "Week", 0))
+    ms = getattr(record, "GMS", getattr(record, "TimeMS", 0))
+    if not week:
+        return WMM_EPOCH
+    return decimal_year(GPS_EPOCH_UNIX + int(week) * 604_800 + ms_to_s(int(ms)) - GPS_LEAP_SECONDS)
+
+
 def attitude_from_dataflash(record: DataflashRecord, source: str) -> AttitudeSample:
     """ATT / AHR2 / SIM record: TimeUS µs or TimeMS ms, Roll/Pitch/Yaw in degrees (yaw 0..360;
     centidegrees in 3.2 logs, scaled by DFReader) → rad, yaw wrapped."""
@@ -175,7 +203,7 @@ class DataflashLog(LogFile):
     """Iterates the samples of a .bin log in file order (see LogFile for what it reports): IMU
     instance `imu`, MAG and GPS instance 0, every reference."""
 
-    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         notices = DFReaderNotices()
         try:
             with notices.collected_from_fd():
@@ -195,6 +223,16 @@ class DataflashLog(LogFile):
             if record is None:
                 break
             kind = record.get_type()
+            if kind == PARAM_TYPE:  # untimed in old logs: applied where it stands in the file
+                time_us = record_time_us(record)
+                if time_us is None:
+                    self.counts[kind] += 1
+                else:
+                    self._seen(kind, time_us)
+                change = self.declination.parameter(str(record.Name), float(record.Value))
+                if change is not None:
+                    yield change
+                continue
             instance = record_instance(record)
             time_us = record_time_us(record)
             if time_us is None:
@@ -212,7 +250,12 @@ class DataflashLog(LogFile):
                 mag = mag_from_dataflash(record)
             elif kind in GPS_TYPES:
                 self._seen(kind, time_us)
-                yield gps_from_dataflash(record)
+                gps = gps_from_dataflash(record)
+                yield gps
+                if not self.declination.gps_fix:
+                    change = self.declination.fix(gps.fix_type, gps.lat, gps.lon, gps.alt, gps_year(record))
+                    if change is not None:
+                        yield change
             else:
                 self._seen(kind, time_us)
                 yield attitude_from_dataflash(record, REFERENCES[kind])

@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterator
 
+from gcs.core.declination import VehicleDeclination
+from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 
@@ -16,8 +18,10 @@ class LogFile:
     """Base of the log readers: iterate it for samples; afterwards `counts` per record type or
     topic used, `first_us` / `last_us` (the time span of those records, µs), `damage` (None,
     or where and why reading stopped early or skipped data) and `notes` (sensors the log lacks,
-    so a gyro-only heading is explained rather than hidden). `imu` selects the IMU instance
-    (0: the first, the one the autopilot uses by default)."""
+    so a gyro-only heading is explained rather than hidden), `declination` (the declination its
+    parameters or, failing them, the World Magnetic Model at its first 3D fix gave, and the
+    source: yielded as `GainChange`s where it changes, as from a .tlog). `imu` selects the IMU
+    instance (0: the first, the one the autopilot uses by default)."""
 
     def __init__(self, path: str, imu: int = 0) -> None:
         self.path = path
@@ -27,8 +31,9 @@ class LogFile:
         self.last_us: int | None = None
         self.damage: str | None = None
         self.notes: list[str] = []
+        self.declination = VehicleDeclination()
 
-    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         raise NotImplementedError  # each reader yields its samples in time order
 
     def _seen(self, kind: str, timestamp_us: int) -> None:

@@ -5,7 +5,9 @@ carrying the latest magnetometer reading (see gcs.logs.magnetometer) from `vehic
 (calibrated, body FRD, gauss) or, in logs without it, `sensor_mag` (gauss); `sensor_gps` or, in
 older logs, `vehicle_gps_position` → `GpsSample`; `vehicle_attitude` (the onboard EKF2,
 quaternion body→NED, w first) → the "onboard" reference. The topics are merged in timestamp
-order (at equal timestamps a magnetometer reading first, so the IMU sample carries it). pyulog
+order (at equal timestamps a magnetometer reading first, so the IMU sample carries it). The
+parameters (initial, then changed ones at their time) give EKF2_MAG_DECL (degrees) as a
+declination `GainChange`, else the WMM's at the first 3D fix (see `VehicleDeclination`). pyulog
 reads a damaged file up to the damage and flags corruption, but stops silently at a cut end;
 `CutWatch` finds where a cut message starts, and `damage` says either.
 """
@@ -21,6 +23,8 @@ import numpy as np
 import numpy.typing as npt
 from pyulog import ULog
 
+from gcs.core.declination import WMM_EPOCH, decimal_year
+from gcs.core.estimation import GainChange
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, MagSample, degE7_to_deg, mm_to_m, usec_to_s
 from gcs.logs.logfile import InputError, LogFile
@@ -33,8 +37,12 @@ MAG_TOPICS = ("vehicle_magnetometer", "sensor_mag")
 GPS_TOPICS = ("sensor_gps", "vehicle_gps_position")
 #: One topic's columns, as pyulog decodes them (field name → one array per field).
 Columns: TypeAlias = dict[str, npt.NDArray[np.generic]]
+#: A parameter change: name, value (PX4's own unit).
+Parameter: TypeAlias = tuple[str, float]
 #: A merged row: timestamp µs, rank at equal timestamps, topic, what it carries.
-Row: TypeAlias = tuple[int, int, str, ImuSample | MagSample | GpsSample | AttitudeSample]
+Row: TypeAlias = tuple[int, int, str, ImuSample | MagSample | GpsSample | AttitudeSample | Parameter]
+#: Row topic of a changed parameter.
+PARAMETER_ROW = "parameter"
 
 
 def imu_from_ulog_sensor_combined(
@@ -110,6 +118,11 @@ def _gps_rows(data: Columns, topic: str) -> Iterator[Row]:
         yield timestamp, 2, topic, gps_from_ulog(data, k, topic)
 
 
+def _parameter_rows(changed: list[tuple[int, str, float]]) -> Iterator[Row]:
+    for timestamp, name, value in changed:
+        yield timestamp, -1, PARAMETER_ROW, (name, float(value))
+
+
 def _attitude_rows(data: Columns) -> Iterator[Row]:
     q = _vectors(data, tuple(f"q[{i}]" for i in range(4)))
     for k, timestamp in enumerate(data["timestamp"].tolist()):
@@ -158,7 +171,7 @@ class UlogFile(LogFile):
     """Iterates the samples of a .ulg in timestamp order (see LogFile for what it reports);
     `imu` selects the sensor_combined instance (multi_id)."""
 
-    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample]:
+    def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         try:
             with open(self.path, "rb") as fh:
                 watch = CutWatch(fh)
@@ -193,12 +206,32 @@ class UlogFile(LogFile):
             self.notes.append(f"{self.path}: no {' or '.join(GPS_TOPICS)} topic: no GPS aiding")
         else:
             streams.append(_gps_rows(topics[gps_topic], gps_topic))
+        for name, value in ulog.initial_parameters.items():
+            change = self.declination.parameter(name, float(value))
+            if change is not None:
+                yield change
+        streams.append(_parameter_rows(ulog.changed_parameters))
+        utc = topics[gps_topic].get("time_utc_usec") if gps_topic is not None else None
         mag: MagSample | None = None
+        gps_row = 0
         for timestamp, _, topic, sample in heapq.merge(*streams, key=lambda row: row[:2]):
+            if isinstance(sample, tuple):
+                change = self.declination.parameter(*sample)
+                if change is not None:
+                    yield change
+                continue
             self._seen(topic, timestamp)
             if isinstance(sample, MagSample):
                 mag = sample
             elif isinstance(sample, ImuSample):
                 yield with_latest_mag(sample, mag)
+            elif isinstance(sample, GpsSample):
+                yield sample
+                if not self.declination.gps_fix:
+                    year = decimal_year(usec_to_s(int(utc[gps_row]))) if utc is not None and utc[gps_row] else WMM_EPOCH
+                    change = self.declination.fix(sample.fix_type, sample.lat, sample.lon, sample.alt, year)
+                    if change is not None:
+                        yield change
+                gps_row += 1
             else:
                 yield sample

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gcs.core.declination import WMM_EPOCH, decimal_year, wmm_declination
+from gcs.core.declination import WMM_EPOCH, VehicleDeclination, decimal_year
 from gcs.core.estimation import EstimationInput, GainChange
 from gcs.core.samples import (
     AttitudeSample,
@@ -266,18 +266,10 @@ class MessageSampler:
         return kind == self.imu_type
 
 
-#: Vehicle parameters holding the magnetic declination, and their unit → rad conversion.
-DECLINATION_PARAMS: dict[str, Callable[[float], float]] = {
-    "COMPASS_DEC": float,  # ArduPilot: radians
-    "EKF2_MAG_DECL": math.radians,  # PX4: degrees
-}
-
 #: Every message type that can become an estimation input.
 INPUT_TYPES = frozenset({*IMU_TYPES, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTATE", "PARAM_VALUE"})
 
 
-#: GPS_RAW_INT fix_type from which the position is good enough for the World Magnetic Model (3D).
-WMM_MIN_FIX = 3
 #: The vehicle clock going back by more than this (s) is a reboot.
 REBOOT_CLOCK_JUMP = 1.0
 #: A GPS_RAW_INT time_usec above this (2015-01-01 in µs) is UNIX time, not time since boot.
@@ -288,71 +280,52 @@ class MessageInputs:
     """One vehicle's messages → estimation inputs: its samples (`MessageSampler`) and a
     `GainChange` of every estimator's declination when it becomes known or changes.
 
-    The declination is the vehicle's own (COMPASS_DEC rad / EKF2_MAG_DECL deg, from any
-    PARAM_VALUE) when it has sent one; until then the World Magnetic Model's at the first 3D GPS
-    fix (`gcs.core.declination`), dated by `wall_time` (the tlog record time, so a live run and a
-    replay of its recording agree), else by GPS time when it is UNIX time, else the model's
-    epoch. A vehicle value of exactly 0 is the firmware default (ArduPilot's COMPASS_DEC before
-    its first GPS lock) and counts as unset: the WMM value wins over it. `declination_source`
-    says which: "vehicle COMPASS_DEC", "WMM at lat,lon" or "none".
-    `gps_fix` turns True at the first 3D fix (the station then asks for the parameters again:
-    ArduPilot sets COMPASS_DEC only after GPS lock).
+    The declination follows `VehicleDeclination`'s rule: COMPASS_DEC / EKF2_MAG_DECL from any
+    PARAM_VALUE, else the World Magnetic Model at the first 3D GPS fix (GPS_RAW_INT), dated by
+    `wall_time` (the tlog record time, so a live run and a replay of its recording agree), else
+    by GPS time when it is UNIX time, else the model's epoch. `gps_fix` turns True at the first
+    3D fix (the station then asks for the parameters again: ArduPilot sets COMPASS_DEC only after
+    GPS lock) and False again at a reboot.
     """
 
     def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
         self.sampler = MessageSampler(imu_type, system)
-        self.declination: float | None = None
-        self.declination_source = "none"
-        self.vehicle_declination: float | None = None  # the vehicle's own, non-zero value
-        self.wmm: tuple[float, str] | None = None  # (declination, source) at the first 3D fix
-        self.gps_fix = False
+        self.vehicle_declination = VehicleDeclination()
+
+    @property
+    def declination(self) -> float | None:
+        return self.vehicle_declination.value
+
+    @property
+    def declination_source(self) -> str:
+        return self.vehicle_declination.source
+
+    @property
+    def gps_fix(self) -> bool:
+        return self.vehicle_declination.gps_fix
 
     def feed(self, msg: MAVLinkMessage, wall_time: float | None = None) -> list[EstimationInput]:
         """The inputs msg gives, in order; `wall_time`: its host UNIX time as the tlog stores it (s)."""
         if msg.get_type() == "PARAM_VALUE":
-            change = self._vehicle_declination(msg)
+            if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:
+                return []
+            change = self.vehicle_declination.parameter(param_name(msg), float(msg.param_value))
             return [] if change is None else [change]
         clock = self.sampler.clock.latest
         before = clock.get(self.sampler.system) if self.sampler.system is not None else None
         out: list[EstimationInput] = list(self.sampler.feed(msg))
         after = clock.get(self.sampler.system) if self.sampler.system is not None else None
         if before is not None and after is not None and after < before - REBOOT_CLOCK_JUMP:
-            self.gps_fix = False  # a reboot: the next 3D fix is a new GPS lock
+            self.vehicle_declination.reboot()
         if msg.get_type() == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
             change = self._wmm_declination(msg, wall_time)
             if change is not None:
                 out.append(change)
         return out
 
-    def _set(self, value: float, source: str) -> GainChange | None:
-        self.declination_source = source
-        if value == self.declination:
-            return None
-        self.declination = value
-        return GainChange(None, "declination", value)
-
-    def _vehicle_declination(self, msg: MAVLinkMessage) -> GainChange | None:
-        if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:
-            return None
-        name = param_name(msg)
-        to_rad = DECLINATION_PARAMS.get(name)
-        if to_rad is None:
-            return None
-        value = to_rad(msg.param_value)
-        if not -math.pi <= value <= math.pi:
-            return None
-        if value == 0.0:  # the firmware default: not set yet (ArduPilot sets it after GPS lock)
-            self.vehicle_declination = None
-            if self.wmm is not None:
-                return self._set(*self.wmm)
-            return self._set(0.0, f"vehicle {name} = 0 (unset)")
-        self.vehicle_declination = value
-        return self._set(value, f"vehicle {name}")
-
     def _wmm_declination(self, msg: MAVLinkMessage, wall_time: float | None) -> GainChange | None:
-        if self.gps_fix or int(msg.fix_type) < WMM_MIN_FIX or (msg.lat == 0 and msg.lon == 0):
+        if self.vehicle_declination.gps_fix:
             return None
-        self.gps_fix = True
         if wall_time is not None:
             year = decimal_year(wall_time)
         elif msg.time_usec > UNIX_USEC_MIN:
@@ -360,7 +333,4 @@ class MessageInputs:
         else:
             year = WMM_EPOCH
         lat, lon = degE7_to_deg(msg.lat), degE7_to_deg(msg.lon)
-        self.wmm = (wmm_declination(lat, lon, mm_to_m(msg.alt), year), f"WMM at {lat:.4f},{lon:.4f}")
-        if self.vehicle_declination is not None:  # the vehicle's own value wins
-            return None
-        return self._set(*self.wmm)
+        return self.vehicle_declination.fix(int(msg.fix_type), lat, lon, mm_to_m(msg.alt), year)

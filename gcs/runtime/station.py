@@ -24,11 +24,11 @@ from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
+from gcs.core.declination import DECLINATION_PARAMS
 from gcs.core.estimation import AttitudePoint, EstimationPipeline, pipeline_from
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet, PresetFile
 from gcs.mavlink.ascii import SEED000, AsciiFormat
-from gcs.mavlink.sampling import DECLINATION_PARAMS
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog

@@ -270,7 +270,11 @@ def _decode_log(path: str) -> _Decoded:
     table = InputTableBuilder()
     for sample in log:
         table.append(sample)
+        if isinstance(sample, GainChange):  # untimed: goes with the next frame's inputs
+            continue
         frames.append(sample.t, -1, False, len(table))
+    if frames.t:
+        frames.input_end[-1] = len(table)
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
     return _Decoded(frames.build(), table.build(), dict(log.counts), log.damage, span=span)
 

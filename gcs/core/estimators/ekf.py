@@ -66,6 +66,9 @@ class EkfEstimator(AttitudeEstimator):
             Gain(
                 "gyro_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "gyro noise density, including unmodelled errors in motion"
             ),
+            Gain(
+                "heading_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "heading error growth in motion (gyro_noise, vertical)"
+            ),
             Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
             Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
             Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
@@ -89,7 +92,7 @@ class EkfEstimator(AttitudeEstimator):
         "default": {},
         # 25-50 Hz RAW_IMU streams: picking samples makes the gyro integration coarser, and real
         # airframes vibrate (measured on BROAD: docs/benchmarks.md)
-        "telemetry": {"gyro_noise": 0.02, "acc_noise": 0.5},
+        "telemetry": {"gyro_noise": 0.02, "heading_noise": 0.02, "acc_noise": 0.5},
     }
     DEFAULT_PRESET: ClassVar[str] = "default"
 
@@ -238,8 +241,9 @@ class EkfEstimator(AttitudeEstimator):
         np.matmul(F, self.P, out=self._FP)
         self.P = self._FP @ F.T
         sa = g["acc_noise"] * inflation
-        qg, qa, qb = g["gyro_noise"] ** 2 * dt, sa * sa * dt, g["bias_walk"] ** 2 * dt
-        self.P.reshape(-1)[::10] += (qg, qg, qg, qa, qa, qa, qb, qb, qb)  # the diagonal of P
+        qg, qh = g["gyro_noise"] ** 2 * dt, g["heading_noise"] ** 2 * dt
+        qa, qb = sa * sa * dt, g["bias_walk"] ** 2 * dt
+        self.P.reshape(-1)[::10] += (qg, qg, qh, qa, qa, qa, qb, qb, qb)  # the diagonal of P (δθ in NED)
 
     def _update(self, PHt: npt.NDArray[np.float64], S: list[list[float]], y: list[float]) -> list[list[float]]:
         """Optimal gain K = P Hᵀ S⁻¹, P ← P − K (P Hᵀ)ᵀ (symmetrised), and injection of K y into

@@ -134,6 +134,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             Gain(
                 "mag_time_sigma", 0.05, 0.0, 1.0, "s", "timing uncertainty of the field sample: yaw noise + (|ω|·σ_t)²"
             ),
+            Gain("mag_dt", 0.02, 0.0, 1.0, "s", "step the yaw noise is given per: faster steps get it × mag_dt/Δt"),
         )
         + MAG_GAINS
         + SHOCK_GAINS
@@ -148,6 +149,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         "accel_gate": 0.0,
         **MAG_OFF,
         "mag_time_sigma": 0.0,
+        "mag_dt": 0.0,
     }
     PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
     DEFAULT_PRESET = "telemetry"
@@ -327,6 +329,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         z0 = x[0] + wrap_pi(roll - x[0])
         if yaw is not None:
             r[2] += (spin * g["mag_time_sigma"]) ** 2
+            if dt < g["mag_dt"]:  # heading errors are correlated over mag_dt: more samples add no information
+                r[2] *= g["mag_dt"] / dt
             H, R, zc = self._H6, self._R6, self._z6
             zc[:, 0] = (z0, pitch, x[2] + wrap_pi(yaw - x[2]), *rates)
             R[_DIAG6] = r
