@@ -247,7 +247,7 @@ def test_the_dashboard_starts_from_a_preset_file(tmp_path, udp_port):
     the dashboard's gain listing shows them (a real Station, its real REST app)."""
     preset = PresetFile("dcm", "ardupilot", {"kp_rp": 0.37, "ki_rp": 0.02}, "from a sweep")
     station = Station(StationConfig(f"udpin:127.0.0.1:{udp_port}", presets=[preset]))
-    api = TestClient(create_app(station), base_url="http://127.0.0.1")
+    api = TestClient(create_app(station, token="t"), base_url="http://127.0.0.1")
     listing = {e["name"]: e for e in api.get("/api/estimators").json()}
     gains = {g["name"]: g["value"] for g in listing["dcm"]["gains"]}
     assert (gains["kp_rp"], gains["ki_rp"]) == (0.37, 0.02)
