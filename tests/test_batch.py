@@ -141,7 +141,16 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)
 
 
-@pytest.mark.parametrize("which", ["arducopter-sitl-hop.tlog", "arducopter-sitl-hop.BIN", "sim-1", "hop-cut.tlog"])
+SHARED_LOGS = [
+    "arducopter-sitl-hop.tlog",
+    "arducopter-sitl-hop.BIN",
+    "ardupilot-fragment.bin",
+    "arduplane-sitl-vtol.tlog",
+    "px4-flight-sample.ulg",
+]
+
+
+@pytest.mark.parametrize("which", [*SHARED_LOGS, "sim-1", "hop-cut.tlog"])  # every reader, every shared log
 def test_per_flight_figures_equal_gcs_replay(batch, flights, which):
     path = next(p for p in flights["good"] if Path(p).name == which)
     session = ReplaySession(open_source(path), 0, ["dcm"])
