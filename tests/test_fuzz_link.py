@@ -25,7 +25,7 @@ import time
 import httpx
 import psutil
 import websockets
-from live import running_sim, wait_for
+from live import running_sim, stop_process, wait_for
 from pymavlink.dialects.v20 import all as dialect
 from pymavlink.generator.mavcrc import x25crc
 
@@ -60,12 +60,7 @@ def test_fuzzed_link_never_stops_the_station(tmp_path):
         try:
             report = asyncio.run(asyncio.wait_for(scenario(udp_port, http_port, server.pid), 150))
         finally:
-            server.terminate()
-            try:
-                server.wait(20)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait(10)
+            stop_process(server, 20)
     stderr = err_path.read_text()
     print(f"\nfuzz report: {report}")
     assert "Traceback" not in stderr and "exception" not in stderr.lower(), stderr[-4000:]
