@@ -82,6 +82,16 @@ class StreamsSnapshot:
 
 
 @dataclass(frozen=True, slots=True)
+class AutopilotMessage:
+    """One STATUSTEXT: what the autopilot told the pilot (pre-arm failures, failsafes, arming)."""
+
+    wall_time: float
+    severity: int  # MAV_SEVERITY: 0 emergency … 7 debug
+    severity_name: str  # "EMERGENCY" … "DEBUG"
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleSnapshot:
     sysid: int | None
     compid: int | None
@@ -94,6 +104,23 @@ class VehicleSnapshot:
     firmware: str | None
     reboots: int
     heartbeats: int
+    #: flight mode by name (ArduPilot per vehicle type, PX4 main/sub mode; the number when unknown)
+    mode: str | None = None
+    battery_v: float | None = None
+    battery_a: float | None = None
+    battery_remaining_pct: int | None = None
+    #: SYS_STATUS sensors present and enabled but not healthy, by name
+    sensors_unhealthy: list[str] = field(default_factory=list)
+    gps_fix: str | None = None  # "3D", "RTK fixed", ...
+    gps_satellites: int | None = None
+    gps_hdop: float | None = None
+    #: EKF_STATUS_REPORT flags set, by name (ArduPilot), and the largest of its variances
+    ekf_flags: list[str] = field(default_factory=list)
+    ekf_variance_max: float | None = None
+    #: newest first
+    messages: list[AutopilotMessage] = field(default_factory=list)
+    #: GPS positions on a local grid, metres north and east of the first 3D fix, about one a second
+    track_ne_m: list[tuple[float, float]] = field(default_factory=list)
 
 
 @dataclass(frozen=True, slots=True)

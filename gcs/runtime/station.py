@@ -97,7 +97,7 @@ class Station:
             heartbeat_timeout=config.heartbeat_timeout,
             ascii_format=config.ascii_format,
         )
-        self.vehicle = VehicleState(self.link)
+        self.vehicle = VehicleState(self.link, events=self.events)
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.rebooted.connect(self.streams.request_again)
         self.params = ParamClient(self.link, self.vehicle, self.events)

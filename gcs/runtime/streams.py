@@ -26,6 +26,7 @@ STREAM_GROUPS = {
     "SCALED_IMU2": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     "SCALED_PRESSURE": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     "GPS_RAW_INT": mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    "SYS_STATUS": mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
     "ATTITUDE": mavlink.MAV_DATA_STREAM_EXTRA1,
     "AHRS2": mavlink.MAV_DATA_STREAM_EXTRA1,
     "SIMSTATE": mavlink.MAV_DATA_STREAM_EXTRA1,
@@ -46,6 +47,7 @@ MESSAGE_IDS = {
         "GPS_RAW_INT",
         "SCALED_PRESSURE",
         "AHRS",
+        "SYS_STATUS",
     )
 }
 
@@ -58,10 +60,16 @@ class StreamPlan:
     attitude_hz: float = 50.0
     gps_hz: float = 5.0
     aux_hz: float = 5.0  # barometer and onboard-AHRS health
+    status_hz: float = 1.0  # SYS_STATUS: battery and sensor health for the vehicle panel
 
     def for_autopilot(self, autopilot: str | None) -> dict[str, float]:
         if autopilot == "PX4":
-            return {"HIGHRES_IMU": self.imu_hz, "ATTITUDE": self.attitude_hz, "GPS_RAW_INT": self.gps_hz}
+            return {
+                "HIGHRES_IMU": self.imu_hz,
+                "ATTITUDE": self.attitude_hz,
+                "GPS_RAW_INT": self.gps_hz,
+                "SYS_STATUS": self.status_hz,
+            }
         return {
             "RAW_IMU": self.imu_hz,
             "SCALED_IMU2": self.imu_hz,
@@ -71,6 +79,7 @@ class StreamPlan:
             "GPS_RAW_INT": self.gps_hz,
             "SCALED_PRESSURE": self.aux_hz,
             "AHRS": self.aux_hz,
+            "SYS_STATUS": self.status_hz,
         }
 
 

@@ -1,14 +1,23 @@
-"""The vehicle as its heartbeats describe it, and reboot detection from its clock."""
+"""The vehicle as its messages describe it: heartbeat (mode, armed), SYS_STATUS (battery, sensor
+health), GPS_RAW_INT (fix, satellites, HDOP, the track on a local grid), EKF_STATUS_REPORT (the
+autopilot estimator's flags), STATUSTEXT (the autopilot's messages, also recorded in the session's
+event log); and reboot detection from its clock."""
 
 from __future__ import annotations
 
 import asyncio
+import math
+import time
+from collections import deque
 from dataclasses import dataclass, field
 
+from pymavlink import mavutil
+
 from gcs.mavlink.dialect import mavlink
+from gcs.runtime.events import EventLog
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
-from gcs.runtime.snapshots import VehicleSnapshot
+from gcs.runtime.snapshots import AutopilotMessage, VehicleSnapshot
 
 #: The vehicle clock going back by more than this (s) is a reboot, not jitter or reordering.
 REBOOT_JUMP = 1.0
@@ -20,9 +29,32 @@ _AUTOPILOTS = {
 }
 
 
+#: STATUSTEXT kept for the page (all of them go to the event log)
+MESSAGES_KEPT = 50
+#: track points kept (one a second: 15 minutes)
+TRACK_KEPT = 900
+EARTH_RADIUS_M = 6_371_000.0
+
+
 def enum_name(enum: str, value: int) -> str:
     entry = mavlink.enums.get(enum, {}).get(value)
     return entry.name if entry is not None else str(value)
+
+
+def flag_names(enum: str, bits: int, prefix: str) -> list[str]:
+    """The names of the bits set in `bits`, without the enum's common prefix."""
+    return [e.name.removeprefix(prefix) for v, e in mavlink.enums[enum].items() if v and v & bits and v & (v - 1) == 0]
+
+
+def flight_mode(autopilot: int, mav_type: int, base_mode: int, custom_mode: int) -> str | None:
+    """The mode's name as the firmware calls it (pymavlink's tables: ArduPilot per vehicle type,
+    PX4's main and sub mode); the number when the table does not have it."""
+    if not base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return None
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return mavutil.interpret_px4_mode(base_mode, custom_mode)
+    table = mavutil.mode_mapping_bynumber(mav_type) if autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else None
+    return (table or {}).get(custom_mode, f"mode {custom_mode}")
 
 
 @dataclass
@@ -39,6 +71,21 @@ class VehicleState:
     capabilities: int | None = None
     reboots: int = 0
     heartbeats: int = 0
+    mode: str | None = None
+    events: EventLog | None = None
+    battery_v: float | None = None
+    battery_a: float | None = None
+    battery_remaining_pct: int | None = None
+    sensors_unhealthy: list[str] = field(default_factory=list)
+    gps_fix: str | None = None
+    gps_satellites: int | None = None
+    gps_hdop: float | None = None
+    ekf_flags: list[str] = field(default_factory=list)
+    ekf_variance_max: float | None = None
+    messages: deque[AutopilotMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
+    track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_KEPT))
+    _origin: tuple[float, float] | None = None
+    _last_track: float = -math.inf
     _last_boot_time: float | None = None
     #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
     rebooted: Signal[[]] = field(default_factory=Signal)
@@ -64,6 +111,26 @@ class VehicleState:
             self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             self.custom_mode = msg.custom_mode
             self.system_status = enum_name("MAV_STATE", msg.system_status)
+            self.mode = flight_mode(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode)
+        elif item.type == "SYS_STATUS":
+            self.battery_v = None if msg.voltage_battery == 0xFFFF else msg.voltage_battery / 1000.0
+            self.battery_a = None if msg.current_battery < 0 else msg.current_battery / 100.0
+            self.battery_remaining_pct = None if msg.battery_remaining < 0 else msg.battery_remaining
+            bad = msg.onboard_control_sensors_present & msg.onboard_control_sensors_enabled
+            bad &= ~msg.onboard_control_sensors_health
+            self.sensors_unhealthy = flag_names("MAV_SYS_STATUS_SENSOR", bad, "MAV_SYS_STATUS_")
+        elif item.type == "GPS_RAW_INT":
+            self.gps_fix = enum_name("GPS_FIX_TYPE", msg.fix_type).removeprefix("GPS_FIX_TYPE_").replace("_", " ")
+            self.gps_satellites = None if msg.satellites_visible == 255 else msg.satellites_visible
+            self.gps_hdop = None if msg.eph == 0xFFFF else msg.eph / 100.0
+            if msg.fix_type >= mavlink.GPS_FIX_TYPE_3D_FIX:
+                self._track(msg.lat / 1e7, msg.lon / 1e7)
+        elif item.type == "EKF_STATUS_REPORT":
+            self.ekf_flags = flag_names("EKF_STATUS_FLAGS", msg.flags, "EKF_")
+            variances = (msg.velocity_variance, msg.pos_horiz_variance, msg.pos_vert_variance, msg.compass_variance)
+            self.ekf_variance_max = max(variances)
+        elif item.type == "STATUSTEXT":
+            self._statustext(msg.severity, msg.text)
         elif item.type == "AUTOPILOT_VERSION":
             v = msg.flight_sw_version
             self.firmware = f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}"
@@ -75,6 +142,27 @@ class VehicleState:
                 self.link._event("state", f"vehicle rebooted (clock {last:.1f} s -> {item.vehicle_time:.1f} s)")
                 asyncio.get_running_loop().call_soon(self.rebooted.emit)
             self._last_boot_time = item.vehicle_time
+
+    def _track(self, lat: float, lon: float) -> None:
+        """Metres north and east of the first 3D fix (equirectangular: exact to well under a
+        metre over the few kilometres of a test field), at most one point a second."""
+        now = time.monotonic()
+        if now - self._last_track < 1.0:
+            return
+        self._last_track = now
+        if self._origin is None:
+            self._origin = (lat, lon)
+        lat0, lon0 = self._origin
+        north = math.radians(lat - lat0) * EARTH_RADIUS_M
+        east = math.radians(lon - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+        self.track.append((round(north, 2), round(east, 2)))
+
+    def _statustext(self, severity: int, text: str) -> None:
+        text = text.rstrip("\x00").strip()
+        name = enum_name("MAV_SEVERITY", severity).removeprefix("MAV_SEVERITY_")
+        self.messages.appendleft(AutopilotMessage(time.time(), severity, name, text))
+        if self.events is not None:
+            self.events.record("statustext", "vehicle", severity=severity, severity_name=name, text=text)
 
     def snapshot(self) -> VehicleSnapshot:
         return VehicleSnapshot(
@@ -89,4 +177,16 @@ class VehicleState:
             firmware=self.firmware,
             reboots=self.reboots,
             heartbeats=self.heartbeats,
+            mode=self.mode,
+            battery_v=self.battery_v,
+            battery_a=self.battery_a,
+            battery_remaining_pct=self.battery_remaining_pct,
+            sensors_unhealthy=list(self.sensors_unhealthy),
+            gps_fix=self.gps_fix,
+            gps_satellites=self.gps_satellites,
+            gps_hdop=self.gps_hdop,
+            ekf_flags=list(self.ekf_flags),
+            ekf_variance_max=self.ekf_variance_max,
+            messages=list(self.messages),
+            track_ne_m=list(self.track),
         )

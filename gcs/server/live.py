@@ -3,7 +3,8 @@
 Every AttitudePoint (references and estimators) arrives through the `LiveEstimation.points` signal, in the
 event loop, and goes to two places, both O(1) per point and never awaiting anyone:
 * the **store**: per source a preallocated ring of the last `seconds × max_rate` samples, so a page
-  opened now fills its window at once (`GET /api/history`) and memory never grows;
+  opened now fills its window at once (`GET /api/history`: every sample, or min/max per plot column
+  for a long window, with the estimator errors computed as the page does) and memory never grows;
 * the **pending frame**: flushed at most every `frame_interval` (10 ms), encoded to JSON once and
   offered to each client's own bounded queue (`ClientFeed`, `client_max_frames`), sent by the client's
   own task. A client that stops reading loses its oldest frames, counted for it alone; the others and
@@ -26,34 +27,46 @@ from gcs.core.estimation import AttitudePoint
 from gcs.runtime.dropqueue import DropOldestQueue
 
 DEG = 180.0 / math.pi
+#: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.vehicle).
+REBOOT_JUMP = 1.0
+#: References an estimator's error history is computed against (as the page's error plots).
+ERROR_REFERENCES = ("onboard", "truth")
 
 
 class SeriesRing:
     """The last `capacity` samples of one source: vehicle time (s, float64) and roll, pitch,
-    yaw (degrees, float32), preallocated and touched at creation so its memory is fixed."""
+    yaw (degrees, float32), preallocated and touched at creation so its memory is fixed.
+    `boot_start` counts the samples written before the vehicle clock last went back by more
+    than `REBOOT_JUMP` (a reboot): history serves only the current boot."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
         self.t = np.full(capacity, np.nan)
         self.rpy = np.full((capacity, 3), np.nan, dtype=np.float32)
         self.count = 0  # samples ever written
+        self.boot_start = 0
+
+    def last_t(self) -> float:
+        return float(self.t[(self.count - 1) % self.capacity]) if self.count else -math.inf
 
     def append(self, t: float, roll: float, pitch: float, yaw: float) -> None:
+        if t < self.last_t() - REBOOT_JUMP:
+            self.boot_start = self.count
         i = self.count % self.capacity
         self.t[i] = t
         self.rpy[i] = (roll, pitch, yaw)
         self.count += 1
 
     def ordered(self) -> tuple[np.ndarray, np.ndarray]:
-        """Times and angles, oldest first."""
-        n = min(self.count, self.capacity)
-        start = self.count % self.capacity if self.count > self.capacity else 0
-        idx = (np.arange(n) + start) % self.capacity
+        """Times and angles of the current boot, oldest first."""
+        first = max(self.boot_start, self.count - self.capacity)
+        idx = np.arange(first, self.count) % self.capacity
         return self.t[idx], self.rpy[idx]
 
-    def since(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    def between(self, t0: float, t1: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Samples with t0 < t <= t1 (strictly after t0: `since` asks for what follows a known sample)."""
         t, rpy = self.ordered()
-        keep = t >= t0
+        keep = (t > t0) & (t <= t1)
         return t[keep], rpy[keep]
 
 
@@ -216,15 +229,109 @@ class LiveHub:
         """Seconds since the newest point arrived (None before the first)."""
         return None if self.last_arrival is None else time.monotonic() - self.last_arrival
 
-    def history(self, seconds: float) -> dict[str, list[list[float]]]:
-        """Per source, the samples of the last `seconds` of vehicle time, columnar like a frame."""
-        newest = max(
-            (ring.t[(ring.count - 1) % ring.capacity] for ring in self.store.values() if ring.count), default=None
-        )
+    def newest(self) -> float | None:
+        """The vehicle time of the newest sample of the current boot (None before the first)."""
+        return max((ring.last_t() for ring in self.store.values() if ring.count), default=None)
+
+    def history(
+        self, seconds: float, since: float | None = None, columns: int | None = None, estimators: tuple[str, ...] = ()
+    ) -> HistorySlice:
+        """The last `seconds` of vehicle time (or everything after `since`), per source and per
+        estimator − reference error (`ERROR_REFERENCES`), columnar like a frame. With `columns`,
+        a window holding more than two samples per column in any series is reduced to min and max
+        per column (see `decimate`), so a 10-minute window costs what the plot can show."""
+        newest = self.newest()
         if newest is None:
-            return {}
-        out = {}
-        for source, ring in self.store.items():
-            t, rpy = ring.since(newest - seconds)
-            out[source] = [np.round(t, 6).tolist(), *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
-        return out
+            return HistorySlice(seconds, 0.0, {}, {})
+        t0 = newest - seconds if since is None else since
+        raw = {source: ring.between(t0) for source, ring in self.store.items()}
+        errors = {
+            f"{est}|{ref}": error_series(raw[est], raw[ref])
+            for est in estimators
+            if est in raw
+            for ref in ERROR_REFERENCES
+            if ref in raw
+        }
+        series = {**raw, **errors}
+        dt = 0.0
+        if columns and any(len(t) > 2 * columns for t, _ in series.values()):
+            dt = (newest - t0) / columns
+            series = {name: decimate(t, rpy, dt) for name, (t, rpy) in series.items()}
+        cols = {name: columnar(t, rpy) for name, (t, rpy) in series.items()}
+        return HistorySlice(seconds, dt, {k: cols[k] for k in raw}, {k: cols[k] for k in errors})
+
+
+@dataclass(frozen=True, slots=True)
+class HistorySlice:
+    """What GET /api/history answers: per source and per "estimator|reference" error
+    [times, roll, pitch, yaw] (s, degrees), oldest first; `resolution_s` 0 for every sample,
+    else the width of the min/max columns."""
+
+    seconds: float
+    resolution_s: float
+    points: dict[str, list[list[float]]]
+    errors: dict[str, list[list[float]]]
+
+
+def columnar(t: np.ndarray, rpy: np.ndarray) -> list[list[float]]:
+    return [np.round(t, 6).tolist(), *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
+
+
+def wrap180(d: np.ndarray) -> np.ndarray:
+    return (d + 540.0) % 360.0 - 180.0
+
+
+Columns = tuple[np.ndarray, np.ndarray]  # times (s) and [roll, pitch, yaw] (degrees)
+
+
+def error_series(est: Columns, ref: Columns) -> Columns:
+    """Estimator − reference at each reference time the estimator brackets, the estimator
+    interpolated there along the shorter way round, each axis wrapped to ±180° (degrees): the
+    page's own live rule (plots.js ErrorSeries), so history and live errors join without a seam."""
+    te, ve = est
+    tr, vr = ref
+    if len(te) < 2 or not len(tr):
+        return np.empty(0), np.empty((0, 3), dtype=np.float32)
+    keep = (tr >= te[0]) & (tr <= te[-1])
+    tr, vr = tr[keep], vr[keep].astype(float)
+    k = np.clip(np.searchsorted(te, tr), 1, len(te) - 1)
+    span = te[k] - te[k - 1]
+    u = np.where(span > 0, (tr - te[k - 1]) / np.where(span > 0, span, 1.0), 1.0)[:, None]
+    v0, v1 = ve[k - 1].astype(float), ve[k].astype(float)
+    v = v0 + u * wrap180(v1 - v0)
+    return tr, wrap180(v - vr).astype(np.float32)
+
+
+def decimate(t: np.ndarray, rpy: np.ndarray, dt: float) -> Columns:
+    """Min and max per axis in each column [c·dt, (c+1)·dt) of an absolute grid, in the order
+    they happened, at the column's quarter and three-quarter times: the page's own drawing rule
+    (plots.js Binner), so a one-sample spike survives any window. Every series shares the grid."""
+    if not len(t):
+        return t, rpy
+    col = np.floor(t / dt).astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, col[1:] != col[:-1]])
+    out = np.empty((2 * len(starts), 3), dtype=np.float32)
+    for axis in range(3):
+        v = rpy[:, axis]
+        lo = np.minimum.reduceat(v, starts)
+        hi = np.maximum.reduceat(v, starts)
+        # which came first in each column: the index of the min vs the max
+        i_lo = _arg_reduceat(v, starts, lo)
+        i_hi = _arg_reduceat(v, starts, hi)
+        first_min = i_lo <= i_hi
+        out[0::2, axis] = np.where(first_min, lo, hi)
+        out[1::2, axis] = np.where(first_min, hi, lo)
+    cols = col[starts].astype(float)
+    times = np.empty(2 * len(starts))
+    times[0::2] = (cols + 0.25) * dt
+    times[1::2] = (cols + 0.75) * dt
+    return times, out
+
+
+def _arg_reduceat(v: np.ndarray, starts: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Per segment, the first index where v equals that segment's target value."""
+    seg = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(v)]))
+    hit = np.flatnonzero(v == target[seg])
+    first = np.full(len(starts), len(v))
+    np.minimum.at(first, seg[hit], hit)
+    return first

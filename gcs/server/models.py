@@ -129,10 +129,13 @@ class PresetResult(BaseModel):
 
 
 class History(BaseModel):
-    """Per source [times, roll, pitch, yaw] (s, degrees), oldest first."""
+    """Per source [times, roll, pitch, yaw] (s, degrees), oldest first, and the same per
+    "estimator|reference" error (estimator − reference, degrees, wrapped to ±180°)."""
 
     seconds: float
+    resolution_s: float = Field(description="0: every sample; else the width (s) of the min/max columns")
     points: dict[str, list[list[float]]]
+    errors: dict[str, list[list[float]]]
 
 
 class ProtocolStart(BaseModel):

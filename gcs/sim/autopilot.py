@@ -273,6 +273,28 @@ class Autopilot:
             *truth.euler, *map(float, truth.specific_force), *map(float, truth.omega_body), _deg_e7(lat), _deg_e7(lon)
         )
 
+    def with_heartbeat(self, t: float) -> list:
+        """Sent once a second after HEARTBEAT, outside the requested streams: ArduPilot's
+        EKF_STATUS_REPORT (flags of a healthy EKF3 with a 3D fix, small variances); PX4 has none."""
+        if self.profile.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA or self.profile.imu_count < 2:
+            return []
+        flags = (
+            mavlink.EKF_ATTITUDE
+            | mavlink.EKF_VELOCITY_HORIZ
+            | mavlink.EKF_VELOCITY_VERT
+            | mavlink.EKF_POS_HORIZ_REL
+            | mavlink.EKF_POS_HORIZ_ABS
+            | mavlink.EKF_POS_VERT_ABS
+            | mavlink.EKF_PRED_POS_HORIZ_REL
+            | mavlink.EKF_PRED_POS_HORIZ_ABS
+        )
+        return [mavlink.MAVLink_ekf_status_report_message(flags, 0.05, 0.08, 0.06, 0.03, 0.0)]
+
+    @staticmethod
+    def statustext(severity: int, text: str):
+        """A STATUSTEXT as ArduPilot sends it (e.g. "Arming motors"): 50 bytes, NUL-padded."""
+        return mavlink.MAVLink_statustext_message(severity, text.encode()[:50])
+
     def _autopilot_version(self, t: float):
         p = self.profile
         vendor, product, uid = 0x1209, 0x5741, 0x5349_4D00_0001  # pid.codes open-source ids; "SIM" uid

@@ -167,6 +167,8 @@ class SimVehicle:
                 self.autopilot.gps_tick(due)
             else:
                 out.append(self._encode(self.autopilot.build(stream.name, due)))
+                if stream.name == "HEARTBEAT":
+                    out += [self._encode(m) for m in self.autopilot.with_heartbeat(due)]
         self.t = max(self.t, t)
         return out
 
@@ -292,6 +294,8 @@ class SimVehicle:
         if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             self.autopilot.armed = msg.param1 >= 0.5
             result = mavlink.MAV_RESULT_ACCEPTED
+            text = "Arming motors" if self.armed else "Disarming motors"
+            extra = [self.autopilot.statustext(mavlink.MAV_SEVERITY_INFO, text)]
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and p.message_intervals:
             result = self._set_message_interval(int(msg.param1), msg.param2)
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL and p.message_intervals:

@@ -4,7 +4,7 @@
 
 const $ = (id) => document.getElementById(id);
 // For tests and the curious: samples received over the WebSocket per source, frames, fps.
-const gcsStats = (window.gcsStats = { received: {}, messages: 0, fps: 0, dropped: 0, client: null, lastFrameAt: 0 });
+const gcsStats = (window.gcsStats = { received: {}, messages: 0, fps: 0, dropped: 0, client: null, lastFrameAt: 0, historyLoads: 0 });
 let plots = null;
 
 async function api(method, path, body) {
@@ -33,20 +33,38 @@ function onMessage(msg) {
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
 
-async function loadHistory(seconds) {
-  const h = await api("GET", `/api/history?seconds=${seconds}`);
-  plots.load(h.points);
+// History into the plots (merged, never a restart): `seconds` back from the newest sample at the
+// resolution the plots can show (the server sends min/max per column when a window holds more), or
+// every sample after `since` (a reconnect's gap).
+async function loadHistory({ seconds = 60, since = null } = {}) {
+  const columns = Math.max(100, Math.round(plots.charts[0].u.bbox.width / devicePixelRatio));
+  const query = since == null ? `seconds=${seconds}&columns=${columns}` : `since=${since}`;
+  plots.load(await api("GET", `/api/history?${query}`));
+  gcsStats.historyLoads++;
+}
+
+async function catchUp() {
+  const newest = plots.newest();
+  if (Number.isFinite(newest)) { await loadHistory({ since: newest - 1 }); return; }  // reconnect: the gap
+  await loadHistory({ seconds: KEEP_S });  // a new page: the whole store, coarse ...
+  await loadHistory({ seconds: plots.window });  // ... and the window at its own resolution
 }
 
 function connect() {
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/live`);
+  const ws = (window.gcsWs = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/live`));
   let queue = [];  // frames that arrive while the history loads, applied after it
   ws.onopen = async () => {
-    try { await loadHistory(plots.window); } catch (e) { console.warn("history:", e.message); }
+    try { await catchUp(); } catch (e) { console.warn("history:", e.message); }
     queue.forEach(onMessage); queue = null;
   };
   ws.onmessage = (ev) => { const msg = JSON.parse(ev.data); if (queue) queue.push(msg); else onMessage(msg); };
   ws.onclose = () => setTimeout(connect, 1000);
+}
+
+function showRestart(r) {
+  const note = document.createElement("div");
+  note.textContent = `⟲ vehicle rebooted at ${r.at.toLocaleTimeString()} (its clock went from ${r.from.toFixed(1)} s back to ${r.to.toFixed(1)} s): plots started again`;
+  $("plot-notes").prepend(note);
 }
 
 // ---- status --------------------------------------------------------------------------------
@@ -153,17 +171,14 @@ function buildGains(estimators) {
 // ---- start ---------------------------------------------------------------------------------
 async function main() {
   const estimators = await api("GET", "/api/estimators");
-  plots = new Plots($("charts"), estimators.map((e) => e.name));
+  plots = new Plots($("charts"), estimators.map((e) => e.name), showRestart);
   window.gcsPlots = plots;
   window.gcsCount = (source, t0, t1) => plots.sources[source] ? plots.sources[source].count(t0, t1) : 0;
   buildGains(estimators);
   $("window").addEventListener("change", async (ev) => {
     const seconds = Number(ev.target.value);
     plots.setWindow(seconds);
-    const s = Object.values(plots.sources).find((x) => x.t.length);
-    if (s && plots.newest() - s.t[0] < seconds - 1) {  // not enough kept yet: fetch the rest
-      try { await loadHistory(seconds); } catch (e) { console.warn("history:", e.message); }
-    }
+    try { await loadHistory({ seconds }); } catch (e) { console.warn("history:", e.message); }
   });
   $("pause").addEventListener("click", () => plots.togglePause());
   connect();

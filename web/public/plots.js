@@ -2,6 +2,11 @@
 // draws the visible window reduced to min and max per pixel column, so a one-sample spike is
 // never hidden, at any window length. Columns sit on an absolute time grid, so a live view only
 // bins the samples that arrived since the previous frame.
+// History (GET /api/history) is merged in, never a reason to start again: every sample fills a gap
+// (a page opened late, a reconnect), min/max columns of a long window fill only what lies before the
+// first sample this page holds one by one. Error traces over history come from the server (the same
+// rule as ErrorSeries). Only the vehicle clock going back in a live frame (a reboot) restarts the
+// plots, and the page says so. Yaw lines never cross the ±180° wrap.
 "use strict";
 
 const KEEP_S = 620;           // seconds of samples kept per source (10 min window + margin)
@@ -12,12 +17,17 @@ const COLORS = window.GCS_COLORS;  // from the server (gcs/server/colors.py), sh
 const DASH = { onboard: [], truth: [6, 3] };
 
 // A time series: t and [roll, pitch, yaw] arrays; `base` counts samples trimmed from the front,
-// so absolute index i lives at i - base.
+// so absolute index i lives at i - base. Samples before `rawFrom` are min/max columns of a long
+// history; from `rawFrom` on, every sample.
 class Series {
-  constructor() { this.t = []; this.v = [[], [], []]; this.base = 0; }
+  constructor() { this.clear(); }
+  clear() { this.t = []; this.v = [[], [], []]; this.base = 0; this.rawFrom = Infinity; }
   get end() { return this.base + this.t.length; }
   last() { return this.t.length ? this.t[this.t.length - 1] : -Infinity; }
-  push(t, r, p, y) { this.t.push(t); this.v[0].push(r); this.v[1].push(p); this.v[2].push(y); }
+  push(t, r, p, y) {
+    if (this.rawFrom === Infinity) this.rawFrom = t;
+    this.t.push(t); this.v[0].push(r); this.v[1].push(p); this.v[2].push(y);
+  }
   trim(t0) {
     let n = 0; while (n < this.t.length && this.t[n] < t0) n++;
     if (n > 1000 || (n && n === this.t.length)) {
@@ -30,6 +40,35 @@ class Series {
     return lo + this.base;
   }
   count(t0, t1) { return this.firstAtOrAfter(t1 + 1e-9) - this.firstAtOrAfter(t0); }
+  // Every-sample history [[t...],[r...],[p...],[y...]]: the union by time with what is held (a
+  // sample already held is not doubled); it replaces min/max columns from its first sample on.
+  mergeRaw(cols) {
+    const [ht] = cols;
+    if (!ht.length) return;
+    const from = Math.min(this.rawFrom, ht[0]);
+    const out = [[], [], [], []];
+    let i = 0, j = 0;
+    const take = (src, k) => { for (let a = 0; a < 4; a++) out[a].push(src[a][k]); };
+    const mine = [this.t, ...this.v];
+    while (i < this.t.length && this.t[i] < this.rawFrom && this.t[i] < from) take(mine, i++);  // older columns
+    while (i < this.t.length && this.t[i] < this.rawFrom) i++;  // columns the samples replace
+    while (i < this.t.length || j < ht.length) {
+      if (j >= ht.length || (i < this.t.length && this.t[i] <= ht[j])) {
+        if (j < ht.length && Math.abs(this.t[i] - ht[j]) < 1e-6) j++;
+        take(mine, i++);
+      } else take(cols, j++);
+    }
+    this.replace(out, from);
+  }
+  // Min/max-column history: it fills only what lies before the first sample held one by one.
+  mergeColumns(cols) {
+    const [ht] = cols, out = [[], [], [], []];
+    for (let j = 0; j < ht.length && ht[j] < this.rawFrom; j++) for (let a = 0; a < 4; a++) out[a].push(cols[a][j]);
+    const k = this.firstAtOrAfter(this.rawFrom) - this.base;
+    for (let i = k; i < this.t.length; i++) { out[0].push(this.t[i]); for (let a = 0; a < 3; a++) out[a + 1].push(this.v[a][i]); }
+    this.replace(out, this.rawFrom);
+  }
+  replace(cols, rawFrom) { this.t = cols[0]; this.v = cols.slice(1); this.rawFrom = rawFrom; }
 }
 
 const wrap180 = (d) => ((d + 540) % 360) - 180;
@@ -38,10 +77,13 @@ const wrap180 = (d) => ((d + 540) % 360) - 180;
 // same scoring as gcs.estimators.compare), computed as soon as the estimator has passed it.
 class ErrorSeries extends Series {
   constructor(est, ref) { super(); this.est = est; this.ref = ref; this.next = 0; }
+  // After history was merged: carry on from the reference sample after the last error held.
+  resync() { this.next = this.ref.firstAtOrAfter(this.last() + 1e-9); }
   update() {
     const est = this.est, ref = this.ref;
     if (!est.t.length) return;
-    this.next = Math.max(this.next, ref.base, est.t.length ? ref.firstAtOrAfter(est.t[0]) : 0);
+    // never over min/max columns (their errors come with the history), nor before the estimator starts
+    this.next = Math.max(this.next, ref.base, ref.firstAtOrAfter(Math.max(ref.rawFrom, est.rawFrom, est.t[0])));
     const tEst = est.last();
     while (this.next < ref.end) {
       const i = this.next - ref.base, t = ref.t[i];
@@ -97,27 +139,46 @@ class Binner {
   }
 }
 
+// Pixel spans between consecutive drawn points of a yaw line that jump by more than 180°: the
+// angle wrapped (±180°), it did not swing across the chart, so no line is drawn there.
+function wrapGaps(u, si, i0, i1, nullGaps) {
+  const xs = u.data[0], ys = u.data[si], gaps = nullGaps.slice();
+  let prev = -1;
+  for (let i = i0; i <= i1; i++) {
+    if (ys[i] == null) continue;
+    if (prev >= 0 && Math.abs(ys[i] - ys[prev]) > 180) {
+      gaps.push([Math.round(u.valToPos(xs[prev], "x", true)) + 1, Math.round(u.valToPos(xs[i], "x", true)) - 1]);
+    }
+    prev = i;
+  }
+  return gaps.sort((a, b) => a[0] - b[0]);
+}
+
 // One uPlot chart of one axis for a list of series.
 class Chart {
-  constructor(parent, title, lines, axis, hooks) {
+  constructor(parent, title, lines, axis, hooks, yLabel) {
     this.lines = lines; this.axis = axis; this.key = "";
     const box = document.createElement("div"); box.className = "chart";
     box.innerHTML = `<h3>${title}</h3>`; parent.appendChild(box);
+    this.box = box;
     const opts = {
-      width: Math.max(300, parent.clientWidth - 4), height: 150,
+      width: this.widthFor(parent), height: Plots.chartHeight(),
       scales: { x: { time: false } },
       cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
       legend: { live: true },
       series: [{ label: "vehicle t (s)", value: (u, v) => v == null ? "–" : v.toFixed(3) },
         ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: true,
+                               gaps: axis === 2 ? wrapGaps : undefined,
                                points: { show: false }, value: (u, v) => v == null ? "–" : v.toFixed(2) + "°" }))],
-      axes: [{}, { size: 50, values: (u, ticks) => ticks.map((t) => t + "°") }],
+      axes: [{ label: "vehicle time (s)", labelSize: 14, size: 30 },
+        { size: 50, label: yLabel, labelSize: 14, values: (u, ticks) => ticks.map((t) => t + "°") }],
       hooks: { setSelect: [(u) => hooks.select(u)] },
     };
     this.u = new uPlot(opts, [[], ...lines.map(() => [])], box);
     this.u.over.addEventListener("dblclick", hooks.live);
     this.binners = lines.map((l) => new Binner(l.series, axis, 8192));
   }
+  widthFor(parent) { return Math.max(200, parent.clientWidth - 4); }
   draw(t0, t1, live) {
     const ncols = Math.max(50, Math.round(this.u.bbox.width / devicePixelRatio)), dt = (t1 - t0) / ncols;
     const key = `${dt}|${live ? "" : t0}`;
@@ -129,36 +190,39 @@ class Chart {
     for (const b of this.binners) { b.update(t1); const ys = new Array(2 * n); b.fill(c0, n, ys); data.push(ys); }
     this.u.batch(() => { this.u.setData(data); this.u.setScale("x", { min: t0, max: t1 }); });
   }
-  resize(width) { this.u.setSize({ width: Math.max(300, width - 4), height: 150 }); }
+  resize(parent) { this.u.setSize({ width: this.widthFor(parent), height: Plots.chartHeight() }); this.key = ""; }
 }
 
 // Everything the page plots: the sources, the error series, six charts and the draw loop.
 class Plots {
-  constructor(parent, estimators) {
-    this.parent = parent; this.estimators = estimators;
+  // Six charts share the height left under the header on a laptop; a phone scrolls them.
+  static chartHeight() { return innerWidth < 700 ? 130 : Math.max(80, Math.min(150, Math.floor((innerHeight - 250) / 6) - 28)); }
+  constructor(parent, estimators, onRestart) {
+    this.parent = parent; this.estimators = estimators; this.onRestart = onRestart || (() => {});
     this.sources = {}; this.errors = [];
     for (const s of [...REFERENCES, ...estimators]) this.sources[s] = new Series();
     for (const e of estimators) for (const r of ERROR_REFERENCES)
       this.errors.push({ name: `${e} − ${r}`, e, r, series: new ErrorSeries(this.sources[e], this.sources[r]) });
     this.window = 30; this.paused = false; this.view = null;  // view: {t0, t1} when zoomed or paused
     this.dirty = true; this.frames = 0; this.fps = 0; this.nextDraw = 0; this.drawStart = null;
+    this.restarts = [];
     this.build();
-    addEventListener("resize", () => { for (const c of this.charts) c.resize(this.parent.clientWidth); this.dirty = true; });
+    addEventListener("resize", () => { for (const c of this.charts) c.resize(this.parent); this.dirty = true; });
     requestAnimationFrame((ts) => this.frame(ts));
     setInterval(() => { this.fps = this.frames; this.frames = 0; this.trim(); }, 1000);
   }
   build() {
     this.parent.innerHTML = "";
     const hooks = { select: (u) => this.zoom(u), live: () => this.goLive() };
-    const srcLines = Object.keys(this.sources).map((s) => ({ label: s, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
-    const errLines = this.errors.map((x) => ({ label: x.name, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
+    const srcLines = Object.keys(this.sources).map((s) => ({ label: `${s} (°)`, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
+    const errLines = this.errors.map((x) => ({ label: `${x.name} (°)`, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
     this.charts = [
-      ...AXES.map((a, i) => new Chart(this.parent, a, srcLines, i, hooks)),
-      ...AXES.map((a, i) => new Chart(this.parent, `${a} error (estimator − reference; dashed: − truth)`, errLines, i, hooks)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} (degrees)`, srcLines, i, hooks, `${a} (°)`)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} error, degrees (estimator − reference; solid: − onboard, dashed: − truth)`, errLines, i, hooks, `${a} error (°)`)),
     ];
   }
   newest() { let t = -Infinity; for (const s of Object.values(this.sources)) t = Math.max(t, s.last()); return t; }
-  // Append samples [[t...],[r...],[p...],[y...]] of a source; returns how many were new.
+  // Append live samples [[t...],[r...],[p...],[y...]] of a source; returns how many were new.
   add(source, cols) {
     let s = this.sources[source];
     if (!s) return 0;
@@ -166,34 +230,28 @@ class Plots {
     let n = 0;
     for (let i = 0; i < ts.length; i++) {
       if (ts[i] <= s.last()) {
-        if (ts[i] < s.last() - 5) { this.restart(); s = this.sources[source]; } else continue;  // vehicle clock went back: reboot
+        if (ts[i] < s.last() - 5) { this.restart(s.last(), ts[i]); } else continue;  // vehicle clock went back: reboot
       }
       s.push(ts[i], r[i], p[i], y[i]); n++;
     }
     if (n) this.dirty = true;
     return n;
   }
-  // Merge history (same columns as add) into the series, older samples included; the error
-  // series and the charts are then rebuilt over the merged data.
-  load(points) {
-    for (const [source, cols] of Object.entries(points)) {
-      const old = this.sources[source];
-      if (!old) continue;
-      const first = old.t.length ? old.t[0] : Infinity, merged = new Series();
-      for (let i = 0; i < cols[0].length && cols[0][i] < first; i++) merged.push(cols[0][i], cols[1][i], cols[2][i], cols[3][i]);
-      for (let i = 0; i < old.t.length; i++) merged.push(old.t[i], old.v[0][i], old.v[1][i], old.v[2][i]);
-      this.sources[source] = merged;
-      this.add(source, cols);
-    }
-    this.rebuild();
+  // Merge a GET /api/history answer: sources and errors, in place (the charts keep their series).
+  load(h) {
+    const merge = (series, cols) => { if (series && cols) (h.resolution_s ? series.mergeColumns(cols) : series.mergeRaw(cols)); };
+    for (const [source, cols] of Object.entries(h.points)) merge(this.sources[source], cols);
+    for (const x of this.errors) merge(x.series, (h.errors || {})[`${x.e}|${x.r}`]);
+    for (const x of this.errors) x.series.resync();
+    for (const c of this.charts) c.key = "";  // indices moved: bin again
+    this.dirty = true;
   }
-  restart() {  // a new vehicle session: start every series afresh
-    for (const k of Object.keys(this.sources)) this.sources[k] = new Series();
-    this.rebuild();
-  }
-  rebuild() {
-    this.errors = this.errors.map((x) => ({ ...x, series: new ErrorSeries(this.sources[x.e], this.sources[x.r]) }));
-    this.build(); this.dirty = true;
+  restart(from, to) {  // the vehicle rebooted: start every series afresh, and say so
+    for (const s of Object.values(this.sources)) s.clear();
+    for (const x of this.errors) { x.series.clear(); x.series.next = 0; }
+    for (const c of this.charts) c.key = "";
+    this.restarts.push({ at: new Date(), from, to });
+    this.onRestart(this.restarts[this.restarts.length - 1]);
   }
   trim() { const t0 = this.newest() - KEEP_S; for (const s of [...Object.values(this.sources), ...this.errors.map((x) => x.series)]) s.trim(t0); }
   zoom(u) {

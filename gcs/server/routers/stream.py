@@ -1,6 +1,7 @@
 """Live data for the page: WS /ws/live pushes every attitude sample of every source as it
 arrives (frames of ≤ 10 ms, see gcs.server.live), and GET /api/history fills a new page's window
-from the live store at once.
+from the live store at once (every sample, or min/max per plot column with `columns`, with each
+estimator's error against onboard and truth), and a reconnecting page's gap (`since`).
 
 Messages on /ws/live, JSON text:
 * `{"type":"hello","client":ID,"history_s":S}` once;
@@ -21,7 +22,7 @@ from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 
 from gcs.core import strict_json
-from gcs.server.deps import HubDep
+from gcs.server.deps import HubDep, StationDep
 from gcs.server.live import ClientFeed
 from gcs.server.models import History
 
@@ -34,10 +35,21 @@ CLIENT_STATS_PERIOD = 1.0
 @router.get("/api/history", response_model=History)
 async def get_history(
     hub: HubDep,
+    station: StationDep,
     seconds: float = Query(60.0, gt=0, le=3600, description="vehicle seconds back from the newest sample"),
+    since: float | None = Query(
+        None, allow_inf_nan=False, description="instead: every sample after this vehicle time (a page catching up)"
+    ),
+    columns: int | None = Query(
+        None, ge=10, le=20_000, description="plot columns: above two samples per column, min/max per column"
+    ),
 ) -> Response:
     # Encoded here, not validated by pydantic: a 10-minute window is a million numbers.
-    body = strict_json.dumps({"seconds": seconds, "points": hub.history(seconds)}, separators=(",", ":"))
+    h = hub.history(seconds, since=since, columns=columns, estimators=tuple(station.estimator_names()))
+    body = strict_json.dumps(
+        {"seconds": h.seconds, "resolution_s": h.resolution_s, "points": h.points, "errors": h.errors},
+        separators=(",", ":"),
+    )
     return Response(body, media_type="application/json")
 
 
