@@ -100,10 +100,75 @@ function showStatus(s) {
   if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
 }
 
+// ---- numbers at a glance: current attitude per source, errors per estimator and reference ----
+// Two decimals in degrees everywhere (what /api/estimates carries, rounded once here: no float noise).
+const deg = (x) => x == null ? "–" : Number(x).toFixed(2);
+const triple = (xs) => xs ? xs.map(deg).join(" / ") : "–";
+
+function showNumbers(est, status) {
+  const src = Object.values(est.sources);
+  $("now-table").innerHTML = `<tr><th>now (°)</th>${src.map((a) => `<th style="color:${COLORS[a.source] || "#555"}">${a.source}</th>`).join("")}</tr>`
+    + ["roll", "pitch", "yaw"].map((ax) => `<tr><td>${ax}</td>${src.map((a) => `<td data-source="${a.source}" data-axis="${ax}">${deg(a[`${ax}_deg`])}</td>`).join("")}</tr>`).join("");
+  const rows = [];
+  for (const a of src.filter((x) => x.kind === "estimator")) {
+    const e = status.estimators[a.source] || {};
+    const health = Object.entries(e.health || {}).filter(([, v]) => typeof v === "number").slice(0, 3)
+      .map(([k, v]) => `${k} ${+v.toPrecision(3)}`).join(", ");
+    for (const [ref, st] of Object.entries(a.errors)) {
+      const lag = e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
+      rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
+        + `<td class="rms-window">${triple(st.window_rms_deg)}</td><td>${triple(st.window_max_deg)}</td>`
+        + `<td class="rms-session">${triple(st.session_rms_deg)}</td><td>${triple(st.session_max_deg)}</td>`
+        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="${e.reliable === false ? "low" : ""}">${e.reliable === false ? "unreliable" : "reliable"}${health ? `; ${escapeHtml(health)}` : ""}</td></tr>`);
+    }
+  }
+  $("numbers-table").innerHTML = "<tr><th>estimator − reference</th><th>RMS 10 s (°)</th><th>max 10 s (°)</th><th>RMS session (°)</th>"
+    + `<th>max session (°)</th><th>lag</th><th>IMU rate</th><th>health</th></tr>${rows.join("")}`;
+}
+
+// ---- the vehicle panel ---------------------------------------------------------------------
+function showVehicle(v, link) {
+  const kv = [
+    ["mode", v.mode ?? "–"], ["armed", v.armed ? "ARMED" : "disarmed"],
+    ["battery", v.battery_v == null ? "–" : `${v.battery_v.toFixed(2)} V${v.battery_a == null ? "" : ` · ${v.battery_a.toFixed(1)} A`}${v.battery_remaining_pct == null ? "" : ` · ${v.battery_remaining_pct} %`}`],
+    ["GPS", v.gps_fix == null ? "–" : `${v.gps_fix} · ${v.gps_satellites ?? "?"} satellites · HDOP ${v.gps_hdop == null ? "?" : v.gps_hdop.toFixed(2)}`],
+    ["EKF", v.ekf_flags.length ? `${v.ekf_flags.join(", ")}${v.ekf_variance_max == null ? "" : ` · largest variance ${v.ekf_variance_max.toFixed(2)}`}` : "no EKF_STATUS_REPORT"],
+    ["sensors", v.sensors_unhealthy.length ? `unhealthy: ${v.sensors_unhealthy.join(", ")}` : "all healthy"],
+    ["link", `${link.state} · loss ${fmt(100 * link.loss_fraction, 1)} % · heartbeat ${fmt(link.heartbeat_age_s, 1)} s ago`],
+    ["autopilot", `${v.autopilot ?? "?"} ${v.vehicle_type ?? ""} ${v.firmware ?? ""} · ${v.system_status ?? ""}`],
+  ];
+  $("vehicle-state").innerHTML = kv.map(([k, x]) => `<div class="k">${k}</div><div class="v" id="vehicle-${k}">${escapeHtml(String(x))}</div>`).join("");
+  $("vehicle-armed").classList.toggle("armed", v.armed);
+  $("autopilot-messages").innerHTML = v.messages.map((m) => `<li class="sev${m.severity}"><span class="hint">${new Date(m.wall_time * 1000).toLocaleTimeString()}</span> `
+    + `<b>${m.severity_name}</b> ${escapeHtml(m.text)}</li>`).join("") || "<li class=\"hint\">none yet</li>";
+  drawTrack($("track"), v.track_ne_m);
+}
+
+function drawTrack(canvas, track) {  // north up, east right, equal metres on both axes, a 1-2-5 grid
+  const ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height;
+  ctx.clearRect(0, 0, w, h); ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  if (!track.length) { ctx.fillStyle = "#777"; ctx.fillText("no 3D fix yet", 10, 20); return; }
+  const ns = track.map((p) => p[0]), es = track.map((p) => p[1]);
+  const span = Math.max(10, Math.max(...ns) - Math.min(...ns), Math.max(...es) - Math.min(...es)) * 1.2;
+  const cn = (Math.max(...ns) + Math.min(...ns)) / 2, ce = (Math.max(...es) + Math.min(...es)) / 2, k = Math.min(w, h) / span;
+  const x = (e) => w / 2 + (e - ce) * k, y = (n) => h / 2 - (n - cn) * k;
+  const step = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000].find((s) => span / s <= 8) || 2000;
+  ctx.strokeStyle = "#e6e6e6"; ctx.fillStyle = "#999"; ctx.lineWidth = 1;
+  for (let g = Math.ceil((ce - span) / step) * step; g <= ce + span; g += step) { ctx.beginPath(); ctx.moveTo(x(g), 0); ctx.lineTo(x(g), h); ctx.stroke(); }
+  for (let g = Math.ceil((cn - span) / step) * step; g <= cn + span; g += step) { ctx.beginPath(); ctx.moveTo(0, y(g)); ctx.lineTo(w, y(g)); ctx.stroke(); }
+  ctx.fillText(`grid ${step} m · N ↑`, 6, h - 6);
+  ctx.strokeStyle = COLORS.onboard || "#333"; ctx.lineWidth = 2; ctx.beginPath();
+  track.forEach((p, i) => (i ? ctx.lineTo(x(p[1]), y(p[0])) : ctx.moveTo(x(p[1]), y(p[0])))); ctx.stroke();
+  const last = track[track.length - 1]; ctx.fillStyle = "#c0392b"; ctx.beginPath(); ctx.arc(x(last[1]), y(last[0]), 4, 0, 7); ctx.fill();
+}
+
 function escapeHtml(s) { return s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
 
 async function pollStatus() {
-  try { showStatus(await api("GET", "/api/status")); } catch (e) { $("link-state").textContent = "server unreachable"; }
+  try {
+    const [status, est] = await Promise.all([api("GET", "/api/status"), api("GET", "/api/estimates")]);
+    showStatus(status); showNumbers(est, status); showVehicle(status.vehicle, status.link);
+  } catch (e) { $("link-state").textContent = "server unreachable"; console.warn("status:", e.message); }
   $("fps").textContent = `${plots.fps} fps`;
   gcsStats.fps = plots.fps;
 }
@@ -116,15 +181,21 @@ const fromPosition = (info, p) => info.scale === "log" ? Math.min(info.max, Math
 
 function gainRow(est, info) {
   const row = document.createElement("div"); row.className = "gain";
-  row.title = `${info.meaning}\n[${info.min} … ${info.max}] ${info.unit}, default ${info.default}${info.scale === "log" ? "\n(log slider)" : ""}`;
-  row.innerHTML = `<label>${info.name}</label><input type="range"><input type="number"><span class="unit">${info.unit}</span>`;
+  row.innerHTML = `<label>${info.name}</label><input type="range"><input type="number"><span class="unit">${escapeHtml(info.unit)}</span>`
+    + `<div class="meaning">${escapeHtml(info.meaning)} [${info.min} … ${info.max}]${info.scale === "log" ? ", log slider" : ""}</div><div class="why"></div>`;
   const [range, number] = row.querySelectorAll("input");
   Object.assign(range, { min: info.slider_min, max: info.slider_max, step: info.slider_step, value: toPosition(info, info.value) });
   Object.assign(number, { min: info.min, max: info.max, step: "any", value: info.value });
-  range.dataset.estimator = est; range.dataset.gain = info.name;
+  range.dataset.estimator = est; range.dataset.gain = info.name; number.dataset.gain = info.name;
+  const r = gainRows[`${est}/${info.name}`] = { range, number, info, accepted: info.value };
   const send = async (value) => {
-    try { await api("PUT", `/api/estimators/${est}/gains/${info.name}`, { value }); row.classList.remove("error"); $("gain-error").textContent = ""; }
-    catch (e) { row.classList.add("error"); $("gain-error").textContent = e.message; }
+    try {
+      const change = await api("PUT", `/api/estimators/${est}/gains/${info.name}`, { value });
+      r.accepted = change.new; row.classList.remove("error"); row.querySelector(".why").textContent = ""; $("gain-error").textContent = "";
+    } catch (e) {  // refused: back to the value the estimator keeps, and why
+      row.classList.add("error"); row.querySelector(".why").textContent = `✗ ${value} refused: ${e.message}; kept ${+Number(r.accepted).toPrecision(6)}`;
+      number.value = +Number(r.accepted).toPrecision(6); range.value = toPosition(info, r.accepted);
+    }
   };
   // While dragging: one request in flight at a time, the newest position next. Not paced by
   // animation frames, which come seldom when the page draws slowly.
@@ -140,7 +211,6 @@ function gainRow(est, info) {
     if (!inFlight) sendLatest();
   });
   number.addEventListener("change", () => send(Number(number.value)));
-  gainRows[`${est}/${info.name}`] = { range, number, info };
   return row;
 }
 
@@ -149,6 +219,7 @@ function showGain(est, name, value) {
   if (!r) return;
   if (document.activeElement !== r.range) r.range.value = toPosition(r.info, value);
   if (document.activeElement !== r.number) r.number.value = +Number(value).toPrecision(6);
+  r.accepted = value;
 }
 
 function buildGains(estimators) {

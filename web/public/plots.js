@@ -162,7 +162,7 @@ class Chart {
     box.innerHTML = `<h3>${title}</h3>`; parent.appendChild(box);
     this.box = box;
     const opts = {
-      width: this.widthFor(parent), height: Plots.chartHeight(),
+      width: this.widthFor(), height: Plots.chartHeight(),
       scales: { x: { time: false } },
       cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
       legend: { live: true },
@@ -178,7 +178,7 @@ class Chart {
     this.u.over.addEventListener("dblclick", hooks.live);
     this.binners = lines.map((l) => new Binner(l.series, axis, 8192));
   }
-  widthFor(parent) { return Math.max(200, parent.clientWidth - 4); }
+  widthFor() { return Math.max(150, this.box.clientWidth - 2); }
   draw(t0, t1, live) {
     const ncols = Math.max(50, Math.round(this.u.bbox.width / devicePixelRatio)), dt = (t1 - t0) / ncols;
     const key = `${dt}|${live ? "" : t0}`;
@@ -190,13 +190,14 @@ class Chart {
     for (const b of this.binners) { b.update(t1); const ys = new Array(2 * n); b.fill(c0, n, ys); data.push(ys); }
     this.u.batch(() => { this.u.setData(data); this.u.setScale("x", { min: t0, max: t1 }); });
   }
-  resize(parent) { this.u.setSize({ width: this.widthFor(parent), height: Plots.chartHeight() }); this.key = ""; }
+  resize() { this.u.setSize({ width: this.widthFor(), height: Plots.chartHeight() }); this.key = ""; }
 }
 
 // Everything the page plots: the sources, the error series, six charts and the draw loop.
 class Plots {
-  // Six charts share the height left under the header on a laptop; a phone scrolls them.
-  static chartHeight() { return innerWidth < 700 ? 130 : Math.max(80, Math.min(150, Math.floor((innerHeight - 250) / 6) - 28)); }
+  // Two columns of three charts share the height left under the tables on a laptop (all six above
+  // the fold at 1366×768); one column scrolls on a phone.
+  static chartHeight() { return innerWidth <= 1100 ? 140 : Math.max(90, Math.min(220, Math.floor((innerHeight - 420) / 3))); }
   constructor(parent, estimators, onRestart) {
     this.parent = parent; this.estimators = estimators; this.onRestart = onRestart || (() => {});
     this.sources = {}; this.errors = [];
@@ -207,7 +208,7 @@ class Plots {
     this.dirty = true; this.frames = 0; this.fps = 0; this.nextDraw = 0; this.drawStart = null;
     this.restarts = [];
     this.build();
-    addEventListener("resize", () => { for (const c of this.charts) c.resize(this.parent); this.dirty = true; });
+    addEventListener("resize", () => { for (const c of this.charts) c.resize(); this.dirty = true; });
     requestAnimationFrame((ts) => this.frame(ts));
     setInterval(() => { this.fps = this.frames; this.frames = 0; this.trim(); }, 1000);
   }
