@@ -1,0 +1,107 @@
+"""One responsive layout, on a 1366×768 laptop and a 390×844 phone, with live data in every panel:
+no horizontal scroll, no element overlapping another (bounding boxes of every block of the page),
+the 3-D view at least a quarter of the laptop's viewport; screenshots of both into
+test-artifacts/ (layout-laptop.png, layout-phone.png)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+
+import pytest
+from conftest import free_port
+from live import running_station, sim_process
+from playwright.async_api import async_playwright
+from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
+
+from gcs.server.dashboard import DashboardServer
+
+VIEWPORTS = {"laptop": (1366, 768), "phone": (390, 844)}
+# The page's blocks: none may overlap another, none may reach past the viewport's width.
+BLOCKS = [
+    "header",
+    "#plots > .toolbar",
+    "#now-table",
+    "#numbers-table",
+    "#numbers-note",
+    ".chart",
+    "#pose",
+    "#tabs",
+    "#vehicle-state",
+    "#autopilot-messages",
+    "#track",
+    "#streams",
+    "#gains",
+]
+
+JS_LAYOUT = """(selectors) => {
+  const boxes = [];
+  for (const sel of selectors) for (const el of document.querySelectorAll(sel)) {
+    const r = el.getBoundingClientRect();
+    if (r.width && r.height) boxes.push({ sel, x: r.left + scrollX, y: r.top + scrollY, w: r.width, h: r.height });
+  }
+  const overlaps = [];
+  for (let i = 0; i < boxes.length; i++) for (let j = i + 1; j < boxes.length; j++) {
+    const a = boxes[i], b = boxes[j];
+    const ix = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
+    const iy = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
+    if (ix > 1 && iy > 1) overlaps.push([a.sel, b.sel, Math.round(ix), Math.round(iy)]);
+  }
+  const pose = document.getElementById("pose").getBoundingClientRect();
+  return { boxes: boxes.length, overlaps, scrollWidth: document.documentElement.scrollWidth, width: innerWidth,
+           beyond: boxes.filter((b) => b.x < -1 || b.x + b.w > innerWidth + 1).map((b) => b.sel),
+           pose_fraction: (pose.width * pose.height) / (innerWidth * innerHeight) };
+}"""
+
+
+@pytest.fixture(autouse=True)
+def _chromium_installed() -> None:
+    if not os.path.exists(CHROMIUM):
+        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
+
+
+@pytest.mark.timeout(900)  # under a minute on a quiet machine
+def test_layout_laptop_and_phone(udp_port, artifacts_dir):
+    report = asyncio.run(asyncio.wait_for(scenario(udp_port, artifacts_dir), 840))
+    print(f"\nlayout figures: {report}")
+    for name, r in report.items():
+        assert r["scrollWidth"] <= r["width"], (name, r)
+        assert r["overlaps"] == [], (name, r["overlaps"])
+        assert r["beyond"] == [], (name, r["beyond"])
+        assert r["boxes"] >= len(BLOCKS) + 5, (name, r)  # six charts and every panel were measured
+    assert report["laptop"]["pose_fraction"] >= 0.25, report["laptop"]
+
+
+async def scenario(udp_port: int, artifacts_dir) -> dict:
+    report = {}
+    errors: list[str] = []
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+    ):
+        server = DashboardServer(station, port=0, viser_port=free_port())
+        await server.start()
+        try:
+            async with async_playwright() as pw:
+                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                for name, (width, height) in VIEWPORTS.items():
+                    page = await browser.new_page(viewport={"width": width, "height": height})
+                    page.on("console", lambda m: m.type == "error" and errors.append(m.text))
+                    page.on("pageerror", lambda e: errors.append(str(e)))
+                    await page.goto(server.url, timeout=300_000, wait_until="commit")
+                    for ready in (
+                        "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
+                        "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
+                        "gcsStats.historyLoads >= 2 && gcsPlots.frames + gcsStats.fps > 0",
+                    ):
+                        await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
+                    await page.wait_for_timeout(3000)  # a few draws and a track point or two
+                    report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
+                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
+                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
+                    await page.close()
+                await browser.close()
+        finally:
+            await server.stop()
+    assert errors == [], errors
+    return report
