@@ -205,7 +205,7 @@ class Plots {
     for (const e of estimators) for (const r of ERROR_REFERENCES)
       this.errors.push({ name: `${e} − ${r}`, e, r, series: new ErrorSeries(this.sources[e], this.sources[r]) });
     this.window = 30; this.paused = false; this.view = null;  // view: {t0, t1} when zoomed or paused
-    this.dirty = true; this.frames = 0; this.fps = 0; this.nextDraw = 0; this.drawStart = null;
+    this.dirty = true; this.frames = 0; this.draws = 0; this.fps = 0; this.nextDraw = 0; this.drawStart = null;
     this.restarts = [];
     this.build();
     addEventListener("resize", () => { for (const c of this.charts) c.resize(); this.dirty = true; });
@@ -284,7 +284,7 @@ class Plots {
       this.drawStart = now;
       for (const x of this.errors) x.series.update();
       const live = !this.view, t1 = live ? this.newest() : this.view.t1, t0 = live ? t1 - this.window : this.view.t0;
-      if (Number.isFinite(t1)) { for (const c of this.charts) c.draw(t0, t1, live); this.frames++; }
+      if (Number.isFinite(t1)) { for (const c of this.charts) c.draw(t0, t1, live); this.frames++; this.draws++; }
     }
     requestAnimationFrame((ts) => this.frame(ts));
   }
