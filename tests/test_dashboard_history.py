@@ -90,7 +90,6 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                 page = await browser.new_page(viewport={"width": 1366, "height": 768})
                 page.on("console", lambda m: m.type == "error" and errors.append(m.text))
                 page.on("pageerror", lambda e: errors.append(str(e)))
-                page.on("console", lambda m: print("console:", m.type, m.text[:200], flush=True))
                 async with sim_process(address, profile="pixhawk", script="quad", speed=SPEED):
                     await wait_for(lambda: (hub.newest() or 0) > SESSION_S, 120, "a minute of session")
                     firsts = {k: float(r.ordered()[0][0]) for k, r in hub.store.items()}

@@ -37,6 +37,8 @@ async def scenario(udp_port: int, artifacts_dir) -> None:
                 browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 page = await browser.new_page(viewport={"width": 1366, "height": 768})
                 await page.goto(f"http://127.0.0.1:{server.viser_port}/")
+                # The panel starts minimized (it must not cover the vehicle): open it as a user does.
+                await page.get_by_text("gcs pose").first.click(timeout=60_000)
                 await page.get_by_text("Estimator gains").click(timeout=60_000)
                 await page.get_by_text("Read-only here").wait_for(timeout=30_000)
                 before = {n: dict(e.gains.values) for n, e in estimators.items()}

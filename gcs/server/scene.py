@@ -4,9 +4,9 @@
 which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
 The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
 ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs at
-about 30 Hz on the event loop (viser handles are thread-safe). The panel: every estimator's gains as
-read-only text in their own units, following the gain events (viser has no authentication: changes
-are made on the page).
+about 30 Hz on the event loop (viser handles are thread-safe). The panel, minimized at start so it
+does not cover the scene: every estimator's gains as read-only text in their own units, following the
+gain events (viser has no authentication: changes are made on the page).
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ class LocalViserServer(viser.ViserServer):
     def __init__(self, host: str, port: int) -> None:
         super().__init__(host=host, port=port, verbose=False, label="gcs pose")
         self.gui.configure_theme(show_share_button=False)
+        # The page's gain panel is the control: viser's panel starts minimized to its title bar, so
+        # it never covers the vehicle (at 600 px and wider; viser shows a bottom sheet below 576 px).
+        self.gui.main_panel.minimize()
 
     def request_share_url(self, verbose: bool = True) -> str | None:
         return None

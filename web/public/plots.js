@@ -60,12 +60,14 @@ class Series {
     }
     this.replace(out, from);
   }
-  // Min/max-column history: it fills only what lies before the first sample held one by one.
+  // Min/max-column history: it replaces the columns held from its first one on, and fills only
+  // what lies before the first sample held one by one.
   mergeColumns(cols) {
-    const [ht] = cols, out = [[], [], [], []];
-    for (let j = 0; j < ht.length && ht[j] < this.rawFrom; j++) for (let a = 0; a < 4; a++) out[a].push(cols[a][j]);
-    const k = this.firstAtOrAfter(this.rawFrom) - this.base;
-    for (let i = k; i < this.t.length; i++) { out[0].push(this.t[i]); for (let a = 0; a < 3; a++) out[a + 1].push(this.v[a][i]); }
+    const [ht] = cols, out = [[], [], [], []], from = Math.min(ht.length ? ht[0] : Infinity, this.rawFrom);
+    const mine = [this.t, ...this.v], take = (src, k) => { for (let a = 0; a < 4; a++) out[a].push(src[a][k]); };
+    for (let i = 0; i < this.t.length && this.t[i] < from; i++) take(mine, i);  // older columns
+    for (let j = 0; j < ht.length && ht[j] < this.rawFrom; j++) take(cols, j);
+    for (let i = this.firstAtOrAfter(this.rawFrom) - this.base; i < this.t.length; i++) take(mine, i);
     this.replace(out, this.rawFrom);
   }
   replace(cols, rawFrom) { this.t = cols[0]; this.v = cols.slice(1); this.rawFrom = rawFrom; }
