@@ -73,7 +73,7 @@ async def history_loads(page) -> int:
 
 
 async def wait_loads(page, n: int) -> None:
-    await page.wait_for_function(f"gcsStats.historyLoads >= {n}", polling=POLL_MS, timeout=300_000)
+    await page.wait_for_function(f"window.gcsStats && gcsStats.historyLoads >= {n}", polling=POLL_MS, timeout=300_000)
 
 
 async def scenario(udp_port: int, artifacts_dir) -> dict:

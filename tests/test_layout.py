@@ -92,7 +92,7 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                     for ready in (
                         "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
                         "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
-                        "gcsStats.historyLoads >= 2 && gcsPlots.frames + gcsStats.fps > 0",
+                        "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
                     ):
                         await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
                     await page.wait_for_timeout(3000)  # a few draws and a track point or two

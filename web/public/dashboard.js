@@ -33,12 +33,14 @@ function onMessage(msg) {
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
 
-// History into the plots (merged, never a restart): `seconds` back from the newest sample at the
-// resolution the plots can show (the server sends min/max per column when a window holds more), or
-// every sample after `since` (a reconnect's gap).
+// History into the plots (merged, never a restart): `seconds` back from the newest sample, every
+// sample for a window up to a minute (so a zoom shows samples, as for live data), else at the
+// resolution the plots can show (the server sends min/max per column when a window holds more);
+// or every sample after `since` (a reconnect's gap).
+const EVERY_SAMPLE_S = 60;
 async function loadHistory({ seconds = 60, since = null } = {}) {
   const columns = Math.max(100, Math.round(plots.charts[0].u.bbox.width / devicePixelRatio));
-  const query = since == null ? `seconds=${seconds}&columns=${columns}` : `since=${since}`;
+  const query = since != null ? `since=${since}` : seconds <= EVERY_SAMPLE_S ? `seconds=${seconds}` : `seconds=${seconds}&columns=${columns}`;
   plots.load(await api("GET", `/api/history?${query}`));
   gcsStats.historyLoads++;
 }
