@@ -121,7 +121,7 @@ function showNumbers(est, status) {
       rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
         + `<td class="rms-window">${triple(st.window_rms_deg)}</td><td>${triple(st.window_max_deg)}</td>`
         + `<td class="rms-session">${triple(st.session_rms_deg)}</td><td>${triple(st.session_max_deg)}</td>`
-        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="${e.reliable === false ? "low" : ""}">${e.reliable === false ? "unreliable" : "reliable"}${health ? `; ${escapeHtml(health)}` : ""}</td></tr>`);
+        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="health ${e.reliable === false ? "low" : ""}">${e.reliable === false ? "unreliable" : "reliable"}${health ? `; ${escapeHtml(health)}` : ""}</td></tr>`);
     }
   }
   $("numbers-table").innerHTML = "<tr><th>estimator − reference</th><th>RMS 10 s (°)</th><th>max 10 s (°)</th><th>RMS session (°)</th>"
