@@ -114,8 +114,7 @@ function showNumbers(est, status) {
   const rows = [];
   for (const a of src.filter((x) => x.kind === "estimator")) {
     const e = status.estimators[a.source] || {};
-    const health = Object.entries(e.health || {}).filter(([, v]) => typeof v === "number").slice(0, 3)
-      .map(([k, v]) => `${k} ${+v.toPrecision(3)}`).join(", ");
+    const health = e.reliable === false ? e.reason : "";
     for (const [ref, st] of Object.entries(a.errors)) {
       const lag = e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
       rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
