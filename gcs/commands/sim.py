@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from pathlib import Path
 from typing import Any
 
 from gcs.sim.ascii import AsciiFirmware
+from gcs.sim.recording import fly_flight_logs
 from gcs.sim.sensors import SensorFaults
 from gcs.sim.vehicle import SimVehicle
 from gcs.transport.address import parse_address
@@ -74,6 +76,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ascii-malformed", type=float, default=0.0, help="fraction of damaged lines with --ascii (default 0)"
     )
     parser.add_argument(
+        "--flight-log",
+        type=float,
+        action="append",
+        default=[],
+        metavar="SECONDS",
+        help="an earlier flight of that length, flown at start: its onboard log is log 1, 2, ... (repeatable)",
+    )
+    parser.add_argument(
+        "--log-drop", type=float, default=0.0, metavar="FRACTION", help="lose that fraction of LOG_DATA packets"
+    )
+    parser.add_argument(
+        "--log-dir", metavar="DIR", help="also write each finished onboard log there (00000001.BIN, ...)"
+    )
+    parser.add_argument(
         "--fault",
         action="append",
         default=[],
@@ -120,6 +136,10 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         faults, drop, clamp = parse_faults(args.fault)
+        if not 0.0 <= args.log_drop < 1.0:
+            raise ValueError("--log-drop: a fraction at least 0 and below 1")
+        if any(not 0 < seconds <= 3600 for seconds in args.flight_log):
+            raise ValueError("--flight-log: a flight lasts more than 0 and at most 3600 s")
         if parse_address(args.link).kind not in ("udpin", "udpout", "tcp", "tcpin", "pty"):
             raise ValueError(f"--link {args.link!r}: the vehicle serves udpout:, udpin:, tcp:, tcpin: or pty:")
     except ValueError as exc:  # AddressError is a ValueError
@@ -136,6 +156,10 @@ def run(args: argparse.Namespace) -> int:
         param_clamp=clamp,
         publish_declination=not args.no_declination_param,
     )
+    sim.log_server.drop = args.log_drop
+    if args.log_dir:
+        sim.logs.log_dir = Path(args.log_dir)
+    fly_flight_logs(sim, args.flight_log)
 
     firmware = None
     if args.ascii:

@@ -54,6 +54,7 @@ class Profile:
     flight_sw_version: int = 0
     capabilities: int = 0
     custom_mode: int = 0
+    log_time_ms: bool = False  # onboard log in ArduCopter 3.1-3.2's TimeMS layouts (gcs.sim.dataflash)
 
     @property
     def message_intervals(self) -> bool:
@@ -108,6 +109,7 @@ APM25 = Profile(
     param_rows=param_tables.arducopter_32,
     group_share={"SENSOR_OFFSETS": 1 / 11},
     loop_hz=100.0,
+    log_time_ms=True,
 )
 
 PIXHAWK = Profile(

@@ -22,6 +22,8 @@ import numpy as np
 
 from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
 from gcs.sim.autopilot import GPS_RATE_HZ, Autopilot
+from gcs.sim.dataflash import FlightLog
+from gcs.sim.logserver import SEND_LOOP_HZ, LogServer, LogStore
 from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
 from gcs.sim.profiles import Profile, get_profile
@@ -32,7 +34,7 @@ from gcs.transport.pipes import make_transport
 #: The vehicle parameters that hold the declination (left out with publish_declination=False).
 DECLINATION_PARAMS = ("COMPASS_DEC", "EKF2_MAG_DECL")
 #: Internal events, ordered before messages due at the same instant.
-_GPS, _LOOP = "_gps", "_loop"
+_GPS, _LOOP, _LOGS = "_gps", "_loop", "_logs"
 #: Wall-clock lag (s) after which run() stops catching up and lets the vehicle clock slip.
 MAX_CATCH_UP = 1.0
 
@@ -87,7 +89,7 @@ class SimVehicle:
             self.params["COMPASS_DEC"] = self.faults.declination
         if "EKF2_MAG_DECL" in self.params:  # PX4: degrees
             self.params["EKF2_MAG_DECL"] = math.degrees(self.faults.declination)
-        param_seed, autopilot_seed = np.random.SeedSequence(seed).spawn(2)
+        param_seed, autopilot_seed, log_seed = np.random.SeedSequence(seed).spawn(3)
         self.autopilot = Autopilot(self.profile, self.script, self.faults, self.params, autopilot_seed, self.home)
         self.param_server = ParamServer(
             self.params,
@@ -96,6 +98,9 @@ class SimVehicle:
             clamp=param_clamp,
             on_change=self.autopilot.apply_param,
         )
+        #: the onboard DataFlash logs and the log protocol (gcs.sim.logserver)
+        self.logs = LogStore(self._new_flight_log)
+        self.log_server = LogServer(self.logs, np.random.default_rng(log_seed))
         self._encoder = Encoder(sysid, compid, mavlink1=self.profile.mavlink1)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
@@ -103,12 +108,13 @@ class SimVehicle:
         self._outbox: list[bytes] = []
         self._heap: list[tuple[float, int, int, _Stream]] = []
         self._streams: dict[str, _Stream] = {}
-        for order, name in enumerate((_GPS, _LOOP) + self.profile.messages):
+        for order, name in enumerate((_GPS, _LOOP, _LOGS) + self.profile.messages):
             self._streams[name] = _Stream(name, order)
         self._group_rates: dict[int, float] = {}
         self._overrides: dict[str, float] = {}  # SET_MESSAGE_INTERVAL, Hz (0 = off)
         self._set_rate(_GPS, GPS_RATE_HZ)
         self._set_rate(_LOOP, self.profile.loop_hz)
+        self._set_rate(_LOGS, SEND_LOOP_HZ)
         self._set_rate("HEARTBEAT", 1.0)
         self._update_rates()
         self.received: dict[str, int] = {}  # messages accepted from ground stations, by type
@@ -163,8 +169,12 @@ class SimVehicle:
             heapq.heappush(heap, (stream.start + stream.k / stream.rate, stream.order, generation, stream))
             if stream.name == _LOOP:
                 self.autopilot.tick(due)
+                self.logs.record_loop(due, self.autopilot, self.armed)
             elif stream.name == _GPS:
                 self.autopilot.gps_tick(due)
+                self.logs.record_gps(due, self.autopilot.fix)
+            elif stream.name == _LOGS:
+                out += [self._encode(m) for m in self.log_server.pump(due, self.armed)]
             else:
                 out.append(self._encode(self.autopilot.build(stream.name, due)))
         self.t = max(self.t, t)
@@ -261,10 +271,16 @@ class SimVehicle:
     def _encode(self, msg) -> bytes:
         return self._encoder.encode(msg)
 
+    def _new_flight_log(self) -> FlightLog:
+        """A flight's onboard log: the 3.1-3.2 TimeMS layouts on the APM 2.5, TimeUS otherwise."""
+        return FlightLog(self.profile.log_time_ms, self.params.as_dict().items(), self.home)
+
     def _handle(self, msg) -> list:
         kind = msg.get_type()
         if kind.startswith("PARAM_"):
             return self.param_server.handle(msg, self.t)
+        if kind.startswith("LOG_") or kind == "HEARTBEAT":
+            return self.log_server.handle(msg, self.t, self.armed)
         if kind == "REQUEST_DATA_STREAM":
             self._request_data_stream(msg)
         elif kind == "COMMAND_LONG":
