@@ -103,6 +103,8 @@ NEW_FORMATS = {
 ATTITUDE_LOG_HZ = 50.0
 MAG_LOG_HZ = 10.0
 GPS_FIX_3D = 3
+#: Loop instants are k / loop_hz in floating point: a record due at that instant is taken there.
+TIME_SLACK = 1e-6
 #: A log stops growing here (a full card): 64 MiB, over an hour of 400 Hz logging.
 MAX_LOG_BYTES = 64 << 20
 
@@ -162,13 +164,13 @@ class FlightLog:
         SIM at ATTITUDE_LOG_HZ; MAG at MAG_LOG_HZ. Angles in rad, ahrs2: (euler, GpsFix) or None."""
         instance = () if self.time_ms else (0,)
         self._add("IMU", t, *instance, *imu.gyro, *imu.accel)
-        if t >= self._next_mag:
-            self._next_mag = t + 1.0 / MAG_LOG_HZ
+        if t + TIME_SLACK >= self._next_mag:
+            self._next_mag = max(self._next_mag + 1.0 / MAG_LOG_HZ, t)
             mag = [_mgauss(m) for m in imu.mag]
             self._add("MAG", t, *instance, *mag, *([0] * 6 if self.time_ms else ()))
-        if t < self._next_attitude:
+        if t + TIME_SLACK < self._next_attitude:
             return
-        self._next_attitude = t + 1.0 / ATTITUDE_LOG_HZ
+        self._next_attitude = max(self._next_attitude + 1.0 / ATTITUDE_LOG_HZ, t)
         roll, pitch, yaw = _degrees(attitude)
         if self.time_ms:
             self._add("ATT", t, x100(roll), x100(roll), x100(pitch), x100(pitch), yaw_cdeg(yaw), yaw_cdeg(yaw))
