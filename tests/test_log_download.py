@@ -6,15 +6,20 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import subprocess
+import sys
 
+import httpx
 import pytest
-from live import running_station, wait_for
+from live import running_station, stop_process, wait_for
 from pymavlink.DFReader import DFReader_binary
 
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.mavlink.logtransfer import LogEntry, LogTransfer
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError
 from gcs.runtime.replay import ReplaySession
+from gcs.server.app import create_app
+from gcs.server.deps import TOKEN_HEADER
 from gcs.sessions.sources import open_source
 from gcs.sim import SimVehicle
 from gcs.sim.logserver import LOG_DATA_LEN, SEND_LOOP_HZ, SITL_SENDS_PER_LOOP
@@ -170,3 +175,59 @@ async def _downloaded_log_replays_through_the_estimators(tmp_path, udp_port, pro
     rms = truth["session"]["rms"]
     print(f"\n{profile}: ekf vs SIM truth RMS roll/pitch/yaw {rms}")
     assert truth["n"] > 500 and max(rms) < 3.0  # degrees, the live-simulator bounds
+
+
+def test_dashboard_download_lands_in_the_replay_folder(tmp_path, udp_port):
+    asyncio.run(_dashboard_download(tmp_path, udp_port))
+
+
+async def _dashboard_download(tmp_path, udp_port):
+    token = "s3cret-token"
+    async with (
+        running_station(
+            f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False, record_dir=str(tmp_path)
+        ) as station,
+        log_vehicle(f"udpout:127.0.0.1:{udp_port}", "apm25", 10.0) as sim,
+    ):
+        assert await station.link.wait_connected(30)
+        app = create_app(station, token=token, bound_host="127.0.0.1")
+        transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 5000))
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+            refused = await client.post("/api/onboard-logs/download", json={"log": 1})
+            assert refused.status_code in (401, 403)
+            started = await client.post("/api/onboard-logs/download", json={"log": 1}, headers={TOKEN_HEADER: token})
+            assert started.status_code == 202 and started.json()["download"] == "started"
+
+            async def state():
+                return (await client.get("/api/onboard-logs")).json()
+
+            deadline = asyncio.get_running_loop().time() + 120
+            while (body := await state())["progress"]["state"] not in ("done", "failed"):
+                assert asyncio.get_running_loop().time() < deadline, body
+                await asyncio.sleep(0.2)
+            assert body["progress"]["state"] == "done", body
+            assert body["logs"][0]["size"] == len(sim.logs.finished[0])
+            names = [log["name"] for log in (await client.get("/api/logs")).json()]  # the replay sources
+    path = tmp_path / body["progress"]["path"].split("/")[-1]
+    assert path.name in names and path.read_bytes() == sim.logs.finished[0]
+
+
+def test_gcs_logs_download_latest_from_gcs_sim(tmp_path, udp_port):
+    vehicle_dir, out = tmp_path / "vehicle", tmp_path / "out"
+    sim = [sys.executable, "-m", "gcs", "sim", "--profile", "pixhawk", "--flight-log", "4"]
+    proc = subprocess.Popen(
+        [*sim, "--log-dir", str(vehicle_dir), "--link", f"udpout:127.0.0.1:{udp_port}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        command = ["logs", "download", "latest", "--connect", f"udpin:127.0.0.1:{udp_port}", "--out", str(out)]
+        done = subprocess.run(
+            [sys.executable, "-m", "gcs", *command], capture_output=True, text=True, timeout=120, check=False
+        )
+    finally:
+        stop_process(proc)
+    assert done.returncode == 0, done.stderr
+    assert "log 2:" in done.stdout and "kB/s" in done.stdout and "gcs replay" in done.stdout
+    (downloaded,) = out.glob("log2-*.bin")
+    assert downloaded.read_bytes() == (vehicle_dir / "00000002.BIN").read_bytes()  # the flight flown live

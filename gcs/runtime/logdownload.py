@@ -72,6 +72,10 @@ class LogDownloader:
         self.progress = IDLE
         self.entries: list[LogEntry] = []
 
+    def fail(self, error: str) -> None:
+        """Show an error of the operation around a listing or download (e.g. no such log)."""
+        self.progress = replace(self.progress, state="failed", error=error)
+
     def _target(self) -> tuple[int, int]:
         return self.link.target_system or 1, self.link.target_component or 1
 

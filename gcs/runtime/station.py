@@ -34,6 +34,7 @@ from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
+from gcs.runtime.logdownload import LogDownloader, LogDownloadError
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.recorder import SessionRecorder
@@ -127,6 +128,9 @@ class Station:
         self._tuning: TuningSession | None = None
         self._tuning_lock: asyncio.Lock | None = None
         self._download: asyncio.Task[Any] | None = None
+        #: the vehicle's onboard logs (gcs.runtime.logdownload); downloads land in the replay folder
+        self.onboard_logs = LogDownloader(self.link)
+        self._log_download: asyncio.Task[Any] | None = None
         self._snapshot: StationSnapshot | None = None
         self._loop_thread: int | None = None
         self._workers: ProcessPoolExecutor | None = None
@@ -305,6 +309,30 @@ class Station:
         self._download = asyncio.get_running_loop().create_task(self.params.download())
         self._download.add_done_callback(lambda t: t.cancelled() or t.exception())  # the error stays in progress()
         return True
+
+    def start_log_download(self, log_id: int | None) -> bool:
+        """List the vehicle's logs and download `log_id` (None: the latest) into the recording
+        folder, where replay finds it; False if a listing or download is already running."""
+        self._on_loop()
+        if self._log_download is not None and not self._log_download.done():
+            return False
+
+        async def fetch() -> None:
+            entries = await self.onboard_logs.list_logs()
+            chosen = [e for e in entries if log_id is None or e.id == log_id][-1:]
+            if not chosen:
+                raise LogDownloadError(f"the vehicle has no log {log_id}" if log_id else "the vehicle has no logs")
+            path = await self.onboard_logs.download(chosen[0], self.recording_root)
+            self.events.record("log download", "station", log=chosen[0].id, path=str(path))
+
+        self._log_download = asyncio.get_running_loop().create_task(fetch())
+        self._log_download.add_done_callback(self._log_download_done)
+        return True
+
+    def _log_download_done(self, task: asyncio.Task[Any]) -> None:
+        error = None if task.cancelled() else task.exception()
+        if error is not None:  # a refusal, a lost link, a full disk: shown in the progress
+            self.onboard_logs.fail(str(error))
 
     async def tuning(self) -> TuningSession:
         """The tuning session (opened on first use: profile detected, pre-flight values snapshotted)."""
