@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from gcs.sim.ascii import AsciiFirmware
+from gcs.sim.radio import fit_radio
 from gcs.sim.recording import fly_flight_logs
 from gcs.sim.sensors import SensorFaults
 from gcs.sim.vehicle import SimVehicle
@@ -76,6 +77,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ascii-malformed", type=float, default=0.0, help="fraction of damaged lines with --ascii (default 0)"
     )
     parser.add_argument(
+        "--radio",
+        type=int,
+        metavar="BAUD",
+        help="a 3DR/SiK radio of that baud (e.g. 57600) between vehicle and station: limited bandwidth, RADIO_STATUS",
+    )
+    parser.add_argument(
         "--flight-log",
         type=float,
         action="append",
@@ -136,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         faults, drop, clamp = parse_faults(args.fault)
+        if args.radio is not None and not 1200 <= args.radio <= 2_000_000:
+            raise ValueError("--radio: a baud rate such as 57600")
         if not 0.0 <= args.log_drop < 1.0:
             raise ValueError("--log-drop: a fraction at least 0 and below 1")
         if any(not 0 < seconds <= 3600 for seconds in args.flight_log):
@@ -160,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
     if args.log_dir:
         sim.logs.log_dir = Path(args.log_dir)
     fly_flight_logs(sim, args.flight_log)
+    if args.radio is not None:
+        fit_radio(sim, args.radio, seed=args.seed)
 
     firmware = None
     if args.ascii:

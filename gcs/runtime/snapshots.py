@@ -169,6 +169,47 @@ class EstimationSnapshot:
 
 
 @dataclass(frozen=True, slots=True)
+class RadioStatus:
+    """The telemetry radio's last RADIO_STATUS (SiK's 0-255 signal scale; txbuf: % of its buffer free)."""
+
+    rssi: int
+    remrssi: int
+    noise: int
+    remnoise: int
+    txbuf: int
+    rxerrors: int
+    fixed: int
+    age_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class RadioStream:
+    """One stream on the radio's budget: what the estimators want, what fits (predicted before
+    requesting), what the station asked for, what arrives, and its cost at the requested rate."""
+
+    wanted_hz: float
+    predicted_hz: float
+    requested_hz: float
+    achieved_hz: float
+    cost_bps: float
+
+
+@dataclass(frozen=True, slots=True)
+class RadioSnapshot:
+    """The radio link's budget (gcs.runtime.radio): present once a RADIO_STATUS has arrived."""
+
+    present: bool
+    status: RadioStatus | None
+    capacity_bps: float
+    budget_bps: float
+    used_bps: float
+    predicted_scale: float
+    scale: float
+    choice: str
+    streams: dict[str, RadioStream]
+
+
+@dataclass(frozen=True, slots=True)
 class StationSnapshot:
     published: float  # UNIX time
     link: LinkSnapshot
@@ -178,3 +219,4 @@ class StationSnapshot:
     estimation: EstimationSnapshot | None
     recording: RecordingSnapshot
     parts: list[PartStatus]
+    radio: RadioSnapshot | None = None

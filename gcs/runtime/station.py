@@ -37,6 +37,7 @@ from gcs.runtime.link import Link
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
+from gcs.runtime.radio import RadioGovernor
 from gcs.runtime.recorder import SessionRecorder
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.signal import Signal
@@ -101,6 +102,11 @@ class Station:
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.rebooted.connect(self.streams.request_again)
+        #: the telemetry radio's budget: caps the requested rates when a radio reports (gcs.runtime.radio)
+        self.radio = RadioGovernor(
+            self.link, self.streams, self.events, config.baud if isinstance(config.baud, int) else 57600
+        )
+        self.streams.rate_cap = self.radio.cap
         self.params = ParamClient(self.link, self.vehicle, self.events)
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
@@ -150,6 +156,7 @@ class Station:
             run(f"output {i + 1}", output.run())
         if self.config.request_streams:
             run("streams", self.streams.run())
+            run("radio", self.radio.run())
         if self.estimation is not None:
             run("estimation", self.estimation.run())
         if self.recorder is not None:
@@ -188,6 +195,7 @@ class Station:
             estimation=None if self.estimation is None else estimation_snapshot(self.estimation),
             recording=self.recording_snapshot(),
             parts=self.supervisor.statuses(),
+            radio=self.radio.snapshot(),
         )
         self.published.emit(self._snapshot)
         return self._snapshot

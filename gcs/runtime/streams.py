@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
@@ -86,6 +87,8 @@ class StreamRequester:
     acks: dict[str, str] = field(default_factory=dict)
     requests_sent: int = 0
     autopilot: str | None = None
+    #: the radio's budget (gcs.runtime.radio.RadioGovernor.cap): wanted rates → rates to request
+    rate_cap: Callable[[dict[str, float]], dict[str, float]] | None = None
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
 
@@ -112,6 +115,8 @@ class StreamRequester:
     async def _request_all(self, acks) -> None:
         self.autopilot = await self._autopilot(acks)
         wanted = self.plan.for_autopilot(self.autopilot)
+        if self.rate_cap is not None:
+            wanted = self.rate_cap(wanted)
         if self.method != "REQUEST_DATA_STREAM":
             first = next(iter(wanted))
             result = await self._set_interval(first, wanted[first], acks)

@@ -28,6 +28,7 @@ from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
 from gcs.sim.profiles import Profile, get_profile
 from gcs.sim.pty import PtyTransport
+from gcs.sim.radio import SikRadio
 from gcs.sim.sensors import Home, SensorFaults, home_declination
 from gcs.transport.pipes import make_transport
 
@@ -117,6 +118,7 @@ class SimVehicle:
         self._set_rate(_LOGS, SEND_LOOP_HZ)
         self._set_rate("HEARTBEAT", 1.0)
         self._update_rates()
+        self.radio: SikRadio | None = None  # set by gcs.sim.radio.fit_radio
         self.received: dict[str, int] = {}  # messages accepted from ground stations, by type
         self.rejected = 0  # of those, how many had parameters the vehicle could not use
 
@@ -209,6 +211,8 @@ class SimVehicle:
         """Serve the link at `address` (udpout:, udpin:, tcp:, tcpin:, pty:) until cancelled;
         `on_open` is called once the link is open (OSError if it cannot be opened)."""
         endpoint = open_endpoint(address)
+        if self.radio is not None:  # a bandwidth-limited telemetry radio in between (gcs.sim.radio)
+            endpoint = self.radio.attach(endpoint)
 
         def on_data(data: bytes) -> None:
             self.handle_bytes(data)
