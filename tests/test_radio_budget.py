@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import time
 
+import httpx
 import pytest
 from live import running_station, wait_for
 
@@ -13,6 +14,7 @@ from gcs.commands.status import format_report
 from gcs.mavlink.radio import frame_bytes, link_capacity, predict
 from gcs.runtime.logdownload import LogDownloader
 from gcs.runtime.streams import STREAM_GROUPS, StreamPlan
+from gcs.server.app import create_app
 from gcs.sim import SimVehicle
 from gcs.sim.radio import fit_radio
 from gcs.sim.recording import fly_flight_logs
@@ -45,14 +47,18 @@ async def _radio_run(port: int, station_baud: int, seconds: float):
                 await asyncio.sleep(1.0)
                 txbufs.append(radio.txbuf)
             snapshot = station.publish()
+            app = create_app(station, token="t", bound_host="127.0.0.1")
+            transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 5000))
+            async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+                api = (await client.get("/api/status")).json()["radio"]  # what the page's radio table shows
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
-    return snapshot, radio, txbufs
+    return snapshot, radio, txbufs, api
 
 
 def test_station_settles_on_rates_the_57600_radio_carries(udp_port):
-    snapshot, radio, txbufs = asyncio.run(_radio_run(udp_port, 57600, 20.0))
+    snapshot, radio, txbufs, api = asyncio.run(_radio_run(udp_port, 57600, 20.0))
     r = snapshot.radio
     print("\n" + format_report(snapshot).split("\nrecording")[0])
     imu = r.streams["RAW_IMU"]
@@ -62,11 +68,14 @@ def test_station_settles_on_rates_the_57600_radio_carries(udp_port):
     assert r.used_bps < radio.capacity_bps
     assert min(txbufs[-10:]) >= 50  # the radio's buffer never filled once settled
     assert "RADIO_STATUS" not in r.streams and "predicted" in format_report(snapshot)
+    row = api["streams"]["RAW_IMU"]
+    assert api["present"] and row["predicted_hz"] == imu.predicted_hz and row["requested_hz"] == imu.requested_hz
+    assert 0 < row["achieved_hz"] and 0 <= api["status"]["txbuf"] <= 100
 
 
 def test_station_backs_off_when_the_radio_buffer_fills(udp_port):
     # told the link is 230400 baud, the station first asks for everything; the 57600 radio's buffer fills
-    snapshot, radio, txbufs = asyncio.run(_radio_run(udp_port, 230400, 24.0))
+    snapshot, radio, txbufs, _ = asyncio.run(_radio_run(udp_port, 230400, 24.0))
     r = snapshot.radio
     print(f"\ntxbuf each second: {txbufs}\n{r.choice}; RAW_IMU requested {r.streams['RAW_IMU'].requested_hz}")
     assert min(txbufs[:10]) < 50  # it filled...

@@ -7,8 +7,8 @@ A radio is taken to be there once a RADIO_STATUS arrives (SiK radios inject one 
    link's capacity (gcs.mavlink.radio); those are requested (StreamRequester.rate_cap);
 2. follow txbuf (percent of the radio's buffer free): below LOW_TXBUF the station lowers its fast
    streams by BACK_OFF and asks again, at most once per ADJUST_INTERVAL; after CALM_INTERVALS
-   checks above HIGH_TXBUF it climbs back by STEP_UP towards the prediction, never above it nor
-   above BACK_OFF × the rate that last filled the buffer (no see-saw).
+   checks above HIGH_TXBUF it climbs back by STEP_UP towards the prediction, never above it nor,
+   for CEILING_MEMORY, above BACK_OFF × the rate that last filled the buffer (no see-saw).
 Every decision is written in `choice` and the event log, so the engineer sees what was chosen and why.
 """
 
@@ -26,9 +26,12 @@ from gcs.runtime.streams import STREAM_GROUPS, StreamRequester
 #: Share of the link's capacity the streams may plan on (the rest: parameters, commands, bursts).
 BUDGET_SHARE = 0.8
 LOW_TXBUF, HIGH_TXBUF = 50, 90
-BACK_OFF, STEP_UP = 0.8, 1.1
+BACK_OFF, STEP_UP = 0.8, 1.25
 ADJUST_INTERVAL = 3.0
-CALM_INTERVALS = 3
+CALM_INTERVALS = 2
+#: How long the rate that filled the buffer caps the climb back (s): a burst (a log download,
+#: a parameter download) must not keep the streams low for good.
+CEILING_MEMORY = 60.0
 #: A RADIO_STATUS older than this (s): the radio is taken to be gone.
 STATUS_TIMEOUT = 5.0
 
@@ -47,7 +50,8 @@ class RadioGovernor:
         self.scale = 1.0
         self.choice = "no radio seen (no RADIO_STATUS): streams as wanted"
         self._calm = 0
-        self._ceiling = 1.0  # the lowest scale that filled the buffer
+        self._ceiling = 1.0 / BACK_OFF  # the scale that last filled the buffer (none yet)
+        self._ceiling_at = 0.0
 
     @property
     def present(self) -> bool:
@@ -96,7 +100,7 @@ class RadioGovernor:
                     self._status_at = time.monotonic()
                     self.status = RadioStatus(m.rssi, m.remrssi, m.noise, m.remnoise, m.txbuf, m.rxerrors, m.fixed, 0.0)
                     if first:
-                        self.scale, self._ceiling = 1.0, 1.0
+                        self.scale, self._ceiling = 1.0, 1.0 / BACK_OFF
                         self._decide("radio found: requesting the rates predicted to fit")
                 if time.monotonic() >= next_check:
                     next_check = time.monotonic() + ADJUST_INTERVAL
@@ -109,9 +113,11 @@ class RadioGovernor:
             return
         txbuf = self.status.txbuf
         self.prediction = self._predict()
+        if time.monotonic() - self._ceiling_at > CEILING_MEMORY:
+            self._ceiling = 1.0 / BACK_OFF  # forgotten: up to the prediction
         if txbuf < LOW_TXBUF:
             self._calm = 0
-            self._ceiling = self.scale  # this much filled the buffer: climb back only below it
+            self._ceiling, self._ceiling_at = self.scale, time.monotonic()  # climb back only below it
             self.scale = max(self.scale * BACK_OFF, 0.02)
             self._decide(f"txbuf {txbuf} % free: lowered the fast streams to {self.scale:.0%} of wanted")
         elif txbuf > HIGH_TXBUF and self.scale < min(self.prediction.scale, self._ceiling * BACK_OFF):

@@ -57,4 +57,5 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
         clients=[c.snapshot() for c in hub.clients.values()],
         viser_port=request.app.state.viser_port,
         authorised=is_authorised(request),
+        radio=snap.radio,
     )
