@@ -11,7 +11,7 @@ import sys
 
 import httpx
 import pytest
-from live import running_station, stop_process, wait_for
+from live import running_sim, running_station, stop_process, wait_for
 from pymavlink.DFReader import DFReader_binary
 
 from gcs.mavlink.dialect import Encoder, mavlink
@@ -97,15 +97,12 @@ def test_transfer_asks_again_for_what_was_lost():
 
 @contextlib.asynccontextmanager
 async def log_vehicle(address: str, profile: str, flight_s: float, log_drop: float = 0.0):
-    sim = SimVehicle(profile=profile, script="bench")
-    fly_flight_logs(sim, [flight_s])
-    sim.log_server.drop = log_drop
-    task = asyncio.create_task(sim.run(address))
-    try:
+    """A simulated vehicle with one earlier flight's log (log 1); the station asks for logs only
+    later, so the flight is flown once the vehicle serves."""
+    async with running_sim(address, profile=profile, script="bench") as sim:
+        fly_flight_logs(sim, [flight_s])
+        sim.log_server.drop = log_drop
         yield sim
-    finally:
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
 
 
 def test_download_over_udp_with_10_percent_loss_is_byte_identical(tmp_path, udp_port):

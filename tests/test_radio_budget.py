@@ -7,7 +7,6 @@ import asyncio
 import time
 
 import httpx
-import pytest
 from live import running_station, wait_for
 
 from gcs.commands.status import format_report
@@ -41,11 +40,12 @@ async def _radio_run(port: int, station_baud: int, seconds: float):
         task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
         try:
             await wait_for(lambda: station.radio.present, 30, "the radio's RADIO_STATUS")
-            txbufs = []
+            txbufs, lost = [], []  # each second: % free, packets the radio link lost so far
             end = time.monotonic() + seconds
             while time.monotonic() < end:
                 await asyncio.sleep(1.0)
                 txbufs.append(radio.txbuf)
+                lost.append(radio.overflowed + radio.skipped)
             snapshot = station.publish()
             app = create_app(station, token="t", bound_host="127.0.0.1")
             transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 5000))
@@ -54,19 +54,20 @@ async def _radio_run(port: int, station_baud: int, seconds: float):
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
-    return snapshot, radio, txbufs, api
+    return snapshot, radio, txbufs, lost, api
 
 
 def test_station_settles_on_rates_the_57600_radio_carries(udp_port):
-    snapshot, radio, txbufs, api = asyncio.run(_radio_run(udp_port, 57600, 20.0))
+    snapshot, radio, txbufs, lost, api = asyncio.run(_radio_run(udp_port, 57600, 20.0))
     r = snapshot.radio
     print("\n" + format_report(snapshot).split("\nrecording")[0])
     imu = r.streams["RAW_IMU"]
     assert r.present and r.status is not None and 0 < r.status.rssi <= 255
     assert 5 < imu.predicted_hz < 50 and imu.requested_hz < 50  # predicted to fit, not the wanted 50 Hz
-    assert imu.achieved_hz == pytest.approx(imu.requested_hz, rel=0.15)  # and it all arrives
+    assert lost[-1] == lost[-10]  # once settled the link carries it all: nothing skipped or overflowed
+    assert min(txbufs[-10:]) >= 50  # and the radio's buffer never filled
+    assert imu.achieved_hz > 0.6 * imu.requested_hz  # (not tighter: a loaded machine slows the vehicle's clock)
     assert r.used_bps < radio.capacity_bps
-    assert min(txbufs[-10:]) >= 50  # the radio's buffer never filled once settled
     assert "RADIO_STATUS" not in r.streams and "predicted" in format_report(snapshot)
     row = api["streams"]["RAW_IMU"]
     assert api["present"] and row["predicted_hz"] == imu.predicted_hz and row["requested_hz"] == imu.requested_hz
@@ -75,12 +76,12 @@ def test_station_settles_on_rates_the_57600_radio_carries(udp_port):
 
 def test_station_backs_off_when_the_radio_buffer_fills(udp_port):
     # told the link is 230400 baud, the station first asks for everything; the 57600 radio's buffer fills
-    snapshot, radio, txbufs, _ = asyncio.run(_radio_run(udp_port, 230400, 24.0))
+    snapshot, radio, txbufs, lost, _ = asyncio.run(_radio_run(udp_port, 230400, 24.0))
     r = snapshot.radio
     print(f"\ntxbuf each second: {txbufs}\n{r.choice}; RAW_IMU requested {r.streams['RAW_IMU'].requested_hz}")
     assert min(txbufs[:10]) < 50  # it filled...
     assert r.scale < 1.0 and r.streams["RAW_IMU"].requested_hz < 50  # ...so the station lowered its requests
-    assert min(txbufs[-6:]) >= 50  # and the buffer recovered
+    assert min(txbufs[-6:]) >= 50 and lost[-1] == lost[-6]  # and the buffer recovered: nothing lost
 
 
 def test_log_download_over_the_57600_radio_completes(tmp_path, udp_port):

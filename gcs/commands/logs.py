@@ -11,6 +11,7 @@ import argparse
 import asyncio
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from gcs.commands.common import progress_bar
@@ -18,6 +19,9 @@ from gcs.mavlink.logtransfer import LogEntry
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError, LogDownloadProgress
 from gcs.runtime.station import Station, StationConfig
 from gcs.transport.address import parse_address
+
+#: Seconds between progress lines when stderr is not a terminal.
+REPORT_INTERVAL = 5.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
     except LogDownloadError as exc:
         print(f"gcs logs {args.action}: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # the output folder: unwritable, full (the partial file is kept)
+        print(f"gcs logs {args.action}: error: {exc.filename or args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
 
 
 async def _with_station(config, args) -> int:
@@ -62,13 +69,34 @@ async def _with_station(config, args) -> int:
             print(format_list(entries))
             return 0
         entry = pick(entries, args.log)
-        show = progress_bar(f"log {entry.id}")
-        path = await downloader.download(entry, Path(args.out), lambda p: show(p.bytes_received, p.size))
+        path = await downloader.download(entry, Path(args.out), progress_reporter(entry.id))
         print(format_done(downloader.progress))
         print(f"replay it: gcs replay {path} --fast   or   gcs estimate {path} -e ekf --out est.csv")
         return 0
     finally:
         await station.stop()
+
+
+def progress_reporter(log_id: int) -> Callable[[LogDownloadProgress], None]:
+    """A bar on a terminal; elsewhere (CI, pipes) a line on stderr every REPORT_INTERVAL s."""
+    if sys.stderr.isatty():
+        show = progress_bar(f"log {log_id}")
+        return lambda p: show(p.bytes_received, p.size)
+    last = [0.0]
+
+    def report(p: LogDownloadProgress) -> None:
+        if p.elapsed_s - last[0] >= REPORT_INTERVAL:
+            last[0] = p.elapsed_s
+            print(f"gcs logs download: {format_progress(p)}", file=sys.stderr, flush=True)
+
+    return report
+
+
+def format_progress(p: LogDownloadProgress) -> str:
+    return (
+        f"log {p.log_id}: {100 * p.fraction:.0f} %, {p.bytes_received} of {p.size} bytes, "
+        f"{p.rate_bps / 1000:.1f} kB/s, {p.re_requests} re-requests"
+    )
 
 
 def pick(entries: list[LogEntry], which: str) -> LogEntry:
