@@ -8,7 +8,8 @@ A radio is taken to be there once a RADIO_STATUS arrives (SiK radios inject one 
 2. follow txbuf (percent of the radio's buffer free): below LOW_TXBUF the station lowers its fast
    streams by BACK_OFF and asks again, at most once per ADJUST_INTERVAL; after CALM_INTERVALS
    checks above HIGH_TXBUF it climbs back by STEP_UP towards the prediction, never above it nor,
-   for CEILING_MEMORY, above BACK_OFF × the rate that last filled the buffer (no see-saw).
+   for CEILING_MEMORY, above BACK_OFF × the rate that last filled the buffer (no see-saw); after
+   that long without a fill, straight back to the prediction.
 Every decision is written in `choice` and the event log, so the engineer sees what was chosen and why.
 """
 
@@ -32,6 +33,8 @@ CALM_INTERVALS = 2
 #: How long the rate that filled the buffer caps the climb back (s): a burst (a log download,
 #: a parameter download) must not keep the streams low for good.
 CEILING_MEMORY = 60.0
+#: Streams at or below this rate (Hz) keep it (GPS, barometer, health); faster ones go no lower.
+KEEP_HZ = 5.0
 #: A RADIO_STATUS older than this (s): the radio is taken to be gone.
 STATUS_TIMEOUT = 5.0
 
@@ -69,8 +72,8 @@ class RadioGovernor:
         if not self.present:
             return wanted
         self.prediction = self._predict()
-        self.scale = min(self.scale, self.prediction.scale)
-        return rates_at_scale(wanted, self.scale, whole_hz=self._groups() is not None)
+        self.scale = max(min(self.scale, self.prediction.scale), self._lowest_scale())
+        return rates_at_scale(wanted, self.scale, KEEP_HZ, whole_hz=self._groups() is not None)
 
     def _sent(self) -> dict[str, float]:
         """The wanted streams the vehicle sends (all of them until any arrives): one it never
@@ -80,7 +83,9 @@ class RadioGovernor:
 
     def _predict(self) -> RatePrediction:
         """The rates that fit, from what the link carries now."""
-        return predict(self._sent(), self._mavlink(), self.budget_bps, self._background_bps(), groups=self._groups())
+        return predict(
+            self._sent(), self._mavlink(), self.budget_bps, self._background_bps(), KEEP_HZ, groups=self._groups()
+        )
 
     def _background_bps(self) -> float:
         """What the link carries besides the wanted streams (heartbeats, status, the radio's own)."""
@@ -113,21 +118,31 @@ class RadioGovernor:
             return
         txbuf = self.status.txbuf
         self.prediction = self._predict()
-        if time.monotonic() - self._ceiling_at > CEILING_MEMORY:
-            self._ceiling = 1.0 / BACK_OFF  # forgotten: up to the prediction
+        forgotten = time.monotonic() - self._ceiling_at > CEILING_MEMORY
+        if forgotten:
+            self._ceiling = 1.0 / BACK_OFF
         if txbuf < LOW_TXBUF:
             self._calm = 0
+            if self.scale <= self._lowest_scale():  # nothing left to lower: say so, ask nothing
+                self.choice = f"txbuf {txbuf} % free: the fast streams are at their floor ({KEEP_HZ:g} Hz)"
+                return
             self._ceiling, self._ceiling_at = self.scale, time.monotonic()  # climb back only below it
-            self.scale = max(self.scale * BACK_OFF, 0.02)
+            self.scale = max(self.scale * BACK_OFF, self._lowest_scale())
             self._decide(f"txbuf {txbuf} % free: lowered the fast streams to {self.scale:.0%} of wanted")
         elif txbuf > HIGH_TXBUF and self.scale < min(self.prediction.scale, self._ceiling * BACK_OFF):
             self._calm += 1
             if self._calm >= CALM_INTERVALS:
                 self._calm = 0
-                self.scale = min(self.scale * STEP_UP, self.prediction.scale, self._ceiling * BACK_OFF)
+                climb = self.prediction.scale if forgotten else self.scale * STEP_UP  # long calm: straight back
+                self.scale = min(climb, self.prediction.scale, self._ceiling * BACK_OFF)
                 self._decide(f"txbuf {txbuf} % free: raised the fast streams to {self.scale:.0%} of wanted")
         else:
             self._calm = 0
+
+    def _lowest_scale(self) -> float:
+        """Below this every fast stream is at KEEP_HZ already: lowering further changes nothing."""
+        fastest = max(self.wanted.values(), default=KEEP_HZ)
+        return min(KEEP_HZ / fastest, 1.0)
 
     def _decide(self, why: str) -> None:
         self.choice = why

@@ -10,7 +10,7 @@ ArduPilot's rules (AP_Logger_MAVLinkLogTransfer):
 - LOG_REQUEST_END stops; LOG_ERASE erases; nothing is served while armed ("Disarm for log
   download") or when the ground station's heartbeat is older than 3 s.
 
-Logs: the finished ones (flights flown before, `fly_flight`) and the current flight, written
+Logs: the finished ones (flights flown before, gcs.sim.recording.fly_flight_logs) and the current flight, written
 from boot; a list request closes the current one (its size must not change under a download)
 and the next arming starts a new one. `log_dir`: each finished log is also written there as
 ArduPilot names them (00000001.BIN), the bytes a download must reproduce.
