@@ -32,6 +32,7 @@ from gcs.mavlink.ascii import SEED000, AsciiFormat
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
+from gcs.runtime.firmware import request_version
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
 from gcs.runtime.params import ParamClient
@@ -142,6 +143,8 @@ class Station:
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
+        if self.config.request_streams:  # not for a parameter-only command: ask the firmware version
+            run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
         for i, output in enumerate(self.outputs):
             run(f"output {i + 1}", output.run())
         if self.config.request_streams:

@@ -71,6 +71,7 @@ class SimVehicle:
         param_drop: float = 0.0,
         param_clamp: dict[str, float] | None = None,
         publish_declination: bool = True,
+        interval_limits: dict[str, float] | None = None,
     ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
@@ -97,6 +98,9 @@ class SimVehicle:
             on_change=self.autopilot.apply_param,
         )
         self._encoder = Encoder(sysid, compid, mavlink1=self.profile.mavlink1)
+        #: message → highest SET_MESSAGE_INTERVAL rate (Hz); faster is DENIED with ArduPlane's
+        #: STATUSTEXT (its 0.8 × SCHED_LOOP_RATE limit), e.g. {"RAW_IMU": 40.0}
+        self.interval_limits = dict(interval_limits or {})
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
         self.t = 0.0
@@ -264,7 +268,10 @@ class SimVehicle:
     def _handle(self, msg) -> list:
         kind = msg.get_type()
         if kind.startswith("PARAM_"):
-            return self.param_server.handle(msg, self.t)
+            banner = []
+            if kind == "PARAM_REQUEST_LIST" and self.profile.banner:  # ArduPilot's send_banner()
+                banner = [mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, self.profile.banner.encode())]
+            return banner + self.param_server.handle(msg, self.t)
         if kind == "REQUEST_DATA_STREAM":
             self._request_data_stream(msg)
         elif kind == "COMMAND_LONG":
@@ -293,7 +300,11 @@ class SimVehicle:
             self.autopilot.armed = msg.param1 >= 0.5
             result = mavlink.MAV_RESULT_ACCEPTED
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and p.message_intervals:
-            result = self._set_message_interval(int(msg.param1), msg.param2)
+            refusal = self._interval_refusal(int(msg.param1), msg.param2)
+            if refusal is not None:
+                result, extra = mavlink.MAV_RESULT_DENIED, [refusal]
+            else:
+                result = self._set_message_interval(int(msg.param1), msg.param2)
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL and p.message_intervals:
             name = _message_name(int(msg.param1))
             rate = self._streams[name].rate if name in self._streams else 0.0
@@ -315,6 +326,14 @@ class SimVehicle:
                 result = mavlink.MAV_RESULT_FAILED
         ack = mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         return [ack] + extra
+
+    def _interval_refusal(self, msg_id: int, interval_us: float):
+        """ArduPlane's STATUSTEXT for an interval faster than `interval_limits` allows, else None."""
+        limit = self.interval_limits.get(_message_name(msg_id))
+        if limit is None or interval_us <= 0 or 1e6 / interval_us <= limit + 1e-9:
+            return None
+        text = f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE"
+        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING, text.encode())
 
     def _set_message_interval(self, msg_id: int, interval_us: float) -> int:
         """param2: interval µs; 0 = back to the default, −1 = off. Rate capped per profile."""
