@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from gcs.mavlink.signing import SigningSnapshot as SigningSnapshot  # re-exported: the server reads it here
 from gcs.runtime.supervisor import PartStatus
 
 
@@ -64,6 +65,8 @@ class LinkSnapshot:
     heartbeat_age_s: float | None
     stats: LinkCounters
     events: list[LinkNote]
+    #: MAVLink 2 signing on this link (None: off)
+    signing: SigningSnapshot | None = None
 
 
 @dataclass(frozen=True, slots=True)

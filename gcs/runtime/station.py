@@ -29,6 +29,7 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline, pipeline_from
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet, PresetFile
 from gcs.mavlink.ascii import SEED000, AsciiFormat
+from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
@@ -78,6 +79,8 @@ class StationConfig:
     record_dir: str | None = None  # where sessions are recorded; None: no recording
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
     presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
+    signing_key: bytes | None = None  # MAVLink 2 signing key (--signing-key); None: no signing
+    signing_required: bool = True  # refuse unsigned packets (else accept and count them)
 
 
 class StationError(Exception):
@@ -90,6 +93,8 @@ class Station:
         self.bus = bus or MessageBus()
         self.events = EventLog()
         self.supervisor = Supervisor(self.events)
+        key = config.signing_key
+        signing = None if key is None else Signing(key, required=config.signing_required)
         self.link = Link(
             config.connect,
             bus=self.bus,
@@ -97,6 +102,7 @@ class Station:
             speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
             ascii_format=config.ascii_format,
+            signing=signing,
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)

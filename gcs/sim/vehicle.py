@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
+from gcs.mavlink.signing import Signing
 from gcs.sim.autopilot import GPS_RATE_HZ, Autopilot
 from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
@@ -72,6 +73,7 @@ class SimVehicle:
         param_clamp: dict[str, float] | None = None,
         publish_declination: bool = True,
         interval_limits: dict[str, float] | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
@@ -101,7 +103,12 @@ class SimVehicle:
         #: message → highest SET_MESSAGE_INTERVAL rate (Hz); faster is DENIED with ArduPlane's
         #: STATUSTEXT (its 0.8 × SCHED_LOOP_RATE limit), e.g. {"RAW_IMU": 40.0}
         self.interval_limits = dict(interval_limits or {})
+        #: packets refused for a missing or bad MAVLink 2 signature while signing is on
+        self.signature_rejected = 0
+        self.signing_key: bytes | None = None
         self._parser = mavlink.MAVLink(None)
+        if signing_key is not None:
+            self.set_signing_key(signing_key)
         self._parser.robust_parsing = True
         self.t = 0.0
         self._outbox: list[bytes] = []
@@ -180,6 +187,8 @@ class SimVehicle:
         for msg in self._parser.parse_buffer(data) or []:
             kind = msg.get_type()
             if kind == "BAD_DATA":
+                if "signature" in getattr(msg, "reason", ""):
+                    self.signature_rejected += 1
                 continue
             if self.profile.mavlink1 and msg.get_msgbuf()[0] == MARKER_V2:
                 continue  # APM 2.5 firmware has no MAVLink 2 parser
@@ -193,6 +202,20 @@ class SimVehicle:
                 self.rejected += 1
                 continue
             self._outbox += [self._encode(reply) for reply in replies]
+
+    def set_signing_key(self, key: bytes | None, timestamp: int = 0) -> None:
+        """Sign what the vehicle sends and refuse unsigned or badly signed packets (pymavlink's
+        own check, as ArduPilot's), or, with None or an all-zero key, stop: SETUP_SIGNING's rule."""
+        if key is None or not any(key):
+            self.signing_key = None
+            self._parser.signing.secret_key = None
+            self._encoder.mav.signing.sign_outgoing = False
+            return
+        self.signing_key = key
+        self._parser.signing.secret_key = key
+        self._parser.signing.timestamp = max(self._parser.signing.timestamp, timestamp)
+        Signing(key).sign_with(self._encoder)
+        self._encoder.mavlink1 = self.profile.mavlink1  # an APM 2.5 cannot sign (MAVLink 1 only)
 
     def take_replies(self) -> list[bytes]:
         """Replies produced by `handle_bytes` since the last advance, removed from the outbox."""
@@ -276,6 +299,8 @@ class SimVehicle:
             self._request_data_stream(msg)
         elif kind == "COMMAND_LONG":
             return self._command(msg)
+        elif kind == "SETUP_SIGNING" and not self.profile.mavlink1:
+            self.set_signing_key(bytes(msg.secret_key), msg.initial_timestamp)
         return []
 
     def _request_data_stream(self, msg) -> None:
