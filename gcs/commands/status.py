@@ -66,6 +66,14 @@ def format_report(snap: StationSnapshot) -> str:
     others = {k: v for k, v in stats.rates_hz.items() if k not in streams.messages}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
+    if link.signing is not None:
+        s = link.signing
+        refused = ", ".join(f"{why} {n}" for why, n in s.rejected.items()) or "none"
+        flagged = ", ".join(f"{why} {n}" for why, n in s.accepted_unsigned.items()) or "none"
+        lines.append(
+            f"signing    {'required' if s.required else 'optional'}  good {s.good}  refused: {refused}  "
+            f"accepted unsigned: {flagged}"
+        )
     if stats.nonfinite_rejected:
         lines.append(
             "rejected   non-finite values: " + ", ".join(f"{k} {n}" for k, n in stats.nonfinite_rejected.items())

@@ -105,6 +105,7 @@ class SimVehicle:
         self.interval_limits = dict(interval_limits or {})
         #: packets refused for a missing or bad MAVLink 2 signature while signing is on
         self.signature_rejected = 0
+        self._text_id = 0  # STATUSTEXT.id of the last chunked text
         self.signing_key: bytes | None = None
         self._parser = mavlink.MAVLink(None)
         if signing_key is not None:
@@ -327,7 +328,7 @@ class SimVehicle:
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and p.message_intervals:
             refusal = self._interval_refusal(int(msg.param1), msg.param2)
             if refusal is not None:
-                result, extra = mavlink.MAV_RESULT_DENIED, [refusal]
+                result, extra = mavlink.MAV_RESULT_DENIED, refusal
             else:
                 result = self._set_message_interval(int(msg.param1), msg.param2)
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL and p.message_intervals:
@@ -352,13 +353,18 @@ class SimVehicle:
         ack = mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         return [ack] + extra
 
-    def _interval_refusal(self, msg_id: int, interval_us: float):
-        """ArduPlane's STATUSTEXT for an interval faster than `interval_limits` allows, else None."""
+    def _interval_refusal(self, msg_id: int, interval_us: float) -> list | None:
+        """ArduPlane's STATUSTEXT for an interval faster than `interval_limits` allows (in 50-byte
+        chunks of one id, as ArduPilot sends a long text over MAVLink 2), else None."""
         limit = self.interval_limits.get(_message_name(msg_id))
         if limit is None or interval_us <= 0 or 1e6 / interval_us <= limit + 1e-9:
             return None
-        text = f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE"
-        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING, text.encode())
+        text = f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE".encode()
+        self._text_id = self._text_id % 65535 + 1
+        return [
+            mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text[i : i + 50], self._text_id, i // 50)
+            for i in range(0, len(text), 50)
+        ]
 
     def _set_message_interval(self, msg_id: int, interval_us: float) -> int:
         """param2: interval µs; 0 = back to the default, −1 = off. Rate capped per profile."""
