@@ -64,3 +64,33 @@ def test_refused_raw_imu_rate_is_lowered_to_the_vehicles_limit_others_keep_their
     assert status["link"]["stream_method"] == "SET_MESSAGE_INTERVAL"
     (line,) = [line.split() for line in report.splitlines() if line.startswith("  RAW_IMU ")]
     assert line[line.index("accepted") + 1] == "40.0" and "too fast" in report
+
+
+BARO_NEVER = {"SCALED_PRESSURE": 0.5}  # below the lowest step-down rate (1 Hz)
+
+
+def test_message_refused_at_every_rate_alone_falls_back_to_its_group(udp_port):
+    """SCALED_PRESSURE refused even at 1 Hz: it alone goes to REQUEST_DATA_STREAM (RAW_SENSORS at
+    5 Hz), and its group-mates RAW_IMU and SCALED_IMU2 are asked for again, so they stay at 50 Hz."""
+
+    async def scenario():
+        async with (
+            running_sim(
+                f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", interval_limits={"SCALED_PRESSURE": 0.5}
+            ) as sim,
+            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
+        ):
+            await wait_for(lambda: station.streams.requested, 30, "stream requests")
+            await asyncio.sleep(station.link.stats.window + 1.5)
+            return station.publish().streams, dict(sim.stream_rates())
+
+    streams, vehicle_rates = asyncio.run(scenario())
+    baro = streams.messages["SCALED_PRESSURE"]
+    assert baro.method == "REQUEST_DATA_STREAM" and baro.accepted_hz == 5.0
+    assert baro.reason.startswith("DENIED at 1 Hz: Requested rate for message ID 29 too fast")
+    assert abs(baro.achieved_hz - 5.0) <= 0.5
+    assert streams.method == "mixed"
+    for name in ("RAW_IMU", "SCALED_IMU2"):
+        row = streams.messages[name]
+        assert row.method == "SET_MESSAGE_INTERVAL" and vehicle_rates[name] == 50.0, (name, row)
+        assert abs(row.achieved_hz - 50.0) <= 5.0, (name, row)

@@ -5,12 +5,13 @@ Two mechanisms exist in the field:
 - MAV_CMD_SET_MESSAGE_INTERVAL, per message, ACKed (ArduPilot 4.x, PX4);
 - REQUEST_DATA_STREAM, per group of messages, never ACKed (APM 2.5 / ArduPilot 3.x, where
   ArduCopter sends nothing until asked).
-The negotiation is per message (docs/protocols.md, "Stream negotiation"): each message is asked
-for by SET_MESSAGE_INTERVAL; a refused rate (DENIED/FAILED) is retried at the highest rate the
-vehicle allows — read from its STATUSTEXT reason (ArduPilot's "too fast. Increase
-SCHED_LOOP_RATE": 0.8 × SCHED_LOOP_RATE, read from the vehicle) or else a step down a ladder of
-rates; only a message that is refused at every rate falls back to its REQUEST_DATA_STREAM group,
-and the accepted group-mates are then asked again so the group request does not override them.
+The negotiation is per message (docs/vehicles.md, "Stream requests"): each message is asked for
+by SET_MESSAGE_INTERVAL; a refused rate (DENIED, or FAILED for being too fast) is retried at the
+highest rate the vehicle allows — read from its STATUSTEXT reason (ArduPilot's "too fast.
+Increase SCHED_LOOP_RATE": 0.8 × SCHED_LOOP_RATE, read from the vehicle) or else a step down a
+ladder of rates; only a message refused at every rate falls back to its REQUEST_DATA_STREAM
+group, and the accepted group-mates are then asked again so the group request does not override
+them.
 A vehicle that does not know the command (no ACK, UNSUPPORTED) gets REQUEST_DATA_STREAM for all.
 Requests are repeated only after a reconnect, a reboot, or when a message stays far below its
 accepted rate (another ground station may have overridden it), and then at most once per
@@ -204,6 +205,8 @@ class StreamRequester:
         tried = {hz}
         while result in ("DENIED", "FAILED"):
             n.reason = f"{result} at {hz:g} Hz" + (f": {text}" if text else "")
+            if result == "FAILED" and not (text and TOO_FAST.search(text)):
+                break  # not about the rate (ArduPilot: a message it cannot send): no lower rate helps
             lower = await self._lower_rate(hz, text, tried, replies)
             if lower is None:
                 break
