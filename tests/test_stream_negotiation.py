@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import asyncio
 
-import httpx
-from live import running_sim, running_station, wait_for
+from live import running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
-from gcs.server.dashboard import DashboardServer
 
 REQUESTED = {"RAW_IMU": 50.0, "SCALED_IMU2": 50.0, "ATTITUDE": 50.0, "AHRS2": 50.0, "SCALED_PRESSURE": 5.0}
 
@@ -23,26 +21,19 @@ def test_refused_raw_imu_rate_is_lowered_to_the_vehicles_limit_others_keep_their
             running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
         ):
             await wait_for(lambda: station.streams.requested, 30, "stream requests")
-            server = DashboardServer(station, port=0, viser=False)
-            await server.start()
-            try:
-                async with httpx.AsyncClient(
-                    base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers
-                ) as api:
-                    await wait_for(
-                        lambda: (
-                            (rows := station.snapshot.streams.messages)
-                            and rows["RAW_IMU"].achieved_hz > 30
-                            and rows["SCALED_PRESSURE"].achieved_hz > 0
-                        ),
-                        30,
-                        "a snapshot with achieved rates",
-                    )
-                    await asyncio.sleep(station.link.stats.window + 1.5)  # a full rate window after the requests
-                    station.publish()
-                    status = (await api.get("/api/status")).json()
-            finally:
-                await server.stop()
+            async with served_api(station) as api:
+                await wait_for(
+                    lambda: (
+                        (rows := station.snapshot.streams.messages)
+                        and rows["RAW_IMU"].achieved_hz > 30
+                        and rows["SCALED_PRESSURE"].achieved_hz > 0
+                    ),
+                    30,
+                    "a snapshot with achieved rates",
+                )
+                await asyncio.sleep(station.link.stats.window + 1.5)  # a full rate window after the requests
+                station.publish()
+                status = (await api.get("/api/status")).json()
             return status, dict(sim.stream_rates()), format_report(station.snapshot)
 
     status, vehicle_rates, report = asyncio.run(scenario())
