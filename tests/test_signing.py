@@ -216,3 +216,37 @@ def test_mavsdk_behind_out_still_sees_the_signed_vehicle(udp_port):
 
     seen, out_status = asyncio.run(asyncio.wait_for(scenario(), 60))
     assert len(seen) == 20 and out_status.packets_out > 50
+
+
+async def _signing_setup(udp_port: int, *extra: str) -> tuple[int | None, str, str]:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "gcs", "signing", "setup", "--connect", f"udpin:127.0.0.1:{udp_port}",
+        "--signing-key", "flight test 13", "--no-record", *extra, cwd=ROOT,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    out, err = await asyncio.wait_for(proc.communicate(), 60)
+    return proc.returncode, out.decode(), err.decode()
+
+
+def test_gcs_signing_setup_refuses_a_mavlink1_vehicle(udp_port):
+    async def scenario():
+        async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="apm25") as sim:
+            rc, _, err = await _signing_setup(udp_port)
+            return rc, err, sim.received.get("SETUP_SIGNING", 0)
+
+    rc, err, received = asyncio.run(scenario())
+    assert rc == 1 and "speaks only MAVLink 1" in err and received == 0
+
+
+def test_gcs_signing_setup_fails_when_the_vehicle_keeps_another_key(udp_port):
+    """A vehicle already signing with another key refuses the unsigned SETUP_SIGNING: the check of
+    its heartbeats says so instead of claiming success."""
+
+    async def scenario():
+        async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", signing_key=WRONG) as sim:
+            rc, _, err = await _signing_setup(udp_port, "--timeout", "3")
+            return rc, err, sim.signing_key
+
+    rc, err, key = asyncio.run(scenario())
+    assert rc == 1 and "vehicle 1 sent no heartbeat signed with this key within 3 s after SETUP_SIGNING" in err
+    assert key == WRONG

@@ -40,19 +40,22 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # The vehicle does not know the key yet: the link itself is unsigned.
     config.signing_key, config.request_streams, config.estimate, config.record_dir = None, False, False, None
-    message = asyncio.run(_setup(config, key, args.timeout, disable=args.disable))
-    print(message, file=sys.stdout if message.startswith("vehicle") else sys.stderr)
-    return 0 if message.startswith("vehicle") else 1
+    done, message = asyncio.run(_setup(config, key, args.timeout, disable=args.disable))
+    print(message if done else f"gcs signing setup: {message}", file=sys.stdout if done else sys.stderr)
+    return 0 if done else 1
 
 
-async def _setup(config: StationConfig, key: bytes, timeout: float, disable: bool) -> str:
+async def _setup(config: StationConfig, key: bytes, timeout: float, disable: bool) -> tuple[bool, str]:
+    """(done, what happened)."""
     station = Station(config)
     await station.start()
     link = station.link
     try:
         if not await link.wait_connected(timeout):
-            return f"no heartbeat from a vehicle on {config.connect} within {timeout:g} s"
+            return False, f"no heartbeat from a vehicle on {config.connect} within {timeout:g} s"
         sysid, compid = link.target_system or 1, link.target_component or 1
+        if link.vehicle_mavlink == 1:
+            return False, f"vehicle {sysid} speaks only MAVLink 1 (an APM 2.5?): signing needs MAVLink 2; nothing sent"
         beats = link.bus.subscribe("signing-setup", types=["HEARTBEAT"], maxlen=100)
         try:
             for _ in range(SENDS):
@@ -65,7 +68,7 @@ async def _setup(config: StationConfig, key: bytes, timeout: float, disable: boo
         await station.stop()
 
 
-async def _verify(beats, sysid: int, signing: Signing, timeout: float, disable: bool) -> str:
+async def _verify(beats, sysid: int, signing: Signing, timeout: float, disable: bool) -> tuple[bool, str]:
     """The vehicle's next heartbeats signed with the key (or, with --disable, unsigned)."""
     beats.drain()
     deadline = time.monotonic() + timeout
@@ -74,8 +77,8 @@ async def _verify(beats, sysid: int, signing: Signing, timeout: float, disable: 
             continue
         verdict = signing.check(item.msg)
         if disable and verdict == "unsigned":
-            return f"vehicle {sysid}: signing switched off (its heartbeats are unsigned)"
+            return True, f"vehicle {sysid}: signing switched off (its heartbeats are unsigned)"
         if not disable and verdict is None:
-            return f"vehicle {sysid}: signing set up; its heartbeats are signed with this key"
-    what = "unsigned heartbeats" if disable else "a heartbeat signed with this key"
-    return f"vehicle {sysid} sent no {what} within {timeout:g} s after SETUP_SIGNING (not accepted?)"
+            return True, f"vehicle {sysid}: signing set up; its heartbeats are signed with this key"
+    what = "unsigned heartbeat" if disable else "heartbeat signed with this key"
+    return False, f"vehicle {sysid} sent no {what} within {timeout:g} s after SETUP_SIGNING (not accepted?)"
