@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from gcs.mavlink.signing import parse_key
 from gcs.sim.ascii import AsciiFirmware
 from gcs.sim.radio import fit_radio
 from gcs.sim.recording import fly_flight_logs
@@ -103,6 +104,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="sensor or parameter-protocol fault, repeatable (see below)",
     )
+    parser.add_argument(
+        "--max-rate",
+        action="append",
+        default=[],
+        metavar="MESSAGE=HZ",
+        help="refuse SET_MESSAGE_INTERVAL faster than HZ for MESSAGE as ArduPlane does (e.g. RAW_IMU=40), repeatable",
+    )
+    parser.add_argument(
+        "--signing-key",
+        metavar="PASSPHRASE|FILE",
+        help="sign MAVLink 2 with this key and refuse unsigned packets (a key file or a passphrase)",
+    )
+
+
+def parse_max_rates(items: list[str]) -> dict[str, float]:
+    """--max-rate MESSAGE=HZ items → {MESSAGE: HZ}; ValueError names the bad one."""
+    limits = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        try:
+            limits[name.strip().upper()] = float(text)
+        except ValueError:
+            raise ValueError(f"--max-rate {item!r}: expected MESSAGE=HZ") from None
+    return limits
 
 
 def parse_faults(items: list[str]):
@@ -143,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         faults, drop, clamp = parse_faults(args.fault)
+        limits = parse_max_rates(args.max_rate)
+        key = None if args.signing_key is None else parse_key(args.signing_key)
         if args.radio is not None and not 1200 <= args.radio <= 2_000_000:
             raise ValueError("--radio: a baud rate such as 57600")
         if not 0.0 <= args.log_drop < 1.0:
@@ -164,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
         param_drop=drop,
         param_clamp=clamp,
         publish_declination=not args.no_declination_param,
+        interval_limits=limits,
+        signing_key=key,
     )
     sim.log_server.drop = args.log_drop
     if args.log_dir:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from gcs.mavlink.signing import SigningSnapshot as SigningSnapshot  # re-exported: the server reads it here
 from gcs.runtime.supervisor import PartStatus
 
 
@@ -64,6 +65,8 @@ class LinkSnapshot:
     heartbeat_age_s: float | None
     stats: LinkCounters
     events: list[LinkNote]
+    #: MAVLink 2 signing on this link (None: off)
+    signing: SigningSnapshot | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,11 +75,16 @@ class StreamRate:
     achieved_hz: float
     ratio: float | None
     ack: str | None
+    #: the rate the vehicle took (after a refusal: the highest it allows), and how it was asked
+    accepted_hz: float | None = None
+    method: str | None = None  # SET_MESSAGE_INTERVAL | REQUEST_DATA_STREAM
+    #: why accepted differs from requested: the refusal and the vehicle's STATUSTEXT
+    reason: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class StreamsSnapshot:
-    method: str | None  # "SET_MESSAGE_INTERVAL" or "REQUEST_DATA_STREAM" once decided
+    method: str | None  # "SET_MESSAGE_INTERVAL", "REQUEST_DATA_STREAM" or "mixed" once decided
     requests_sent: int
     messages: dict[str, StreamRate]
 

@@ -29,9 +29,11 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline, pipeline_from
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet, PresetFile
 from gcs.mavlink.ascii import SEED000, AsciiFormat
+from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
+from gcs.runtime.firmware import request_version
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError
@@ -79,6 +81,8 @@ class StationConfig:
     record_dir: str | None = None  # where sessions are recorded; None: no recording
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
     presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
+    signing_key: bytes | None = None  # MAVLink 2 signing key (--signing-key); None: no signing
+    signing_required: bool = True  # refuse unsigned packets (else accept and count them)
 
 
 class StationError(Exception):
@@ -91,6 +95,8 @@ class Station:
         self.bus = bus or MessageBus()
         self.events = EventLog()
         self.supervisor = Supervisor(self.events)
+        key = config.signing_key
+        signing = None if key is None else Signing(key, required=config.signing_required)
         self.link = Link(
             config.connect,
             bus=self.bus,
@@ -98,6 +104,7 @@ class Station:
             speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
             ascii_format=config.ascii_format,
+            signing=signing,
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
@@ -152,6 +159,8 @@ class Station:
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
+        if self.config.request_streams:  # not for a parameter-only command: ask the firmware version
+            run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
         for i, output in enumerate(self.outputs):
             run(f"output {i + 1}", output.run())
         if self.config.request_streams:

@@ -7,7 +7,7 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from gcs.runtime.protocol import ProtocolState
-from gcs.runtime.snapshots import ErrorStats, RadioSnapshot, StreamRate, VehicleSnapshot
+from gcs.runtime.snapshots import ErrorStats, RadioSnapshot, SigningSnapshot, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.live import ClientSnapshot
 
@@ -50,6 +50,7 @@ class LinkStatus(BaseModel):
     rates_hz: dict[str, float]
     stream_method: str | None
     streams: dict[str, StreamRate]
+    signing: SigningSnapshot | None = Field(default=None, description="MAVLink 2 signing counters (None: off)")
 
 
 class EstimatorStatus(BaseModel):

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
+from gcs.mavlink.signing import Signing
 from gcs.sim.autopilot import GPS_RATE_HZ, Autopilot
 from gcs.sim.dataflash import FlightLog
 from gcs.sim.logserver import SEND_LOOP_HZ, LogServer, LogStore
@@ -74,6 +75,8 @@ class SimVehicle:
         param_drop: float = 0.0,
         param_clamp: dict[str, float] | None = None,
         publish_declination: bool = True,
+        interval_limits: dict[str, float] | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
@@ -103,7 +106,16 @@ class SimVehicle:
         self.logs = LogStore(self._new_flight_log)
         self.log_server = LogServer(self.logs, np.random.default_rng(log_seed))
         self._encoder = Encoder(sysid, compid, mavlink1=self.profile.mavlink1)
+        #: message → highest SET_MESSAGE_INTERVAL rate (Hz); faster is DENIED with ArduPlane's
+        #: STATUSTEXT (its 0.8 × SCHED_LOOP_RATE limit), e.g. {"RAW_IMU": 40.0}
+        self.interval_limits = dict(interval_limits or {})
+        #: packets refused for a missing or bad MAVLink 2 signature while signing is on
+        self.signature_rejected = 0
+        self._text_id = 0  # STATUSTEXT.id of the last chunked text
+        self.signing_key: bytes | None = None
         self._parser = mavlink.MAVLink(None)
+        if signing_key is not None:
+            self.set_signing_key(signing_key)
         self._parser.robust_parsing = True
         self.t = 0.0
         self._outbox: list[bytes] = []
@@ -188,6 +200,8 @@ class SimVehicle:
         for msg in self._parser.parse_buffer(data) or []:
             kind = msg.get_type()
             if kind == "BAD_DATA":
+                if "signature" in getattr(msg, "reason", ""):
+                    self.signature_rejected += 1
                 continue
             if self.profile.mavlink1 and msg.get_msgbuf()[0] == MARKER_V2:
                 continue  # APM 2.5 firmware has no MAVLink 2 parser
@@ -201,6 +215,20 @@ class SimVehicle:
                 self.rejected += 1
                 continue
             self._outbox += [self._encode(reply) for reply in replies]
+
+    def set_signing_key(self, key: bytes | None, timestamp: int = 0) -> None:
+        """Sign what the vehicle sends and refuse unsigned or badly signed packets (pymavlink's
+        own check, as ArduPilot's), or, with None or an all-zero key, stop: SETUP_SIGNING's rule."""
+        if key is None or not any(key):
+            self.signing_key = None
+            self._parser.signing.secret_key = None
+            self._encoder.mav.signing.sign_outgoing = False
+            return
+        self.signing_key = key
+        self._parser.signing.secret_key = key
+        self._parser.signing.timestamp = max(self._parser.signing.timestamp, timestamp)
+        Signing(key).sign_with(self._encoder)
+        self._encoder.mavlink1 = self.profile.mavlink1  # an APM 2.5 cannot sign (MAVLink 1 only)
 
     def take_replies(self) -> list[bytes]:
         """Replies produced by `handle_bytes` since the last advance, removed from the outbox."""
@@ -282,13 +310,18 @@ class SimVehicle:
     def _handle(self, msg) -> list:
         kind = msg.get_type()
         if kind.startswith("PARAM_"):
-            return self.param_server.handle(msg, self.t)
+            banner = []
+            if kind == "PARAM_REQUEST_LIST" and self.profile.banner:  # ArduPilot's send_banner()
+                banner = [mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, self.profile.banner.encode())]
+            return banner + self.param_server.handle(msg, self.t)
         if kind.startswith("LOG_") or kind == "HEARTBEAT":
             return self.log_server.handle(msg, self.t, self.armed)
         if kind == "REQUEST_DATA_STREAM":
             self._request_data_stream(msg)
         elif kind == "COMMAND_LONG":
             return self._command(msg)
+        elif kind == "SETUP_SIGNING" and not self.profile.mavlink1:
+            self.set_signing_key(bytes(msg.secret_key), msg.initial_timestamp)
         return []
 
     def _request_data_stream(self, msg) -> None:
@@ -313,7 +346,11 @@ class SimVehicle:
             self.autopilot.armed = msg.param1 >= 0.5
             result = mavlink.MAV_RESULT_ACCEPTED
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and p.message_intervals:
-            result = self._set_message_interval(int(msg.param1), msg.param2)
+            refusal = self._interval_refusal(int(msg.param1), msg.param2)
+            if refusal is not None:
+                result, extra = mavlink.MAV_RESULT_DENIED, refusal
+            else:
+                result = self._set_message_interval(int(msg.param1), msg.param2)
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL and p.message_intervals:
             name = _message_name(int(msg.param1))
             rate = self._streams[name].rate if name in self._streams else 0.0
@@ -335,6 +372,19 @@ class SimVehicle:
                 result = mavlink.MAV_RESULT_FAILED
         ack = mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         return [ack] + extra
+
+    def _interval_refusal(self, msg_id: int, interval_us: float) -> list | None:
+        """ArduPlane's STATUSTEXT for an interval faster than `interval_limits` allows (in 50-byte
+        chunks of one id, as ArduPilot sends a long text over MAVLink 2), else None."""
+        limit = self.interval_limits.get(_message_name(msg_id))
+        if limit is None or interval_us <= 0 or 1e6 / interval_us <= limit + 1e-9:
+            return None
+        text = f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE".encode()
+        self._text_id = self._text_id % 65535 + 1
+        return [
+            mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text[i : i + 50], self._text_id, i // 50)
+            for i in range(0, len(text), 50)
+        ]
 
     def _set_message_interval(self, msg_id: int, interval_us: float) -> int:
         """param2: interval µs; 0 = back to the default, −1 = off. Rate capped per profile."""
