@@ -16,7 +16,7 @@ from pymavlink.DFReader import DFReader_binary
 
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.mavlink.logtransfer import LogEntry, LogTransfer
-from gcs.runtime.logdownload import LogDownloader, LogDownloadError
+from gcs.runtime.logdownload import LogDownloader, LogDownloadError, PartialLog
 from gcs.runtime.replay import ReplaySession
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
@@ -228,3 +228,17 @@ def test_gcs_logs_download_latest_from_gcs_sim(tmp_path, udp_port):
     assert "log 2:" in done.stdout and "kB/s" in done.stdout and "gcs replay" in done.stdout
     (downloaded,) = out.glob("log2-*.bin")
     assert downloaded.read_bytes() == (vehicle_dir / "00000002.BIN").read_bytes()  # the flight flown live
+
+
+def test_partial_download_resumes_only_the_same_log(tmp_path):
+    entry = LogEntry(3, 3, 3, 1_767_225_600, 500)
+    transfer = LogTransfer(entry)
+    transfer.on_data(3, 90, 90, b"x" * 90, 0.0)
+    partial = PartialLog(tmp_path / "log3.bin", entry)
+    partial.save(bytes(transfer.data), bytes(transfer.have))
+    resumed = partial.load(0.5)
+    assert resumed.bytes_received == 90 and resumed.data[90:180] == b"x" * 90
+    other = LogEntry(3, 3, 3, 1_767_225_600, 501)  # same id, another size: another log (erased, new flight)
+    assert PartialLog(tmp_path / "log3.bin", other).load(0.5).bytes_received == 0
+    (tmp_path / "log3.bin.partial.json").write_text("{not json")  # damaged: start afresh, no traceback
+    assert partial.load(0.5).bytes_received == 0
