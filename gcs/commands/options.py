@@ -7,6 +7,7 @@ import argparse
 import sys
 
 from gcs.mavlink.ascii import UNITS, AsciiFormat
+from gcs.mavlink.signing import parse_key
 from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.transport.address import AddressError, parse_address
@@ -41,7 +42,28 @@ def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool =
         help="column order of an ascii: link's lines, - for a column to ignore (default seed 000's pitch,yaw,roll)",
     )
     parser.add_argument("--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)")
+    add_signing_arguments(parser)
     add_record_arguments(parser)
+
+
+def add_signing_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--signing-key",
+        metavar="PASSPHRASE|FILE",
+        help="sign MAVLink 2 with this key: a key file (32 bytes or 64 hex digits) or a passphrase (SHA-256)",
+    )
+    parser.add_argument(
+        "--signing",
+        choices=("required", "optional"),
+        default="required",
+        help="with --signing-key: refuse unsigned packets (required, default) or accept and count them",
+    )
+
+
+def signing_key(args: argparse.Namespace) -> bytes | None:
+    """The key --signing-key names, None without it; SigningKeyError (a ValueError) if unusable."""
+    value = getattr(args, "signing_key", None)
+    return None if value is None else parse_key(value)
 
 
 def add_record_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,6 +97,8 @@ def station_config(args: argparse.Namespace):
         plan=StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate),
         record_dir=record_dir(args),
         ascii_format=AsciiFormat.parse(args.ascii_fields, args.ascii_unit),
+        signing_key=signing_key(args),
+        signing_required=args.signing == "required",
     )
 
 

@@ -13,6 +13,7 @@ import numpy.typing as npt
 from gcs.core.estimation import AttitudePoint
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.runtime.events import EventLog
+from gcs.runtime.logdownload import LogDownloader
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.replay import ReplaySession
@@ -31,6 +32,7 @@ class StationFacade(Protocol):
     replay_loaded: Signal[[ReplaySession]]
     replay: ReplaySession | None
     protocol: LiveProtocol | None
+    onboard_logs: LogDownloader
 
     @property
     def snapshot(self) -> StationSnapshot: ...
@@ -48,6 +50,7 @@ class StationFacade(Protocol):
     def start_protocol(self, name_or_path: str, detect_source: str | None, client: str) -> LiveProtocol: ...
     def stop_protocol(self) -> None: ...
     def start_param_download(self) -> bool: ...
+    def start_log_download(self, log_id: int | None) -> bool: ...
     async def tuning(self) -> TuningSession: ...
     async def load_replay(
         self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]

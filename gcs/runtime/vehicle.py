@@ -15,6 +15,7 @@ from pymavlink import mavutil
 
 from gcs.mavlink.dialect import mavlink
 from gcs.runtime.events import EventLog
+from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import AutopilotMessage, VehicleSnapshot
@@ -131,9 +132,11 @@ class VehicleState:
             self.ekf_variance_max = max(variances)
         elif item.type == "STATUSTEXT":
             self._statustext(msg.severity, msg.text)
+            if banner := banner_version(msg.text):
+                self.firmware = banner
         elif item.type == "AUTOPILOT_VERSION":
-            v = msg.flight_sw_version
-            self.firmware = f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}"
+            if self.firmware is None or self.firmware[0].isdigit():  # a banner seen names more
+                self.firmware = version_of(msg)
             self.capabilities = msg.capabilities
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
             last = self._last_boot_time
