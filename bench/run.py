@@ -17,6 +17,7 @@ BENCHMARKS = {
     "status": "bench.status",
     "replay_memory": "bench.replay_memory",
     "batch": "bench.batch",
+    "estimators": "bench.estimators",
 }
 
 
