@@ -18,6 +18,7 @@ BENCHMARKS = {
     "replay_memory": "bench.replay_memory",
     "batch": "bench.batch",
     "estimators": "bench.estimators",
+    "serve_cpu": "bench.serve_cpu",
 }
 
 

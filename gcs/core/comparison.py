@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from typing import TypedDict
 
 import numpy as np
@@ -221,7 +222,10 @@ class Comparison:
         self.dropped = 0
         self._window_t: deque[float] = deque()  # estimate times of the last `window` s: the IMU rate
 
-    def add_estimate(self, t: float, q: npt.NDArray[np.float64]) -> None:
+    def add_estimate(
+        self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: tuple[float, float, float] | None = None
+    ) -> None:
+        """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
         if self.estimates and t < self.estimates[-1][0]:  # vehicle clock went back: a new session
             self.estimates.clear()
             self.pending.clear()
@@ -230,10 +234,10 @@ class Comparison:
             self._window_t.clear()
         if self.estimates and t == self.estimates[-1][0]:
             return
-        w, x, y, z = (float(c) for c in q)
-        self.estimates.append((t, (w, x, y, z)))
+        w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
+        self.estimates.append((t, (float(w), float(x), float(y), float(z))))
         if not self.est_euler or t >= self.est_euler[-1][0] + self.lag_step:  # the lag search's resolution
-            roll, pitch, _ = quat_to_euler(q)
+            roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
             self.est_euler.append((t, roll, pitch))
         for buf in (self.estimates, self.est_euler):
             while buf[0][0] < t - self.history:
@@ -271,7 +275,10 @@ class Comparison:
         (t0, q0), (t1, q1) = est[lo], est[hi]
         u = (ref.t - t0) / (t1 - t0) if t1 > t0 else 0.0
         err = attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
-        self.stats.setdefault(ref.source, _Stats(self.window)).add(ref.t, err)
+        stats = self.stats.get(ref.source)
+        if stats is None:
+            stats = self.stats[ref.source] = _Stats(self.window)
+        stats.add(ref.t, err)
         if ref.source == "onboard":
             self.onboard.append((ref.t, ref.roll, ref.pitch))
             while self.onboard[0][0] < ref.t - self.history:

@@ -92,10 +92,9 @@ def reinit_reason(s: State, code: int, max_gap: float) -> str:
 
 
 def floats(v: object) -> State:
-    """A sample vector as the contiguous float64 array the kernels take (usually it already is)."""
-    if type(v) is np.ndarray and v.dtype == np.float64 and v.flags.c_contiguous:
-        return v
-    return np.ascontiguousarray(v, dtype=np.float64)
+    """A sample vector as an array for the kernels (it usually is one: numba specialises a kernel
+    for another dtype or layout once)."""
+    return v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)
 
 
 class StateTime:
