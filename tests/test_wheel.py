@@ -85,7 +85,10 @@ def test_installed_wheel_serves_the_dashboard_with_no_checkout_and_no_npm(instal
     try:
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as client:
             live = {"onboard", "truth", "dcm", "kf", "ekf"}
-            first = wait_json(client, "/api/estimates", lambda d: live <= set(d["sources"]), "every source")
+            # a fresh install compiles the estimators' kernels at its first start (cached afterwards)
+            first = wait_json(
+                client, "/api/estimates", lambda d: live <= set(d["sources"]), "every source", timeout=600.0
+            )
             later = wait_json(
                 client,
                 "/api/estimates",

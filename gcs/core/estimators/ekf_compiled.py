@@ -217,27 +217,26 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     inflation = 1.0 + ((a_norm - G0) / g[ACC_GATE]) ** 2
     s[k.ACCEL_NORM] = a_norm
     s[ACC_INFLATION] = inflation
-    # P ← F P Fᵀ, F = I except F[θ, b] = −R dt and F[v, θ] = −[R a]× dt
-    F = np.eye(9)
-    for i in range(3):
+    # P ← F P Fᵀ with F = I + E, E[θ, b] = −R dt and E[v, θ] = −[R a]× dt = K: only E's 15
+    # entries are multiplied (F P = P + E P, then (F P) Fᵀ = F P + (F P) Eᵀ)
+    d = (
+        (-R[0][0] * dt, -R[0][1] * dt, -R[0][2] * dt),
+        (-R[1][0] * dt, -R[1][1] * dt, -R[1][2] * dt),
+        (-R[2][0] * dt, -R[2][1] * dt, -R[2][2] * dt),
+    )
+    K = ((0.0, fz * dt, -fy * dt), (-fz * dt, 0.0, fx * dt), (fy * dt, -fx * dt, 0.0))
+    FP = Pm.copy()
+    for j in range(9):
+        p0, p1, p2, p6, p7, p8 = Pm[0, j], Pm[1, j], Pm[2, j], Pm[6, j], Pm[7, j], Pm[8, j]
+        for i in range(3):
+            FP[i, j] += d[i][0] * p6 + d[i][1] * p7 + d[i][2] * p8
+            FP[3 + i, j] += K[i][0] * p0 + K[i][1] * p1 + K[i][2] * p2
+    for i in range(9):
+        f0, f1, f2, f6, f7, f8 = FP[i, 0], FP[i, 1], FP[i, 2], FP[i, 6], FP[i, 7], FP[i, 8]
         for j in range(3):
-            F[i, 6 + j] = -R[i][j] * dt
-    F[3, 1], F[3, 2] = fz * dt, -fy * dt
-    F[4, 0], F[4, 2] = -fz * dt, fx * dt
-    F[5, 0], F[5, 1] = fy * dt, -fx * dt
-    FP = np.zeros((9, 9))
-    for i in range(9):
-        for l in range(9):
-            f = F[i, l]
-            if f != 0.0:
-                for j in range(9):
-                    FP[i, j] += f * Pm[l, j]
-    for i in range(9):
-        for j in range(9):
-            acc = 0.0
-            for l in range(9):
-                acc += FP[i, l] * F[j, l]
-            Pm[i, j] = acc
+            Pm[i, j] = FP[i, j] + f6 * d[j][0] + f7 * d[j][1] + f8 * d[j][2]
+            Pm[i, 3 + j] = FP[i, 3 + j] + f0 * K[j][0] + f1 * K[j][1] + f2 * K[j][2]
+            Pm[i, 6 + j] = FP[i, 6 + j]
     sa = g[ACC_NOISE] * inflation
     qg, qh = g[GYRO_NOISE] ** 2 * dt, g[HEADING_NOISE] ** 2 * dt
     qa, qb = sa * sa * dt, g[BIAS_WALK] ** 2 * dt
