@@ -62,6 +62,7 @@ def wait_json(client: httpx.Client, path: str, ok, what: str, timeout: float = 6
     raise AssertionError(f"timed out after {timeout} s waiting for {what}; last answer: {last and last.text[:300]}")
 
 
+@pytest.mark.timeout(900)  # pip install with numba, then the first kernel compilation
 def test_installed_wheel_serves_the_dashboard_with_no_checkout_and_no_npm(installed, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
