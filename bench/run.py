@@ -17,6 +17,8 @@ BENCHMARKS = {
     "status": "bench.status",
     "replay_memory": "bench.replay_memory",
     "batch": "bench.batch",
+    "estimators": "bench.estimators",
+    "serve_cpu": "bench.serve_cpu",
     "page_fps": "bench.page_fps",
 }
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import sys
 
 import numpy as np
@@ -23,7 +24,7 @@ from gcs.transport.address import free_port
 MISSION_PLANNER_PERIOD_MS = 200.0
 
 
-async def measure(clients: int, seconds: float) -> dict:
+async def measure(clients: int, seconds: float, hog: bool = False) -> dict:
     port = free_port()
     station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=200, attitude_hz=200)))
     server = DashboardServer(station, port=0, viser=False)
@@ -32,10 +33,13 @@ async def measure(clients: int, seconds: float) -> dict:
     sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
     await server.start()
     arrivals: dict[float, float] = {}
+    spinner = None
     try:
         while station.link.stats.rates().get("ATTITUDE", 0) < 150:  # streams at 200 Hz
             await asyncio.sleep(0.2)
         sub = station.bus.subscribe("bench-arrival", types=["ATTITUDE"], maxlen=100_000)
+        # a CPU hog: another process spinning on a core the whole time (as a busy laptop has)
+        spinner = await asyncio.create_subprocess_exec(sys.executable, "-c", "while True: pass") if hog else None
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
@@ -54,6 +58,9 @@ async def measure(clients: int, seconds: float) -> dict:
         sub.close()
         rate = station.link.stats.rates().get("ATTITUDE", 0.0)
     finally:
+        if spinner is not None:
+            spinner.kill()
+            await spinner.wait()
         await server.stop()
         sim_task.cancel()
         await station.stop()
@@ -72,16 +79,17 @@ async def measure(clients: int, seconds: float) -> dict:
         "p95_ms": round(p95, 2),
         "p99_ms": round(p99, 2),
         "max_ms": round(max(latencies), 2),
+        "load_avg_1m": round(os.getloadavg()[0], 2),
     }
 
 
 def main(seconds: float = 10.0) -> list[dict]:
     rows = []
-    for clients in (1, 20):
-        r = asyncio.run(measure(clients, seconds))
+    for clients, hog in ((1, False), (20, False), (20, True)):
+        r = asyncio.run(measure(clients, seconds, hog))
         rows.append(
             {
-                "benchmark": f"ws latency, {clients} client(s), 200 Hz",
+                "benchmark": f"ws latency, {clients} client(s), 200 Hz" + (", CPU hog" if hog else ""),
                 "baseline": "Mission Planner 5 Hz push",
                 "baseline_ms": MISSION_PLANNER_PERIOD_MS,
                 **r,

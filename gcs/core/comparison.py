@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from typing import TypedDict
 
 import numpy as np
@@ -126,8 +127,15 @@ class ComparisonSummary(TypedDict):
     references: dict[str, ReferenceSummary]
 
 
+#: The window's running sums of squares are summed afresh after this many removals, so that
+#: rounding from subtracting what leaves the window cannot build up over a long session.
+RESUM_EVERY = 4096
+
+
 class _Stats:
-    """RMS and max |error| per axis (roll, pitch, yaw) over the session and a sliding window."""
+    """RMS and max |error| per axis (roll, pitch, yaw) over the session and a sliding window,
+    kept as running sums (and, for the window's max, a monotonic queue per axis): a summary
+    costs the same whatever the rates and the window."""
 
     def __init__(self, window: float) -> None:
         self.window = window
@@ -135,22 +143,43 @@ class _Stats:
         self.n = 0
         self.sum_sq = [0.0, 0.0, 0.0]
         self.max = [0.0, 0.0, 0.0]
+        self.window_sum_sq = [0.0, 0.0, 0.0]
+        self._removed = 0
+        #: per axis (t, |e|) with |e| decreasing: the head is the window's max
+        self.window_max: tuple[deque[tuple[float, float]], ...] = (deque(), deque(), deque())
 
     def add(self, t: float, err: tuple[float, float, float]) -> None:
         self.recent.append((t, *err))
-        while self.recent and self.recent[0][0] < t - self.window:
-            self.recent.popleft()
+        start = t - self.window
+        wss = self.window_sum_sq
+        while self.recent and self.recent[0][0] < start:
+            _, a, b, c = self.recent.popleft()
+            wss[0] -= a * a
+            wss[1] -= b * b
+            wss[2] -= c * c
+            self._removed += 1
+        if self._removed >= RESUM_EVERY:
+            self._removed = 0
+            for i in range(3):
+                wss[i] = math.fsum(r[i + 1] * r[i + 1] for r in self.recent) - err[i] * err[i]
         self.n += 1
         for i, e in enumerate(err):
-            self.sum_sq[i] += e * e
-            self.max[i] = max(self.max[i], abs(e))
+            sq, mag = e * e, abs(e)
+            self.sum_sq[i] += sq
+            wss[i] += sq
+            self.max[i] = max(self.max[i], mag)
+            peaks = self.window_max[i]
+            while peaks and peaks[-1][1] <= mag:
+                peaks.pop()
+            peaks.append((t, mag))
+            while peaks[0][0] < start:
+                peaks.popleft()
 
     def summary(self) -> ReferenceSummary:
         n = len(self.recent)
         if n:
-            errors = np.array(self.recent)[:, 1:]
-            window_rms = np.sqrt(np.mean(errors * errors, axis=0)).tolist()
-            window_max = np.abs(errors).max(axis=0).tolist()
+            window_rms = [math.sqrt(max(v, 0.0) / n) for v in self.window_sum_sq]
+            window_max = [peaks[0][1] for peaks in self.window_max]
         else:
             window_rms = window_max = [math.nan] * 3
         session_rms = [math.sqrt(s / self.n) if self.n else math.nan for s in self.sum_sq]
@@ -191,23 +220,32 @@ class Comparison:
         self.est_euler: deque[tuple[float, float, float]] = deque()
         self.stats: dict[str, _Stats] = {}
         self.dropped = 0
+        self._window_t: deque[float] = deque()  # estimate times of the last `window` s: the IMU rate
 
-    def add_estimate(self, t: float, q: npt.NDArray[np.float64]) -> None:
+    def add_estimate(
+        self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: tuple[float, float, float] | None = None
+    ) -> None:
+        """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
         if self.estimates and t < self.estimates[-1][0]:  # vehicle clock went back: a new session
             self.estimates.clear()
             self.pending.clear()
             self.onboard.clear()
             self.est_euler.clear()
+            self._window_t.clear()
         if self.estimates and t == self.estimates[-1][0]:
             return
-        w, x, y, z = (float(c) for c in q)
-        self.estimates.append((t, (w, x, y, z)))
+        w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
+        self.estimates.append((t, (float(w), float(x), float(y), float(z))))
         if not self.est_euler or t >= self.est_euler[-1][0] + self.lag_step:  # the lag search's resolution
-            roll, pitch, _ = quat_to_euler(q)
+            roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
             self.est_euler.append((t, roll, pitch))
         for buf in (self.estimates, self.est_euler):
             while buf[0][0] < t - self.history:
                 buf.popleft()
+        recent = self._window_t
+        recent.append(t)
+        while recent[0] < t - self.window:
+            recent.popleft()
         while self.pending and self.pending[0].t <= t:
             self._score(self.pending.popleft())
 
@@ -237,7 +275,10 @@ class Comparison:
         (t0, q0), (t1, q1) = est[lo], est[hi]
         u = (ref.t - t0) / (t1 - t0) if t1 > t0 else 0.0
         err = attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
-        self.stats.setdefault(ref.source, _Stats(self.window)).add(ref.t, err)
+        stats = self.stats.get(ref.source)
+        if stats is None:
+            stats = self.stats[ref.source] = _Stats(self.window)
+        stats.add(ref.t, err)
         if ref.source == "onboard":
             self.onboard.append((ref.t, ref.roll, ref.pitch))
             while self.onboard[0][0] < ref.t - self.history:
@@ -245,11 +286,10 @@ class Comparison:
 
     def imu_rate(self) -> float:
         """Estimator output (= raw IMU) rate over the last `window` seconds, Hz."""
-        if len(self.estimates) < 2:
+        times = self._window_t
+        if len(self.estimates) < 2 or len(times) < 2:
             return 0.0
-        t_end = self.estimates[-1][0]
-        times = [t for t, _ in self.estimates if t >= t_end - self.window]
-        return (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
+        return (len(times) - 1) / (times[-1] - times[0])
 
     def lag(self) -> float | None:
         """How late the estimator is behind ATTITUDE, s: the shift L for which the estimator at t + L

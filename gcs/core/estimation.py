@@ -135,13 +135,15 @@ class EstimationPipeline:
             except Exception as exc:  # one estimator's fault: it restarts, the others go on
                 self._restart(name, est, f"{type(exc).__name__}: {exc}")
                 continue
-            q = est.quaternion
-            if not all(math.isfinite(v) for v in q.tolist()):
+            q = est.quaternion.tolist()  # plain floats from here on: numpy scalars are slow
+            w, x, y, z = q
+            if not math.isfinite(w + x + y + z):  # a NaN or an infinity anywhere (|q| = 1 otherwise)
                 self._restart(name, est, f"non-finite state at t={sample.t:.3f} s")
                 continue
-            self.comparisons[name].add_estimate(sample.t, q)
+            euler = quat_to_euler(q)
+            self.comparisons[name].add_estimate(sample.t, q, euler)
             if valid:
-                point = AttitudePoint(sample.t, name, *quat_to_euler(q))
+                point = AttitudePoint(sample.t, name, *euler)
                 self.latest[name] = point
                 points.append(point)
         return points

@@ -51,6 +51,7 @@ class GainSet:
         self.declarations: dict[str, Gain] = {g.name: g for g in declarations}
         self.presets: dict[str, dict[str, float]] = {k: dict(v) for k, v in (presets or {}).items()}
         self.values: dict[str, float] = {name: g.default for name, g in self.declarations.items()}
+        self.version = 0  # counts changes: compiled estimators re-read the values when it moves
         for preset, values in self.presets.items():
             for name, value in values.items():
                 self._declaration(name, context=f"preset {preset}").validate(value)
@@ -71,6 +72,7 @@ class GainSet:
         new = self._declaration(name).validate(value)
         old = self.values[name]
         self.values[name] = new
+        self.version += 1
         return old, new
 
     def apply_preset(self, preset: str) -> None:
@@ -79,6 +81,7 @@ class GainSet:
             raise GainError(f"unknown preset {preset!r}; known: {', '.join(self.presets)}")
         self.values = {name: g.default for name, g in self.declarations.items()}
         self.values.update(self.presets[preset])
+        self.version += 1
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
+
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
+from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime.bus import Message
@@ -36,6 +39,9 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        # the compiled estimators load (or, the first time, compile) off the loop: what arrives
+        # meanwhile waits in the subscription
+        await asyncio.to_thread(registry.warm)
         try:
             while True:
                 self._feed([await sub.next(), *sub.drain()])

@@ -82,7 +82,10 @@ class DashboardServer:
         if self.use_viser:
             self._start_viser()
             app.state.viser_port = self.viser_port
-        self._server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_ping_interval=None))
+        # no permessage-deflate: the live frames are small and frequent, and compressing each one
+        # for each client cost the loop more CPU than the bytes it saved (docs/benchmarks.md)
+        config = uvicorn.Config(app, log_level="warning", ws_ping_interval=None, ws_per_message_deflate=False)
+        self._server = uvicorn.Server(config)
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
         while not self._server.started:
             if self._tasks[0].done():

@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import importlib
 
-from gcs.core.estimators.base import AttitudeEstimator
+import numpy as np
 
-#: name → "module:Class". Add one line per estimator.
+from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.samples import GpsSample, ImuSample
+
+#: name → "module:Class". Add one line per estimator. The compiled classes run; each subclasses
+#: its readable reference (dcm.DcmEstimator, kf.KalmanAttitudeFilter, ekf.EkfEstimator).
 ESTIMATORS: dict[str, str] = {
-    "dcm": "gcs.core.estimators.dcm:DcmEstimator",
-    "kf": "gcs.core.estimators.kf:KalmanAttitudeFilter",
-    "ekf": "gcs.core.estimators.ekf:EkfEstimator",
+    "dcm": "gcs.core.estimators.dcm_compiled:DcmCompiled",
+    "kf": "gcs.core.estimators.kf_compiled:KalmanCompiled",
+    "ekf": "gcs.core.estimators.ekf_compiled:EkfCompiled",
 }
 
 
@@ -32,3 +36,16 @@ def get(name: str) -> type[AttitudeEstimator]:
 def create(name: str, preset: str | None = None, **gains: float) -> AttitudeEstimator:
     """A new estimator with a preset (None: its default) and gain overrides."""
     return get(name)(preset, **gains)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) every estimator's kernels now, by running each on a
+    few synthetic samples of every kind, so the first live samples do not wait for it."""
+    for name in ESTIMATORS:
+        estimator = create(name)
+        gyro, accel, mag = np.array([0.01, -0.02, 0.03]), np.array([0.1, 0.2, -9.8]), np.array([0.2, 0.01, 0.4])
+        for i in range(3):
+            estimator.update_imu(ImuSample(0.01 * i, gyro, accel, mag if i != 1 else None))
+        estimator.update_gps(GpsSample(0.02, 0.0, 0.0, 0.0, 5.0, 0.1, np.array([5.0, 0.5, 0.0])))
+        estimator.update_imu(ImuSample(0.03, gyro, accel, mag))
+        estimator.update_imu(ImuSample(0.03, gyro, accel, mag))

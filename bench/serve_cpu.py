@@ -1,0 +1,253 @@
+"""CPU of `gcs serve` per 1000 msg/s, and the loss-free knee, against a bare pymavlink loop (and
+MAVProxy when it is installed) on the same stream, in one run.
+
+Stream (bench.serve_cpu sender, its own process, over UDP to 127.0.0.1): PX4-like, HIGHRES_IMU
+400 : ATTITUDE 100 : GPS_RAW_INT 5 : HEARTBEAT 1, scaled to the total rate asked for (vehicle
+time advances at the scaled rate too), paced every 5 ms.
+- ours: `gcs serve` (3 estimators, recording to a temporary folder, the 3-D view) with 5 pages'
+  traffic: 5 clients polling `GET /api/status` once a second and 5 `/ws/live` WebSocket clients
+  (bench.ws_clients), both in their own processes.
+- baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
+- baseline `MAVProxy` (if `mavproxy.py` is on PATH): `mavproxy.py --master udpin:... --daemon`
+  with its default logging.
+CPU: psutil user+system time of the receiving process over MEASURE_S s after WARMUP_S, per
+1000 msg/s sent. Knee: the highest rate of RATES at which the receiver counted every packet sent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+
+import psutil
+
+from gcs.transport.address import free_port
+
+WARMUP_S = 8.0
+MEASURE_S = 10.0
+RATES = (1_000, 2_000, 5_000, 10_000, 20_000)
+CPU_RATE = 1_000
+PAGES = 5
+MIX = (("HIGHRES_IMU", 400), ("ATTITUDE", 100), ("GPS_RAW_INT", 5), ("HEARTBEAT", 1))
+
+
+def packets(rate: int, seconds: float) -> list[tuple[float, bytes]]:
+    """(send time from start, packet) for `seconds` of the mix at `rate` msg/s in all."""
+    from gcs.mavlink.dialect import Encoder, mavlink
+
+    enc = Encoder(1, 1)
+    scale = rate / sum(hz for _, hz in MIX)
+    out: list[tuple[float, bytes]] = []
+    for name, hz in MIX:
+        period = 1.0 / (hz * scale)
+        for k in range(int(seconds / period)):
+            t = k * period
+            us = int(k * 1e6 / hz)  # the vehicle's own clock at the mix's nominal rate
+            if name == "HIGHRES_IMU":
+                msg = mavlink.MAVLink_highres_imu_message(
+                    us, 0.05, -0.03, -9.8, 0.01, -0.02, 0.005, 0.21, 0.02, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
+                )
+            elif name == "ATTITUDE":
+                msg = mavlink.MAVLink_attitude_message(us // 1000, 0.01, -0.02, 0.3, 0.01, -0.02, 0.005)
+            elif name == "GPS_RAW_INT":
+                msg = mavlink.MAVLink_gps_raw_int_message(us, 3, 523000000, 134000000, 50000, 100, 100, 500, 9000, 12)
+            else:
+                msg = mavlink.MAVLink_heartbeat_message(2, 12, 81, 0, 4, 3)
+            out.append((t, enc.encode(msg)))
+    out.sort(key=lambda p: p[0])
+    return out
+
+
+def send(port: int, rate: int, seconds: float) -> int:
+    """Send the stream; returns the packets sent."""
+    stream = packets(rate, seconds)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    start = time.monotonic()
+    i = 0
+    while i < len(stream):
+        now = time.monotonic() - start
+        while i < len(stream) and stream[i][0] <= now:
+            sock.sendto(stream[i][1], ("127.0.0.1", port))
+            i += 1
+        time.sleep(0.005)
+    return len(stream)
+
+
+def bare_loop(port: int, seconds: float) -> None:
+    """The baseline receiver: prints the packets it parsed."""
+    from pymavlink.dialects.v20 import common
+
+    mav = common.MAVLink(None)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    sock.bind(("127.0.0.1", port))
+    sock.settimeout(0.5)
+    n, deadline = 0, time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            data = sock.recv(65536)
+        except TimeoutError:
+            continue
+        for m in mav.parse_buffer(data) or ():
+            m.get_type()
+            n += 1
+    print(n, flush=True)
+
+
+def cpu_of(proc: psutil.Process) -> float:
+    t = proc.cpu_times()
+    total = t.user + t.system
+    for child in proc.children(recursive=True):
+        try:
+            c = child.cpu_times()
+            total += c.user + c.system
+        except psutil.NoSuchProcess:
+            pass
+    return total
+
+
+def run_sender(port: int, rate: int, seconds: float) -> subprocess.Popen:
+    code = f"from bench.serve_cpu import send; print(send({port}, {rate}, {seconds}))"
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+
+
+def http_json(url: str) -> dict:
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def pollers(url: str, seconds: float) -> subprocess.Popen:
+    """PAGES clients polling GET url once a second each, in one process."""
+    code = (
+        "import time, threading, urllib.request\n"
+        f"end = time.monotonic() + {seconds}\n"
+        "def poll():\n"
+        "    while time.monotonic() < end:\n"
+        f"        urllib.request.urlopen({url!r}, timeout=10).read(); time.sleep(1.0)\n"
+        f"ts = [threading.Thread(target=poll) for _ in range({PAGES})]\n"
+        "[t.start() for t in ts]; [t.join() for t in ts]\n"
+    )
+    return subprocess.Popen([sys.executable, "-c", code])
+
+
+def serve(rate: int, seconds: float, measure: bool) -> dict:
+    port, http = free_port(), free_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        # GCS_BENCH_PROFILE=FILE: the server under cProfile, written at its clean stop
+        profile = ["-m", "cProfile", "-o", os.environ["GCS_BENCH_PROFILE"]] if "GCS_BENCH_PROFILE" in os.environ else []
+        server = subprocess.Popen(
+            [sys.executable, *profile, "-m", "gcs", "serve", "--connect", f"udpin:127.0.0.1:{port}",
+             "--port", str(http), "--record-dir", tmp, "--token", "bench"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        proc = psutil.Process(server.pid)
+        base = f"http://127.0.0.1:{http}"
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                http_json(f"{base}/api/status")
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        time.sleep(2.0)  # the estimators' kernels load
+        helpers = [pollers(f"{base}/api/status", seconds + 2)]
+        helpers.append(
+            subprocess.Popen(
+                [sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{http}/ws/live", str(PAGES), str(seconds)],
+                stdout=subprocess.DEVNULL,
+            )
+        )
+        sender = run_sender(port, rate, seconds)
+        result = measure_cpu(proc, sender, seconds) if measure else {}
+        sent = int(sender.communicate()[0])
+        time.sleep(2.5)  # the snapshot the status reads is published every second
+        received = http_json(f"{base}/api/status")["link"]["packets"]
+        for h in helpers:
+            h.wait(30)
+        server.send_signal(signal.SIGINT)  # as Ctrl-C: a clean stop (and a profile written)
+        server.wait(60)
+    return {**result, "sent": sent, "received": received}
+
+
+def measure_cpu(proc: psutil.Process, sender: subprocess.Popen, seconds: float) -> dict:
+    time.sleep(min(WARMUP_S, seconds / 3))
+    c0, t0 = cpu_of(proc), time.monotonic()
+    time.sleep(min(MEASURE_S, seconds / 2))
+    return {"cpu": (cpu_of(proc) - c0) / (time.monotonic() - t0)}
+
+
+def bare(rate: int, seconds: float, measure: bool) -> dict:
+    port = free_port()
+    code = f"from bench.serve_cpu import bare_loop; bare_loop({port}, {seconds + 3})"
+    receiver = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    time.sleep(1.5)
+    sender = run_sender(port, rate, seconds)
+    result = measure_cpu(psutil.Process(receiver.pid), sender, seconds) if measure else {}
+    sent = int(sender.communicate()[0])
+    received = int(receiver.communicate()[0])
+    return {**result, "sent": sent, "received": received}
+
+
+def mavproxy(rate: int, seconds: float) -> dict | None:
+    exe = shutil.which("mavproxy.py") or shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
+    if exe is None:
+        return None
+    port = free_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.Popen(
+            [exe, f"--master=udpin:127.0.0.1:{port}", "--daemon", "--non-interactive", f"--state-basedir={tmp}"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        time.sleep(5.0)
+        sender = run_sender(port, rate, seconds)
+        result = measure_cpu(psutil.Process(proc.pid), sender, seconds)
+        sender.communicate()
+        proc.terminate()
+        proc.wait(30)
+    return result
+
+
+def main() -> list[dict]:
+    seconds = WARMUP_S + MEASURE_S + 2.0
+    ours, base = serve(CPU_RATE, seconds, True), bare(CPU_RATE, seconds, True)
+    per_k = CPU_RATE / 1000
+    rows = [
+        {
+            "benchmark": f"serve CPU per 1000 msg/s ({PAGES} pages: status polls + /ws/live)",
+            "baseline": "bare pymavlink receive loop",
+            "baseline_core_pct": round(100 * base["cpu"] / per_k, 1),
+            "ours_core_pct": round(100 * ours["cpu"] / per_k, 1),
+            "ratio": round(ours["cpu"] / base["cpu"], 2),
+            "target": "≤ 15 % and ≤ 2× bare",
+            "load_avg_1m": round(os.getloadavg()[0], 2),
+        }
+    ]
+    mp = mavproxy(CPU_RATE, seconds)
+    rows.append(
+        {"benchmark": "MAVProxy CPU per 1000 msg/s", "baseline": "MAVProxy --daemon, default logging"}
+        | ({"ours_core_pct": round(100 * mp["cpu"] / per_k, 1)} if mp else {"note": "mavproxy.py not installed"})
+    )
+    for name, run in (("serve", serve), ("pymavlink", bare)):
+        knee = 0
+        for rate in RATES:
+            r = run(rate, 6.0, False)
+            if r["received"] < r["sent"]:
+                break
+            knee = rate
+        rows.append({"benchmark": f"loss-free knee, {name}", "ours_msg_s": knee, "rates_tried": list(RATES)})
+    return rows
+
+
+if __name__ == "__main__":
+    for row in main():
+        print(row)

@@ -1,0 +1,417 @@
+"""Compiled (numba) transcriptions of what every estimator shares — the time policy, the
+magnetometer test (magnetic.py), the shock detector and the GPS acceleration (base.py) — over
+one float64 state array per estimator. The Python classes stay the reference; these equal them
+to rounding (tests/test_compiled_estimators.py).
+
+State layout: this module owns slots [0, BASE); each estimator's kernel module lays out its own
+from BASE. Booleans are 0.0/1.0, "None" is a 0.0 flag slot (or NaN for a time).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs.core.estimators.base import GpsAcceleration
+from gcs.core.estimators.jit import kernel
+from gcs.core.estimators.magnetic import (
+    MAG_CURRENT_TAU,
+    MAG_NEW_MIN_GYR,
+    MAG_OFFSET_TURN,
+    MAG_REF_TAU,
+    MAG_TIME_SIGMA,
+    MAG_WARMUP,
+)
+from gcs.core.gains import Gain, GainSet
+from gcs.core.rotation import Quat, Rows, Vec3
+
+State = npt.NDArray[np.float64]
+
+# -- time policy (AttitudeEstimator._check_time) ----------------------------------------------
+T, T_PREV, REINIT_COUNT, DUPLICATES, VALID, ACCEL_NORM = range(6)
+#: _check_time's outcomes: integrate, skip a duplicate, or re-initialise (and why)
+STEP, DUPLICATE, FIRST, BACK, GAP = range(5)
+# -- MagneticHeading ---------------------------------------------------------------------------
+NOW_SET, NOW_N, NOW_D, REF_SET, REF_N, REF_D, CAND_SET, CAND_N, CAND_D, CAND_TIME = range(6, 16)
+OFFSET = 16  # 3
+OFFC_SET, OFFC = 19, 20  # flag, 3
+OFF_N, OFF_TIME, OFF_TURN, TRUSTED, DISTURBED, YAW_ERROR, LEARNED, RELEARNED, AGE, DECL = range(23, 33)
+# -- Shock --------------------------------------------------------------------------------------
+SHOCK_UNTIL, SHOCK_ACTIVE, SHOCK_SATURATED, SHOCK_COUNT = range(33, 37)
+# -- GpsAcceleration (written by the Python object after each fix; read per sample) -------------
+GPS_T, GPS_A, GPS_SPEED, GPS_COURSE, GPS_TIMEOUT = 37, 38, 41, 42, 43
+# -- the attitude quaternion (w, x, y, z), sensor → NED, written by every step -----------------
+Q = 44
+BASE = 48
+
+
+def new_state(size: int) -> State:
+    s = np.zeros(size)
+    s[T] = s[T_PREV] = math.nan
+    reset_mag(s)
+    reset_shock(s)
+    s[GPS_T] = math.nan
+    s[GPS_COURSE] = math.nan
+    s[GPS_TIMEOUT] = 1.0
+    return s
+
+
+def reset_mag(s: State) -> None:
+    """A new MagneticHeading."""
+    s[NOW_SET:AGE] = 0.0
+    s[AGE] = 0.0
+    s[DECL] = math.nan
+
+
+def reset_shock(s: State) -> None:
+    """A new Shock."""
+    s[SHOCK_UNTIL] = -math.inf
+    s[SHOCK_ACTIVE] = s[SHOCK_SATURATED] = s[SHOCK_COUNT] = 0.0
+
+
+def load_gps(s: State, gps: GpsAcceleration) -> None:
+    """Copy the GPS acceleration's state (after a fix) for the kernels."""
+    s[GPS_T] = math.nan if gps.t is None else gps.t
+    s[GPS_A : GPS_A + 3] = gps.accel
+    s[GPS_SPEED] = gps.ground_speed
+    s[GPS_COURSE] = gps.course
+    s[GPS_TIMEOUT] = gps.timeout
+
+
+def reinit_reason(s: State, code: int, max_gap: float) -> str:
+    """AttitudeEstimator._check_time's words for a re-initialisation."""
+    before, t = float(s[T_PREV]), float(s[T])
+    if code == FIRST:
+        return "first sample"
+    if code == BACK:
+        return f"clock went back {before - t:.3f} s at t={t:.3f} s (reboot?)"
+    return f"gap of {t - before:.3f} s > max_gap {max_gap:g} s at t={t:.3f} s"
+
+
+def floats(v: object) -> State:
+    """A sample vector as an array for the kernels (it usually is one: numba specialises a kernel
+    for another dtype or layout once)."""
+    return v if type(v) is np.ndarray else np.asarray(v, dtype=np.float64)
+
+
+class StateTime:
+    """`AttitudeEstimator.t` kept in the kernel state (NaN for None)."""
+
+    def __get__(self, est: Compiled, owner: type | None = None) -> float | None:
+        t = float(est.s[T])
+        return None if math.isnan(t) else t
+
+    def __set__(self, est: Compiled, value: float | None) -> None:
+        est.s[T] = math.nan if value is None else value
+
+
+class StateCount:
+    """A counter of `AttitudeEstimator` kept in the kernel state."""
+
+    def __init__(self, slot: int) -> None:
+        self.slot = slot
+
+    def __get__(self, est: Compiled, owner: type | None = None) -> int:
+        return int(est.s[self.slot])
+
+    def __set__(self, est: Compiled, value: int) -> None:
+        est.s[self.slot] = value
+
+
+class Compiled:
+    """What every compiled estimator adds to its reference class (listed first among its bases):
+    the kernel state `s`, the time policy's figures kept in it, and the gains as a vector."""
+
+    s: State
+    t = StateTime()
+    reinit_count = StateCount(REINIT_COUNT)
+    duplicates = StateCount(DUPLICATES)
+    gains: GainSet
+    GAINS: ClassVar[tuple[Gain, ...]]
+
+    def _compiled_state(self, size: int) -> None:
+        """Called first in the subclass's __init__: the reference's __init__ writes into it."""
+        self.s = new_state(size)
+        self.s[Q] = 1.0
+        self._g = np.zeros(0)
+        self._g_version = -1
+
+    def gain_vector(self) -> State:
+        """The gains as a float64 vector in GAINS order, rebuilt only after a change."""
+        gains = self.gains
+        if self._g_version != gains.version:
+            values = gains.values
+            self._g = np.array([values[g.name] for g in self.GAINS])
+            self._g_version = gains.version
+        return self._g
+
+
+class MagView:
+    """MagneticHeading's health figures, read from a kernel state."""
+
+    def __init__(self, s: State) -> None:
+        self.s = s
+
+    @property
+    def disturbed(self) -> bool:
+        return bool(self.s[DISTURBED])
+
+    @property
+    def offset(self) -> tuple[float, float, float]:
+        o = self.s[OFFSET : OFFSET + 3].tolist()
+        return o[0], o[1], o[2]
+
+    @property
+    def relearned(self) -> int:
+        return int(self.s[RELEARNED])
+
+    @property
+    def offsets_learned(self) -> int:
+        return int(self.s[LEARNED])
+
+
+# -- compiled ------------------------------------------------------------------------------------
+
+
+@kernel
+def check_time(s: State, t: float, max_gap: float) -> int:
+    """AttitudeEstimator._check_time: STEP (s[T] advanced), DUPLICATE, or a re-initialisation code."""
+    prev = s[T]
+    s[T_PREV] = prev
+    if math.isnan(prev):
+        code = FIRST
+    elif t == prev:
+        s[DUPLICATES] += 1.0
+        return DUPLICATE
+    elif t < prev:
+        code = BACK
+    elif t - prev > max_gap:
+        code = GAP
+    else:
+        s[T] = t
+        return STEP
+    s[T] = t
+    s[REINIT_COUNT] += 1.0
+    return code
+
+
+@kernel
+def wrap_pi(angle: float) -> float:
+    a = float(np.fmod(angle + math.pi, 2 * math.pi))  # math.fmod: numba has the ufunc only
+    if a <= 0:
+        a += 2 * math.pi
+    return a - math.pi
+
+
+@kernel
+def shock_update(
+    s: State, t: float, accel_norm: float, spin: float, gyro_limit: float, shock_acc: float, hold: float
+) -> bool:
+    """Shock.update: whether the accelerometer is to be ignored at t."""
+    sat = spin > gyro_limit
+    s[SHOCK_SATURATED] = 1.0 if sat else 0.0
+    if accel_norm > shock_acc or sat:
+        if t >= s[SHOCK_UNTIL]:
+            s[SHOCK_COUNT] += 1.0
+        s[SHOCK_UNTIL] = t + hold
+    active = bool(t <= s[SHOCK_UNTIL])
+    s[SHOCK_ACTIVE] = 1.0 if active else 0.0
+    return active
+
+
+@kernel
+def gps_at(s: State, t: float) -> Vec3:
+    """GpsAcceleration.at."""
+    gt = s[GPS_T]
+    if math.isnan(gt) or abs(t - gt) > s[GPS_TIMEOUT]:
+        return 0.0, 0.0, 0.0
+    return s[GPS_A], s[GPS_A + 1], s[GPS_A + 2]
+
+
+@kernel
+def gps_course_at(s: State, t: float, speed_min: float) -> float:
+    """GpsAcceleration.course_at; NaN for None."""
+    gt = s[GPS_T]
+    if math.isnan(gt) or abs(t - gt) > s[GPS_TIMEOUT] or not s[GPS_SPEED] >= speed_min:
+        return math.nan
+    return float(s[GPS_COURSE])
+
+
+@kernel
+def _accept(s: State) -> None:
+    s[DISTURBED] = 0.0
+    s[CAND_SET] = 0.0
+    s[CAND_TIME] = 0.0
+    s[OFFC_SET] = 0.0
+    s[OFF_N] = 0.0
+    s[OFF_TIME] = 0.0
+    s[OFF_TURN] = 0.0
+
+
+@kernel
+def mag_field(
+    s: State, m0: float, m1: float, m2: float, X: Vec3, Y: Vec3, Z: Vec3, dt: float, spin: float,
+    gm: tuple[float, float, float, float, float, float, float], settling: bool,
+) -> tuple[bool, float, float, float]:  # fmt: skip
+    """MagneticHeading.field: (usable, m − b). gm = (norm_tol, dip_tol, heading_tol, relearn,
+    offset_time, offset_tol, declination)."""
+    tol_n, tol_d, tol_h, relearn, off_time, off_tol, decl = gm
+    bx, by, bz = s[OFFSET], s[OFFSET + 1], s[OFFSET + 2]
+    mc0, mc1, mc2 = m0 - bx, m1 - by, m2 - bz
+    hn = X[0] * mc0 + X[1] * mc1 + X[2] * mc2
+    he = Y[0] * mc0 + Y[1] * mc1 + Y[2] * mc2
+    hd = Z[0] * mc0 + Z[1] * mc1 + Z[2] * mc2
+    h = math.hypot(hn, he)
+    if h < 1e-9:
+        return False, 0.0, 0.0, 0.0
+    norm, dip = math.hypot(h, hd), math.atan2(hd, h)
+    # _low_pass
+    if s[NOW_SET] == 0.0 or dt <= 0.0:
+        s[NOW_SET], s[NOW_N], s[NOW_D] = 1.0, norm, dip
+    else:
+        a = dt / (MAG_CURRENT_TAU + dt)
+        s[NOW_N] = s[NOW_N] + a * (norm - s[NOW_N])
+        s[NOW_D] = s[NOW_D] + a * (dip - s[NOW_D])
+    norm, dip = s[NOW_N], s[NOW_D]
+    if settling:
+        s[AGE] = 0.0
+    if s[AGE] < MAG_WARMUP:
+        s[AGE] += dt
+        if s[REF_SET] == 0.0 or abs(norm - s[REF_N]) > 0.25 * tol_n * s[REF_N] or abs(dip - s[REF_D]) > 0.25 * tol_d:
+            s[REF_SET], s[REF_N], s[REF_D], s[AGE] = 1.0, norm, dip, 0.0
+        s[TRUSTED] = 0.0
+    n0, d0 = s[REF_N], s[REF_D]
+    if decl != s[DECL]:
+        s[DECL] = decl
+        s[TRUSTED] = 0.0
+    ye = wrap_pi(decl - math.atan2(he, hn))
+    s[YAW_ERROR] = ye
+    fits = abs(norm - n0) <= tol_n * n0 and abs(dip - d0) <= tol_d
+    agrees = abs(ye) <= tol_h + spin * MAG_TIME_SIGMA or s[TRUSTED] == 0.0
+    if fits and agrees:
+        a = dt / (MAG_REF_TAU + dt)
+        s[REF_N], s[REF_D] = n0 + a * (norm - n0), d0 + a * (dip - d0)
+        _accept(s)
+        if abs(ye) <= 0.5 * tol_h:
+            s[TRUSTED] = 1.0
+        return True, mc0, mc1, mc2
+    s[DISTURBED] = 1.0
+    # _hard_iron: the sensor-frame offset o = m − Rᵀ m_E, timed
+    e0 = n0 * math.cos(d0) * math.cos(decl)
+    e1 = n0 * math.cos(d0) * math.sin(decl)
+    e2 = n0 * math.sin(d0)
+    o0 = m0 - (X[0] * e0 + Y[0] * e1 + Z[0] * e2)
+    o1 = m1 - (X[1] * e0 + Y[1] * e1 + Z[1] * e2)
+    o2 = m2 - (X[2] * e0 + Y[2] * e1 + Z[2] * e2)
+    learned = False
+    c0, c1, c2 = s[OFFC], s[OFFC + 1], s[OFFC + 2]
+    if s[OFFC_SET] == 0.0 or math.sqrt((o0 - c0) ** 2 + (o1 - c1) ** 2 + (o2 - c2) ** 2) > off_tol * n0:
+        s[OFFC_SET], s[OFFC], s[OFFC + 1], s[OFFC + 2] = 1.0, o0, o1, o2
+        s[OFF_N], s[OFF_TIME], s[OFF_TURN] = 1.0, 0.0, 0.0
+    else:
+        s[OFF_N] += 1.0
+        k = 1.0 / s[OFF_N]
+        s[OFFC], s[OFFC + 1], s[OFFC + 2] = c0 + k * (o0 - c0), c1 + k * (o1 - c1), c2 + k * (o2 - c2)
+        s[OFF_TIME] += dt
+        s[OFF_TURN] += spin * dt
+        if s[OFF_TIME] >= off_time and s[OFF_TURN] >= MAG_OFFSET_TURN:
+            s[OFFSET], s[OFFSET + 1], s[OFFSET + 2] = s[OFFC], s[OFFC + 1], s[OFFC + 2]
+            learned = True
+    if learned:
+        s[NOW_SET] = 0.0
+        s[LEARNED] += 1.0
+        _accept(s)
+        return True, m0 - s[OFFSET], m1 - s[OFFSET + 1], m2 - s[OFFSET + 2]
+    # _new_field: a steady new (norm, dip) while turning
+    relearn_now = False
+    if s[CAND_SET] == 0.0 or abs(norm - s[CAND_N]) > tol_n * s[CAND_N] or abs(dip - s[CAND_D]) > tol_d:
+        s[CAND_SET], s[CAND_N], s[CAND_D], s[CAND_TIME] = 1.0, norm, dip, 0.0
+    elif spin >= MAG_NEW_MIN_GYR:
+        s[CAND_TIME] += dt
+        relearn_now = s[CAND_TIME] >= relearn
+    if relearn_now:
+        s[REF_SET], s[REF_N], s[REF_D] = 1.0, norm, dip
+        s[RELEARNED] += 1.0
+        s[TRUSTED] = 0.0
+        _accept(s)
+        return True, mc0, mc1, mc2
+    return False, 0.0, 0.0, 0.0
+
+
+@kernel
+def rows_to_quat(s: State, rows: int) -> None:
+    """rotation.matrix_to_quat of the 3×3 rows at s[rows:rows+9], into s[Q:Q+4] (Shepperd)."""
+    r00, r01, r02 = s[rows], s[rows + 1], s[rows + 2]
+    r10, r11, r12 = s[rows + 3], s[rows + 4], s[rows + 5]
+    r20, r21, r22 = s[rows + 6], s[rows + 7], s[rows + 8]
+    trace = r00 + r11 + r22
+    if trace > 0:
+        sq = 2.0 * math.sqrt(1.0 + trace)
+        w, x, y, z = 0.25 * sq, (r21 - r12) / sq, (r02 - r20) / sq, (r10 - r01) / sq
+    elif r00 > r11 and r00 > r22:
+        sq = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        w, x, y, z = (r21 - r12) / sq, 0.25 * sq, (r01 + r10) / sq, (r02 + r20) / sq
+    elif r11 > r22:
+        sq = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        w, x, y, z = (r02 - r20) / sq, (r01 + r10) / sq, 0.25 * sq, (r12 + r21) / sq
+    else:
+        sq = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        w, x, y, z = (r10 - r01) / sq, (r02 + r20) / sq, (r12 + r21) / sq, 0.25 * sq
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    sign = -1.0 if w / n < 0 else 1.0
+    s[Q], s[Q + 1], s[Q + 2], s[Q + 3] = sign * w / n, sign * x / n, sign * y / n, sign * z / n
+
+
+@kernel
+def quat_exp(x: float, y: float, z: float) -> Quat:
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:
+        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
+    s = math.sin(0.5 * angle) / angle
+    return math.cos(0.5 * angle), x * s, y * s, z * s
+
+
+@kernel
+def quat_mul(p: Quat, q: Quat) -> Quat:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
+
+
+@kernel
+def quat_unit(q: Quat) -> Quat:
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n
+
+
+@kernel
+def quat_rows(q: Quat) -> Rows:
+    w, x, y, z = q
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
+
+
+@kernel
+def euler_quat(roll: float, pitch: float, yaw: float) -> Quat:
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
+
+
+@kernel
+def quat_to_euler(q: Quat) -> Vec3:
+    w, x, y, z = q
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
