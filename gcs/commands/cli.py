@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from gcs.provenance import provenance
@@ -60,10 +61,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    terminated = stop_on_sigterm()
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt:
-        return 130
+        return 143 if terminated else 130
+
+
+def stop_on_sigterm() -> list[int]:
+    """SIGTERM (systemd, docker, kill) stops a command as Ctrl-C does: it becomes SIGINT, which
+    asyncio turns into a cancellation of the main task, so every `finally` runs (the session is
+    closed, its files completed). The returned list gets the signal number once it arrived."""
+    received: list[int] = []
+
+    def interrupt(signum: int, frame: object) -> None:
+        received.append(signum)
+        signal.raise_signal(signal.SIGINT)
+
+    signal.signal(signal.SIGTERM, interrupt)
+    return received
 
 
 if __name__ == "__main__":

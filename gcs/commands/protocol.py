@@ -10,10 +10,10 @@ from pathlib import Path
 
 from gcs.commands.common import run_reporting_errors
 from gcs.commands.options import add_link_arguments, station_config_or_report
-from gcs.commands.replay import parse_gains
 from gcs.core.gains import GainError
 from gcs.core.protocol import ProtocolError, ProtocolTables, SourceMetrics, StepWindow
 from gcs.runtime.protocol import LiveProtocol, ProtocolState
+from gcs.runtime.replay import parse_gains
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions.contents import open_contents
 from gcs.sessions.export import write_protocol_csv

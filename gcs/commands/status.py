@@ -14,7 +14,7 @@ from gcs.runtime.station import Station, StationConfig
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
 
-    add_link_arguments(parser)
+    add_link_arguments(parser, record="opt-in")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to listen (default 10)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 

@@ -15,7 +15,6 @@ from gcs.core.estimators.base import AttitudeEstimator
 from gcs.runtime.events import EventLog
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
-from gcs.runtime.replay import ReplaySession
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
 from gcs.runtime.tuning import TuningSession
@@ -28,8 +27,6 @@ class StationFacade(Protocol):
     events: EventLog
     params: ParamClient
     points: Signal[[list[AttitudePoint]]]
-    replay_loaded: Signal[[ReplaySession]]
-    replay: ReplaySession | None
     protocol: LiveProtocol | None
 
     @property
@@ -49,8 +46,4 @@ class StationFacade(Protocol):
     def stop_protocol(self) -> None: ...
     def start_param_download(self) -> bool: ...
     async def tuning(self) -> TuningSession: ...
-    async def load_replay(
-        self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]
-    ) -> ReplaySession: ...
-    async def unload_replay(self) -> None: ...
     async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R: ...
