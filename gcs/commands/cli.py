@@ -13,9 +13,15 @@ from gcs.provenance import provenance
 #: subcommand -> (module, one-line help). Modules are imported only when their command runs.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("gcs.commands.demo", "start the simulated vehicle and the ground station together (no hardware needed)"),
-    "status": ("gcs.commands.status", "connect to a vehicle and print link health, rates requested vs achieved"),
+    "status": (
+        "gcs.commands.status",
+        "connect to a vehicle and print link health, rates requested vs achieved (records only with --record)",
+    ),
     "sim": ("gcs.commands.sim", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
-    "estimate": ("gcs.commands.estimate", "run an attitude estimator over a log or CSV and write its output CSV"),
+    "estimate": (
+        "gcs.commands.estimate",
+        "run an attitude estimator over a .tlog, DataFlash .bin, PX4 .ulg or CSV and write its output CSV",
+    ),
     "serve": (
         "gcs.commands.serve",
         "connect to a vehicle and serve the browser dashboard (plots, 3-D view, gain sliders)",
@@ -25,7 +31,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gcs.commands.replay",
         "replay a session, .tlog, .bin or .ulg through the estimators (play at any speed)",
     ),
-    "export": ("gcs.commands.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
+    "export": (
+        "gcs.commands.export",
+        "export the attitude of every source (onboard, references, estimators) of a session or log as CSV, "
+        "Parquet, MAT or MCAP",
+    ),
     "report": ("gcs.commands.report", "write a self-contained HTML flight-test report of a session or log"),
     "batch": (
         "gcs.commands.batch",
@@ -33,7 +43,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "sweep": ("gcs.commands.sweep", "search estimator gains over many flights (Dask tasks) and write a preset file"),
     "fleet": ("gcs.commands.fleet", "fleet datasets: `gcs fleet report DATASET --out FILE.html`"),
-    "params": ("gcs.commands.params", "read, write (verified), save, load and diff the vehicle's parameters"),
+    "params": (
+        "gcs.commands.params",
+        "read, write (verified), save, load and diff the vehicle's parameters (records only with --record)",
+    ),
     "protocol": (
         "gcs.commands.protocol",
         "run a guided bench-test protocol (prompts, hold detection, the seeds' error figures) or report one",

@@ -30,18 +30,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         return actions.add_parser(name, help=text, description=text)
 
     get = action("get", "print parameters (all of them when no NAME is given)")
-    get.add_argument("names", nargs="*", metavar="NAME")
+    get.add_argument("names", nargs="*", metavar="NAME", help="parameter names (default: the whole table)")
     set_ = action("set", "write one parameter, verified by the vehicle's echo")
-    set_.add_argument("name", metavar="NAME")
-    set_.add_argument("value", type=float, metavar="VALUE")
+    set_.add_argument("name", metavar="NAME", help="the parameter, e.g. ATC_RAT_RLL_P")
+    set_.add_argument("value", type=float, metavar="VALUE", help="the new value")
     save = action("save", "download the whole table into a Mission Planner/MAVProxy .param file")
-    save.add_argument("file", metavar="FILE")
+    save.add_argument("file", metavar="FILE", help="the .param file to write")
     load = action("load", "write the values of a .param file that differ from the vehicle's, each verified")
-    load.add_argument("file", metavar="FILE")
+    load.add_argument("file", metavar="FILE", help="the .param file to read")
     load.add_argument("--dry-run", action="store_true", help="only print what would change")
     diff = action("diff", "compare a .param file with the vehicle (--connect) or with another file (FILE2)")
-    diff.add_argument("file", metavar="FILE")
-    diff.add_argument("other", nargs="?", metavar="FILE2")
+    diff.add_argument("file", metavar="FILE", help="a .param file")
+    diff.add_argument("other", nargs="?", metavar="FILE2", help="a second .param file (then no vehicle is needed)")
     for p in (set_, load):
         p.add_argument(
             "--profile",

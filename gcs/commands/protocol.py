@@ -33,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_parser = sub.add_parser(
         "run",
         help="prompt each step, detect the holds, score every source",
+        description="run a test protocol against a vehicle: prompt each step, detect the holds, score every source",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=_KEYS,
     )
@@ -59,10 +60,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_parser.add_argument(
         "--timeout", type=float, default=None, help="give up after this many seconds (default: wait for every step)"
     )
-    report_parser = sub.add_parser("report", help="the protocol tables of a recorded session")
+    report_parser = sub.add_parser(
+        "report",
+        help="the protocol tables of a recorded session",
+        description="the protocol tables of a recorded session",
+    )
     report_parser.add_argument("session", help="a session folder with a protocol run")
     report_parser.add_argument("--csv", default=None, metavar="FILE", help="also write the tables as CSV")
-    sub.add_parser("list", help="the shipped protocols")
+    sub.add_parser("list", help="the shipped protocols", description="list the shipped protocols, one a line")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import dataclasses
 
+from gcs.commands.common import tidy
 from gcs.commands.options import add_link_arguments, station_config_or_report
 from gcs.core import strict_json
 from gcs.runtime.snapshots import StationSnapshot
@@ -26,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     snapshot = asyncio.run(_collect(config, args.duration))
     if args.json:
-        print(strict_json.dumps(dataclasses.asdict(snapshot), indent=2))
+        print(strict_json.dumps(tidy(dataclasses.asdict(snapshot)), indent=2))
     else:
         print(format_report(snapshot))
     return 0 if snapshot.vehicle.heartbeats else 1
