@@ -230,7 +230,7 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 assert href == f"replay.html?source={name}", href
                 assert await page.get_attribute("#replay-link", "href") == "replay.html"
                 received = await page.evaluate("gcsStats.received.onboard || 0")
-                replay = await page.context.new_page()
+                replay = await browser.new_page(viewport={"width": 1366, "height": 768})
                 replay.on("pageerror", lambda e: errors.append(str(e)))
                 await replay.goto(f"http://127.0.0.1:{server.port}/{href}")
                 await replay.wait_for_function("['playing', 'error'].includes(gcsReplay.state)", timeout=60_000)
