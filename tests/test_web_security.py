@@ -96,7 +96,7 @@ async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
             await wait_for(lambda: station.estimation.pipeline.imu_samples > 50, 30, "IMU samples")
             base = f"http://127.0.0.1:{server.port}"
             targets = [(method, base + path) for method, path in state_changing()]
-            assert len(targets) >= 15
+            assert len(targets) >= 10  # replay changes nothing on the server any more: it is a GET
             (site_dir / "attack.html").write_text(
                 ATTACK % (json.dumps(targets), json.dumps(f"ws://127.0.0.1:{server.port}/ws/live"))
             )
