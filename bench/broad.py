@@ -1,7 +1,7 @@
 """BROAD benchmark: our estimators through `gcs estimate` against optical ground truth, with VQF
 beside them as the reference.
 
-    python -m bench.broad [--json FILE] [--estimators dcm,kf,ekf] [--data DIR] [--loo]
+    python -m bench.broad [--json FILE] [--estimators dcm,kf,ekf] [--data DIR]
 
 Each trial in ../shared/data/broad is written to a temporary CSV (t,gx,...,mz in BROAD's own
 right-handed sensor frame, which is z-up) and run through the CLI as a subprocess, once at the full
@@ -13,11 +13,7 @@ Metric, exactly as data/README.md and the BROAD paper's example code: both attit
 q_e = q_est ⊗ q_opt⁻¹, total = 2·acos|w|, heading = 2·atan|z/w|, inclination = 2·acos√(w²+z²),
 RMS over the samples where `movement` is true, NaN (no optical tracking) skipped.
 
-Leave-one-trial-out (`--loo`, in-process, minutes at 47.6 Hz, about an hour at full rate): for
-each estimator and rate, TUNED's 2-3 gains are searched on the other five trials (coordinate
-search over the default × FACTORS, SWEEPS passes, cost = mean + worst of the five) and scored on
-the sixth, beside the defaults and the same search on all six (in-sample). Every gain set is run
-once on every trial and cached, so the six folds share their runs.
+Leave-one-trial-out tuning: bench.loo.
 
 Heading reference: BROAD's ENU is magnetic north; our estimators run with declination 0, so they
 output magnetic-north NED, turned into ENU by q_ENU = q(NED→ENU) ⊗ q_est with q(NED→ENU) =
@@ -28,7 +24,6 @@ and not for ours — which is the BROAD paper's convention.
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
 import os
@@ -36,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +70,7 @@ def load_trial(path: Path, every: int) -> dict[str, np.ndarray | float]:
 
     with h5py.File(path, "r") as f:
         rate = float(f.attrs["sampling_rate"])
-        keys = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat")
+        keys = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "opt_pos")
         trial = {k: np.ascontiguousarray(f[k][::every], dtype=float) for k in keys}
         trial["movement"] = np.asarray(f["movement"][::every], dtype=bool)
     trial["t"] = np.arange(len(trial["imu_gyr"])) * (every / rate)
@@ -177,116 +172,6 @@ def print_table(rows: list[dict]) -> None:
             print(f"{'mean ' + metric:<36}" + "".join(f"{cells[n]:9.2f}" for n in names))
 
 
-#: Leave-one-trial-out: the 2-3 gains tuned per estimator (those BROAD is most sensitive to) and
-#: the grid, factors of the declared default; a coordinate search of SWEEPS passes on the five
-#: training trials minimises the mean plus the worst of their total RMSE.
-TUNED = {
-    "dcm": ("kp_rp", "kp_yaw", "accel_tau"),
-    "kf": ("k_q", "r_yaw", "accel_tau"),
-    "ekf": ("gyro_noise", "acc_noise", "mag_noise"),
-}
-FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
-SWEEPS = 2
-
-
-@functools.lru_cache(maxsize=12)
-def _trial(path: str, every: int) -> dict:
-    return load_trial(Path(path), every)
-
-
-def _total(name: str, path: str, every: int, gains: tuple[tuple[str, float], ...]) -> float:
-    trial = _trial(path, every)
-    return broad_errors(run_estimator(name, trial, **dict(gains)), trial["opt_quat"], trial["movement"])["total"]
-
-
-class Tuner:
-    """Per-trial total RMSE of one estimator at one rate for any gain set, computed once each."""
-
-    def __init__(self, name: str, paths: list[Path], every: int, pool: Executor) -> None:
-        self.name, self.paths, self.every, self.pool = name, paths, every, pool
-        self.cache: dict[tuple[tuple[str, float], ...], dict[str, float]] = {}
-        declared = registry.get(name)().gains.declarations
-        self.grid = {
-            g: sorted({min(max(declared[g].default * f, declared[g].min), declared[g].max) for f in FACTORS})
-            for g in TUNED[name]
-        }
-        self.default = {g: declared[g].default for g in TUNED[name]}
-
-    def scores(self, gains: dict[str, float]) -> dict[str, float]:
-        key = tuple(sorted(gains.items()))
-        if key not in self.cache:
-            jobs = [self.pool.submit(_total, self.name, str(p), self.every, key) for p in self.paths]
-            self.cache[key] = {p.stem: job.result() for p, job in zip(self.paths, jobs)}
-        return self.cache[key]
-
-    def search(self, train: list[str]) -> dict[str, float]:
-        """Coordinate search from the defaults: each gain in turn over its grid, SWEEPS passes."""
-
-        def cost(gains: dict[str, float]) -> float:
-            v = [self.scores(gains)[t] for t in train]
-            return float(np.mean(v) + np.max(v))
-
-        best = dict(self.default)
-        for _ in range(SWEEPS):
-            before = dict(best)
-            for gain, values in self.grid.items():
-                best = min(({**best, gain: v} for v in values), key=cost)
-            if best == before:
-                break
-        return best
-
-
-def leave_one_out(paths: list[Path], estimators: tuple[str, ...], decimations: list[int], jobs: int) -> list[dict]:
-    """Rows per (estimator, rate, held-out trial): default, tuned on all six (in-sample), tuned on
-    the other five (out-of-sample) total RMSE, VQF's, and the gains each chose."""
-    rows = []
-    with ProcessPoolExecutor(jobs) as pool:
-        for every in decimations:
-            vqf = {}
-            for p in paths:
-                trial = load_trial(p, every)
-                vqf[p.stem] = broad_errors(run_vqf(trial), trial["opt_quat"], trial["movement"])["total"]
-            for name in estimators:
-                tuner = Tuner(name, paths, every, pool)
-                stems = [p.stem for p in paths]
-                on_all = tuner.search(stems)
-                for held in stems:
-                    loo = tuner.search([s for s in stems if s != held])
-                    rows.append(
-                        {
-                            "benchmark": "broad_loo",
-                            "rate_hz": round(285.714 / every, 1),
-                            "estimator": name,
-                            "trial": held,
-                            "default": tuner.scores(tuner.default)[held],
-                            "tuned_all": tuner.scores(on_all)[held],
-                            "loo": tuner.scores(loo)[held],
-                            "vqf": vqf[held],
-                            "gains_all": on_all,
-                            "gains_loo": loo,
-                        }
-                    )
-                print(f"leave-one-out: {name} every {every}: {len(tuner.cache)} gain sets tried", file=sys.stderr)
-    return rows
-
-
-def print_loo(rows: list[dict]) -> None:
-    print("\nLeave-one-trial-out (total RMSE, deg): tuned on five trials, scored on the sixth; 'all' is")
-    print(f"tuned and scored on all six (in-sample). Search: {', '.join(f'{k} {v}' for k, v in TUNED.items())};")
-    print(f"grid = default x {FACTORS}, {SWEEPS} coordinate passes, cost = mean + max of the training trials.")
-    print(f"{'rate':>6} {'estimator':<9}" + "".join(f"{c:>16}" for c in ("default", "tuned all", "LOO", "VQF")))
-    for key in dict.fromkeys((r["rate_hz"], r["estimator"]) for r in rows):
-        sel = [r for r in rows if (r["rate_hz"], r["estimator"]) == key]
-        cells = [
-            f"{np.mean([r[c] for r in sel]):6.2f} /{max(r[c] for r in sel):6.2f}"
-            for c in ("default", "tuned_all", "loo", "vqf")
-        ]
-        print(f"{key[0]:>6} {key[1]:<9}" + "".join(f"{c:>16}" for c in cells))
-    print("(mean / worst of the six held-out trials)")
-    for r in rows:
-        print(f"  {r['rate_hz']:>6} {r['estimator']:<4} {r['trial']:<36} LOO {r['loo']:5.2f}  gains {r['gains_loo']}")
-
-
 def main(argv: list[str] | None = None) -> list[dict]:
     """Run the benchmark; returns one row per (rate, estimator, trial) plus the mean rows."""
     parser = argparse.ArgumentParser(prog="bench.broad", description=__doc__.splitlines()[0])
@@ -295,8 +180,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--data", default=str(DATA), help="directory of BROAD *.hdf5 trials")
     parser.add_argument("--trials", default="", help="comma-separated parts of trial names to keep (default all)")
     parser.add_argument("--every", default=",".join(map(str, DECIMATIONS)), help="decimations to run, e.g. 1,6")
-    parser.add_argument("--loo", action="store_true", help="also the leave-one-trial-out tuning (minutes)")
-    parser.add_argument("--jobs", type=int, default=2, help="processes for the leave-one-out runs")
     args = parser.parse_args(argv if argv is not None else [])
     keep = [k for k in args.trials.split(",") if k]
     paths = [p for p in sorted(Path(args.data).glob("*.hdf5")) if not keep or any(k in p.stem for k in keep)]
@@ -309,10 +192,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
         rows = [row for job in jobs for row in job.result()]
     rows += mean_rows(rows)
     print_table(rows)
-    if args.loo:
-        loo = leave_one_out(paths, estimators, decimations, args.jobs)
-        print_loo(loo)
-        rows += loo
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)

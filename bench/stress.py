@@ -6,6 +6,12 @@
 * **magnet**: a body-fixed field of `offset` µT (a battery strap, a screw, a camera next to the
   compass) added in the sensor frame from `t_on` on, along MAGNET_AXIS;
 * **bias step**: `rate` rad/s added to one gyro axis from `t_on` on;
+* **floor magnet**: a magnet lying at a fixed place under the motion (a steel beam, a motor on the
+  bench, BROAD's trial 30 made up from any trial): a dipole FLOOR_MAGNET_DEPTH below the trial's
+  lowest position (under its median one), moment along world east, strong enough for FLOOR_MAGNET_UT on its axis at that
+  distance; its field at the optical position, turned into the sensor frame by the optical
+  attitude, is added for the whole trial. It varies as the sensor moves, so the disturbance comes and
+  goes: what a place-fixed disturbance does that a body-fixed one does not;
 * **shocks**: accelerometer spikes of 8 to 16 g, `width` s long, every `period` s between `t_on`
   and `t_off` (a hard touch-down, a tap), along the sensor axes in turn.
 
@@ -33,6 +39,8 @@ MAGNET_AXIS = np.array([0.6, -0.48, 0.64]) / np.linalg.norm([0.6, -0.48, 0.64])
 MAGNET_UT = (20.0, 50.0, 100.0)
 BIAS_STEP = math.radians(1.0)  # rad/s on sensor x
 SHOCK_G = (8.0, 12.0, 16.0)
+FLOOR_MAGNET_DEPTH = 0.3  # m below the lowest position
+FLOOR_MAGNET_UT = 40.0  # µT on the dipole's axis at FLOOR_MAGNET_DEPTH
 
 Trial = dict[str, np.ndarray | float]
 
@@ -59,6 +67,30 @@ def bias_step(trial: Trial, rate: float, t_on: float, axis: int = 0) -> Trial:
     gyr = np.array(trial["imu_gyr"])
     gyr[np.asarray(trial["t"]) >= t_on, axis] += rate
     out["imu_gyr"] = gyr
+    return out
+
+
+def _filled(x: np.ndarray) -> np.ndarray:
+    """Rows with NaN (optical tracking lost) replaced by the nearest earlier, else later, good row."""
+    good = np.flatnonzero(np.all(np.isfinite(x), axis=1))
+    index = np.searchsorted(good, np.arange(len(x)), side="right") - 1
+    return np.asarray(x[good[np.clip(index, 0, len(good) - 1)]])
+
+
+def floor_magnet(trial: Trial, peak: float = FLOOR_MAGNET_UT, depth: float = FLOOR_MAGNET_DEPTH) -> Trial:
+    """A place-fixed dipole `depth` m below the lowest position (see the module docstring)."""
+    out = dict(trial)
+    pos = _filled(np.asarray(trial["opt_pos"]))
+    quat = _filled(np.asarray(trial["opt_quat"]))
+    below = np.array([*np.median(pos[:, :2], axis=0), pos[:, 2].min() - depth])
+    r = pos - below
+    dist = np.linalg.norm(r, axis=1, keepdims=True)
+    unit = r / dist
+    moment = np.array([peak * depth**3 / 2.0, 0.0, 0.0])  # on-axis field of a dipole: 2m/r³ (µ0/4π in m)
+    field_enu = (3.0 * unit * (unit @ moment)[:, None] - moment) / dist**3
+    w, v = quat[:, :1], -quat[:, 1:]  # sensor → ENU conjugated: ENU → sensor
+    t = 2.0 * np.cross(v, field_enu)
+    out["imu_mag"] = np.asarray(trial["imu_mag"]) + field_enu + w * t + np.cross(v, t)
     return out
 
 
@@ -97,6 +129,7 @@ CASES: dict[str, Callable[[Trial], tuple[Trial, float]]] = {
     },
     "bias step 1 deg/s": lambda tr: (bias_step(tr, BIAS_STEP, mid(tr)), mid(tr)),
     "shocks 8-16 g": lambda tr: (shocks(tr, mid(tr) - 20.0, mid(tr)), mid(tr) + 10.0),
+    "floor magnet": lambda tr: (floor_magnet(tr), 0.0),
 }
 
 
@@ -140,7 +173,7 @@ def print_stress(rows: list[dict[str, float | str]]) -> None:
         print(f"\n{rate} Hz, mean / worst of the trials")
         print(f"{'case':<28}" + "".join(f"{n:>14}" for n in names))
         for case in dict.fromkeys(r["case"] for r in rows):
-            metric = "heading" if str(case).startswith(("magnet", "none")) else "total"
+            metric = "heading" if str(case).startswith(("magnet", "none", "floor")) else "total"
             cells = []
             for n in names:
                 v = [float(r[metric]) for r in rows if (r["case"], r["estimator"], r["rate_hz"]) == (case, n, rate)]

@@ -59,6 +59,22 @@ async def running_station(connect: str, **kwargs):
         await station.stop()
 
 
+@contextlib.asynccontextmanager
+async def served_api(station: Station):
+    """The station's dashboard server on a free port and an authorised HTTP client to it."""
+    import httpx
+
+    from gcs.server.dashboard import DashboardServer
+
+    server = DashboardServer(station, port=0, viser=False)
+    await server.start()
+    try:
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers) as api:
+            yield api
+    finally:
+        await server.stop()
+
+
 async def wait_for(predicate, timeout: float, what: str, poll: float = 0.05) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():

@@ -86,7 +86,11 @@ def canned_snapshot() -> StationSnapshot:
         published=time.time(),
         link=link,
         vehicle=VehicleSnapshot(1, 1, "ArduPilot", "QUADROTOR", 2, True, 0, "ACTIVE", "4.5.7", 0, 30),
-        streams=StreamsSnapshot("SET_MESSAGE_INTERVAL", 3, {"ATTITUDE": StreamRate(50.0, 49.8, 0.996, "ACCEPTED")}),
+        streams=StreamsSnapshot(
+            "SET_MESSAGE_INTERVAL",
+            3,
+            {"ATTITUDE": StreamRate(50.0, 49.8, 0.996, "ACCEPTED", 50.0, "SET_MESSAGE_INTERVAL")},
+        ),
         outputs=[],
         estimation=EstimationSnapshot("RAW_IMU", 600, None, estimators, latest),
         recording=RECORDING_OFF,
@@ -168,6 +172,9 @@ def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation)
         "achieved_hz": 49.8,
         "ratio": 0.996,
         "ack": "ACCEPTED",
+        "accepted_hz": 50.0,
+        "method": "SET_MESSAGE_INTERVAL",
+        "reason": None,
     }
     assert status["vehicle"]["firmware"] == "4.5.7" and status["imu_type"] == "RAW_IMU"
     assert status["estimators"]["kf"]["reliable"] is False and "20.0 Hz" in status["estimators"]["kf"]["reason"]

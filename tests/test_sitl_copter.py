@@ -19,12 +19,14 @@ declination or a run-away heading breaks (12.7° for the first, tens of degrees 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import os
 import signal
 import socket
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -71,12 +73,19 @@ def _free_instance() -> int:
 @pytest.fixture
 def sitl(tmp_path):
     """ArduCopter SITL running in a scratch folder; SIGTERM, then SIGKILL, at teardown."""
+    with sitl_process(tmp_path / "sitl", "arducopter", "+", "copter.parm", SPEEDUP) as port:
+        yield port
+
+
+@contextlib.contextmanager
+def sitl_process(folder: Path, program: str, model: str, defaults: str, speedup: int):
+    """SITL `program` (bin/) with `defaults` (params/) in a new scratch folder, yielding its SERIAL0
+    TCP port; SIGTERM, then SIGKILL, at the end."""
     instance = _free_instance()
-    folder = tmp_path / "sitl"
     folder.mkdir()
     log = open(folder / "sitl.out", "wb")
-    argv = [str(SITL / "bin" / "arducopter"), "--model", "+", "--speedup", str(SPEEDUP), f"-I{instance}",
-            "--defaults", str(SITL / "params" / "copter.parm"), "--home", HOME]  # fmt: skip
+    argv = [str(SITL / "bin" / program), "--model", model, "--speedup", str(speedup), f"-I{instance}",
+            "--defaults", str(SITL / "params" / defaults), "--home", HOME]  # fmt: skip
     proc = subprocess.Popen(argv, cwd=folder, stdout=log, stderr=subprocess.STDOUT)
     try:
         yield 5760 + 10 * instance

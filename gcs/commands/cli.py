@@ -47,6 +47,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gcs.commands.params",
         "read, write (verified), save, load and diff the vehicle's parameters (records only with --record)",
     ),
+    "signing": ("gcs.commands.signing", "MAVLink 2 signing: `gcs signing setup` sends the vehicle its key"),
+    "logs": ("gcs.commands.logs", "list and download the vehicle's onboard DataFlash logs (resumable)"),
     "protocol": (
         "gcs.commands.protocol",
         "run a guided bench-test protocol (prompts, hold detection, the seeds' error figures) or report one",

@@ -7,6 +7,7 @@ import argparse
 import sys
 
 from gcs.mavlink.ascii import UNITS, AsciiFormat
+from gcs.mavlink.signing import parse_key
 from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.transport.address import AddressError, parse_address
@@ -55,7 +56,28 @@ def add_link_arguments(
         parser.add_argument(
             "--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)"
         )
+    add_signing_arguments(parser)
     add_record_arguments(parser, opt_in=record == "opt-in")
+
+
+def add_signing_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--signing-key",
+        metavar="PASSPHRASE|FILE",
+        help="sign MAVLink 2 with this key: a key file (32 bytes or 64 hex digits) or a passphrase (SHA-256)",
+    )
+    parser.add_argument(
+        "--signing",
+        choices=("required", "optional"),
+        default="required",
+        help="with --signing-key: refuse unsigned packets (required, default) or accept and count them",
+    )
+
+
+def signing_key(args: argparse.Namespace) -> bytes | None:
+    """The key --signing-key names, None without it; SigningKeyError (a ValueError) if unusable."""
+    value = getattr(args, "signing_key", None)
+    return None if value is None else parse_key(value)
 
 
 def add_record_arguments(parser: argparse.ArgumentParser, opt_in: bool = False) -> None:
@@ -99,6 +121,8 @@ def station_config(args: argparse.Namespace):
         outputs=args.out,
         heartbeat_timeout=args.heartbeat_timeout,
         record_dir=record_dir(args),
+        signing_key=signing_key(args),
+        signing_required=args.signing == "required",
     )
     if hasattr(args, "imu_rate"):  # the stream options (add_link_arguments(streams=True))
         config.speed = args.speed

@@ -2,8 +2,10 @@
 
 `set` and `load` write through the same verified path as the tuning panel (each value echoed
 back by the vehicle, or an error naming what it stored), and with `--profile` through the same
-safety limits: a load is checked whole before its first write, and nothing is written if any
-value is refused.
+safety limits. A load skips the read-only and volatile parameters (param_files.not_loadable) with
+a note each; with `--profile` it writes only the profile's tunables and notes the rest of the
+file, and the tunables are checked together before the first write: nothing is written if any
+of their values is refused.
 """
 
 from __future__ import annotations
@@ -126,10 +128,14 @@ async def _load(params, args, profile) -> int:
     unknown = sorted(set(wanted) - set(params.table))
     if unknown:
         raise ParamError(f"{args.file}: not parameters of this vehicle: {', '.join(unknown)}; nothing written")
-    changes = param_files.diff(wanted, {name: params.table[name].value for name in wanted})
-    print(param_files.format_diff(changes, "file", "vehicle"))
+    changes, skipped = param_files.split_loadable(
+        param_files.diff(wanted, {name: params.table[name].value for name in wanted})
+    )
     session = TuningSession(params, profile) if profile is not None else None
-    if session is not None:
+    if profile is not None:  # the tunables are written, the rest of the file is reported
+        outside = [c for c in changes if c.name not in profile.params]
+        skipped += [param_files.Skipped(c, f"not in the tuning profile {profile.name}") for c in outside]
+        changes = [c for c in changes if c.name in profile.params]
         refused = []
         for change in changes:
             try:
@@ -138,6 +144,9 @@ async def _load(params, args, profile) -> int:
                 refused.append(str(exc))
         if refused:
             raise ParamError("refused by the tuning profile, nothing written:\n  " + "\n  ".join(refused))
+    print(param_files.format_diff(changes, "file", "vehicle"))
+    for skip in skipped:
+        print(skip.note())
     if args.dry_run or not changes:
         return 0
     failed = []
@@ -153,7 +162,10 @@ async def _load(params, args, profile) -> int:
                 await params.set(change.name, change.a, CLIENT)
         except ParamError as exc:
             failed.append(str(exc))
-    print(f"wrote {len(changes) - len(failed)} of {len(changes)} parameters, each verified")
+    print(
+        f"wrote {len(changes) - len(failed)} of {len(changes)} parameters, each verified"
+        + (f"; skipped {len(skipped)}" if skipped else "")
+    )
     for line in failed:
         print(f"  FAILED {line}", file=sys.stderr)
     return 1 if failed else 0

@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from pathlib import Path
 from typing import Any
 
+from gcs.mavlink.signing import parse_key
 from gcs.sim.ascii import AsciiFirmware
+from gcs.sim.radio import fit_radio
+from gcs.sim.recording import fly_flight_logs
 from gcs.sim.sensors import SensorFaults
 from gcs.sim.vehicle import SimVehicle
 from gcs.transport.address import parse_address
@@ -74,12 +78,56 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ascii-malformed", type=float, default=0.0, help="fraction of damaged lines with --ascii (default 0)"
     )
     parser.add_argument(
+        "--radio",
+        type=int,
+        metavar="BAUD",
+        help="a 3DR/SiK radio of that baud (e.g. 57600) between vehicle and station: limited bandwidth, RADIO_STATUS",
+    )
+    parser.add_argument(
+        "--flight-log",
+        type=float,
+        action="append",
+        default=[],
+        metavar="SECONDS",
+        help="an earlier flight of that length, flown at start: its onboard log is log 1, 2, ... (repeatable)",
+    )
+    parser.add_argument(
+        "--log-drop", type=float, default=0.0, metavar="FRACTION", help="lose that fraction of LOG_DATA packets"
+    )
+    parser.add_argument(
+        "--log-dir", metavar="DIR", help="also write each finished onboard log there (00000001.BIN, ...)"
+    )
+    parser.add_argument(
         "--fault",
         action="append",
         default=[],
         metavar="NAME=VALUE",
         help="sensor or parameter-protocol fault, repeatable (see below)",
     )
+    parser.add_argument(
+        "--max-rate",
+        action="append",
+        default=[],
+        metavar="MESSAGE=HZ",
+        help="refuse SET_MESSAGE_INTERVAL faster than HZ for MESSAGE as ArduPlane does (e.g. RAW_IMU=40), repeatable",
+    )
+    parser.add_argument(
+        "--signing-key",
+        metavar="PASSPHRASE|FILE",
+        help="sign MAVLink 2 with this key and refuse unsigned packets (a key file or a passphrase)",
+    )
+
+
+def parse_max_rates(items: list[str]) -> dict[str, float]:
+    """--max-rate MESSAGE=HZ items → {MESSAGE: HZ}; ValueError names the bad one."""
+    limits = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        try:
+            limits[name.strip().upper()] = float(text)
+        except ValueError:
+            raise ValueError(f"--max-rate {item!r}: expected MESSAGE=HZ") from None
+    return limits
 
 
 def parse_faults(items: list[str]):
@@ -120,6 +168,14 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         faults, drop, clamp = parse_faults(args.fault)
+        limits = parse_max_rates(args.max_rate)
+        key = None if args.signing_key is None else parse_key(args.signing_key)
+        if args.radio is not None and not 1200 <= args.radio <= 2_000_000:
+            raise ValueError("--radio: a baud rate such as 57600")
+        if not 0.0 <= args.log_drop < 1.0:
+            raise ValueError("--log-drop: a fraction at least 0 and below 1")
+        if any(not 0 < seconds <= 3600 for seconds in args.flight_log):
+            raise ValueError("--flight-log: a flight lasts more than 0 and at most 3600 s")
         if parse_address(args.link).kind not in ("udpin", "udpout", "tcp", "tcpin", "pty"):
             raise ValueError(f"--link {args.link!r}: the vehicle serves udpout:, udpin:, tcp:, tcpin: or pty:")
     except ValueError as exc:  # AddressError is a ValueError
@@ -135,7 +191,15 @@ def run(args: argparse.Namespace) -> int:
         param_drop=drop,
         param_clamp=clamp,
         publish_declination=not args.no_declination_param,
+        interval_limits=limits,
+        signing_key=key,
     )
+    sim.log_server.drop = args.log_drop
+    if args.log_dir:
+        sim.logs.log_dir = Path(args.log_dir)
+    fly_flight_logs(sim, args.flight_log)
+    if args.radio is not None:
+        fit_radio(sim, args.radio, seed=args.seed)
 
     firmware = None
     if args.ascii:

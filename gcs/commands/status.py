@@ -57,11 +57,25 @@ def format_report(snap: StationSnapshot) -> str:
         f"streams    via {streams.method}  ({streams.requests_sent} requests sent)",
     ]
     for name, row in streams.messages.items():
-        ack = f"  ack {row.ack}" if row.ack else ""
-        lines.append(f"  {name:<16} requested {row.requested_hz:6.1f} Hz  achieved {row.achieved_hz:6.1f} Hz{ack}")
+        accepted = "     ?" if row.accepted_hz is None else f"{row.accepted_hz:6.1f}"
+        lines.append(
+            f"  {name:<16} requested {row.requested_hz:6.1f} Hz  accepted {accepted} Hz  "
+            f"achieved {row.achieved_hz:6.1f} Hz  via {row.method or '?'}"
+        )
+        if row.reason:
+            lines.append(f"  {'':<16} {row.reason}")
+    lines += format_radio(snap)
     others = {k: v for k, v in stats.rates_hz.items() if k not in streams.messages}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
+    if link.signing is not None:
+        s = link.signing
+        refused = ", ".join(f"{why} {n}" for why, n in s.rejected.items()) or "none"
+        flagged = ", ".join(f"{why} {n}" for why, n in s.accepted_unsigned.items()) or "none"
+        lines.append(
+            f"signing    {'required' if s.required else 'optional'}  good {s.good}  refused: {refused}  "
+            f"accepted unsigned: {flagged}"
+        )
     if stats.nonfinite_rejected:
         lines.append(
             "rejected   non-finite values: " + ", ".join(f"{k} {n}" for k, n in stats.nonfinite_rejected.items())
@@ -71,3 +85,23 @@ def format_report(snap: StationSnapshot) -> str:
     lines.append("events")
     lines += [f"  {e.kind}: {e.detail}" for e in link.events]
     return "\n".join(lines)
+
+
+def format_radio(snap: StationSnapshot) -> list[str]:
+    """The radio's state and each stream's cost against what the link carries (gcs.runtime.radio)."""
+    radio = snap.radio
+    if radio is None or not radio.present or radio.status is None:
+        return []
+    s = radio.status
+    lines = [
+        f"radio      rssi {s.rssi}/{s.remrssi} (remote)  noise {s.noise}/{s.remnoise}  txbuf {s.txbuf} % free  "
+        f"rxerrors {s.rxerrors}  fixed {s.fixed}",
+        f"  budget   {radio.used_bps:.0f} B/s used of {radio.capacity_bps:.0f} B/s (plan {radio.budget_bps:.0f})  "
+        f"streams at {radio.scale:.0%} of wanted (predicted {radio.predicted_scale:.0%}): {radio.choice}",
+    ]
+    for name, row in radio.streams.items():
+        lines.append(
+            f"  {name:<16} wanted {row.wanted_hz:5.1f}  predicted {row.predicted_hz:5.1f}  "
+            f"requested {row.requested_hz:5.1f}  achieved {row.achieved_hz:5.1f} Hz  {row.cost_bps:6.0f} B/s"
+        )
+    return lines

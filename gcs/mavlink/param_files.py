@@ -4,6 +4,12 @@ One parameter per line, `NAME,VALUE` (Mission Planner) or `NAME VALUE` (MAVProxy
 spaces or tabs); `#` starts a comment, blank lines are ignored. Files are written sorted by name
 as `NAME,VALUE` with the shortest value text that reads back as the same float32, so a file
 saved from the vehicle and loaded again writes back exactly what was read.
+
+A load never writes what the vehicle keeps for itself (`not_loadable`): ArduPilot's read-only and
+volatile parameters (its @ReadOnly / @Volatile metadata: statistics such as STAT_RUNTIME, sensor
+ids such as INS_ACC_ID, ground calibration taken at boot) and the counters pymavlink's mavparm
+excludes from loads (FORMAT_VERSION, CMD_TOTAL, LOG_LASTFILE...). A saved full table then
+loads back without rewriting a counter or another board's sensor ids.
 """
 
 from __future__ import annotations
@@ -16,6 +22,24 @@ from pathlib import Path
 from gcs.mavlink.params import ParamError, check_name, format_value, same_value
 
 _SPLIT = re.compile(r"\s*,\s*|\s+")
+
+#: (names, why a load leaves them alone), first match wins.
+_NOT_LOADABLE = (
+    (re.compile(r"STAT_[A-Z]+"), "statistics the vehicle keeps (read-only)"),
+    (re.compile(r"FORMAT_VERSION|SYSID_SW_MREV|SYSID_SW_TYPE"), "set by the firmware (read-only)"),
+    (
+        re.compile(r"INS\d?_(ACC|GYR)\d?_ID|COMPASS_DEV_ID\d?|BARO\d_DEVID|ARSPD\d?_DEVID|GPS\d?_CAN_NODEID\d?"),
+        "sensor id of the board the file came from (read-only)",
+    ),
+    (
+        re.compile(r"GND_ABS_PRESS\d?|GND_TEMP|BARO\d?_GND_PRESS|BARO_ABS_PRESS\d?|ARSPD\d?_OFFSET"),
+        "ground calibration the vehicle takes at boot (volatile)",
+    ),
+    (
+        re.compile(r"CMD_TOTAL|CMD_INDEX|FENCE_TOTAL|RALLY_TOTAL|LOG_LASTFILE|SYS_NUM_RESETS"),
+        "counter the vehicle keeps",
+    ),
+)
 
 
 class ParamFileError(ParamError):
@@ -46,6 +70,11 @@ def parse(text: str, source: str = "<text>") -> dict[str, float]:
             raise ParamFileError(f"{where}: {name} already set on line {lines[name]}")
         values[name], lines[name] = value, number
     return values
+
+
+def not_loadable(name: str) -> str | None:
+    """Why a parameter file load must not write `name`, or None when it may."""
+    return next((why for pattern, why in _NOT_LOADABLE if pattern.fullmatch(name)), None)
 
 
 def load(path: str | Path) -> dict[str, float]:
@@ -91,6 +120,31 @@ class Difference:
 
     def as_dict(self) -> dict[str, str | float | None]:
         return {"name": self.name, "a": self.a, "b": self.b}
+
+
+@dataclass(frozen=True, slots=True)
+class Skipped:
+    """A difference a load leaves alone, and why (the note printed for it)."""
+
+    difference: Difference
+    reason: str
+
+    def note(self) -> str:
+        d = self.difference
+        show = [("-" if v is None else format_value(v)) for v in (d.a, d.b)]
+        return f"skipped {d.name} (file {show[0]}, vehicle {show[1]}): {self.reason}"
+
+
+def split_loadable(changes: list[Difference]) -> tuple[list[Difference], list[Skipped]]:
+    """(the changes a load writes, the read-only and volatile ones it skips)."""
+    write, skip = [], []
+    for change in changes:
+        reason = not_loadable(change.name)
+        if reason is None:
+            write.append(change)
+        else:
+            skip.append(Skipped(change, reason))
+    return write, skip
 
 
 def diff(a: dict[str, float], b: dict[str, float]) -> list[Difference]:

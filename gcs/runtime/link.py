@@ -20,6 +20,7 @@ from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.finite import nonfinite_field
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.signal import Signal
@@ -102,6 +103,7 @@ class Link:
         heartbeat_rate: float = 1.0,
         name: str = "vehicle",
         ascii_format: AsciiFormat = SEED000,
+        signing: Signing | None = None,
     ) -> None:
         self.address = parse_address(address) if isinstance(address, str) else address
         self.bus = bus or MessageBus()
@@ -122,6 +124,10 @@ class Link:
         self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
         self.last_heartbeat: float | None = None  # host monotonic s
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
+        #: MAVLink 2 signing (gcs.mavlink.signing): what we send is signed, what arrives checked
+        self.signing = signing
+        if signing is not None:
+            signing.sign_with(self._encoder)
         self._transport: Transport | None = None
         self._closed_drops = 0  # kernel drops of transports closed since
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
@@ -181,6 +187,7 @@ class Link:
             heartbeat_age_s=None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
             stats=self.stats.snapshot(),
             events=[LinkNote(e.wall_time, e.kind, e.detail) for e in list(self.events)[-50:]],
+            signing=None if self.signing is None else self.signing.snapshot(),
         )
 
     # ---- receive path -----------------------------------------------------------------
@@ -190,6 +197,9 @@ class Link:
         self.stats.bytes_in += len(data)
         for msg in self.decoder.feed(data, final=self._datagram):
             msg_type = msg.get_type()
+            if self.signing is not None and (why := self.signing.check(msg)) is not None:
+                self._refuse_unsigned(msg_type, why)
+                continue
             self.stats.count(msg_type)
             field = nonfinite_field(msg, msg_type)
             if field is not None:
@@ -214,6 +224,13 @@ class Link:
         if first:
             self._event("rejected", f"{msg_type} with non-finite {field} (counted, not used)")
 
+    def _refuse_unsigned(self, msg_type: str, why: str) -> None:
+        """A packet signing refuses goes nowhere (counted in signing); the first of each reason
+        is also a link event."""
+        assert self.signing is not None
+        if self.signing.counters.rejected.get(why) == 1:
+            self._event("rejected", f"{msg_type}: {why} (signing required; counted, not used)")
+
     def _on_heartbeat(self, msg, sysid: int, compid: int, now: float) -> None:
         if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID or msg.type == mavlink.MAV_TYPE_GCS:
             return  # another ground station, a gimbal, a companion: not the vehicle
@@ -224,7 +241,7 @@ class Link:
         version = 2 if msg.get_msgbuf()[0] == MARKER_V2 else 1
         if version != self.vehicle_mavlink:
             self.vehicle_mavlink = version
-            self._encoder.mavlink1 = version == 1
+            self._encoder.mavlink1 = version == 1 and self.signing is None
         self.last_heartbeat = now
         if self.state != LinkState.CONNECTED:
             self._set_state(LinkState.CONNECTED)

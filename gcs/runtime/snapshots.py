@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from gcs.mavlink.signing import SigningSnapshot as SigningSnapshot  # re-exported: the server reads it here
 from gcs.runtime.supervisor import PartStatus
 
 
@@ -64,6 +65,8 @@ class LinkSnapshot:
     heartbeat_age_s: float | None
     stats: LinkCounters
     events: list[LinkNote]
+    #: MAVLink 2 signing on this link (None: off)
+    signing: SigningSnapshot | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,11 +75,16 @@ class StreamRate:
     achieved_hz: float
     ratio: float | None
     ack: str | None
+    #: the rate the vehicle took (after a refusal: the highest it allows), and how it was asked
+    accepted_hz: float | None = None
+    method: str | None = None  # SET_MESSAGE_INTERVAL | REQUEST_DATA_STREAM
+    #: why accepted differs from requested: the refusal and the vehicle's STATUSTEXT
+    reason: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class StreamsSnapshot:
-    method: str | None  # "SET_MESSAGE_INTERVAL" or "REQUEST_DATA_STREAM" once decided
+    method: str | None  # "SET_MESSAGE_INTERVAL", "REQUEST_DATA_STREAM" or "mixed" once decided
     requests_sent: int
     messages: dict[str, StreamRate]
 
@@ -169,6 +177,47 @@ class EstimationSnapshot:
 
 
 @dataclass(frozen=True, slots=True)
+class RadioStatus:
+    """The telemetry radio's last RADIO_STATUS (SiK's 0-255 signal scale; txbuf: % of its buffer free)."""
+
+    rssi: int
+    remrssi: int
+    noise: int
+    remnoise: int
+    txbuf: int
+    rxerrors: int
+    fixed: int
+    age_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class RadioStream:
+    """One stream on the radio's budget: what the estimators want, what fits (predicted before
+    requesting), what the station asked for, what arrives, and its cost at the requested rate."""
+
+    wanted_hz: float
+    predicted_hz: float
+    requested_hz: float
+    achieved_hz: float
+    cost_bps: float
+
+
+@dataclass(frozen=True, slots=True)
+class RadioSnapshot:
+    """The radio link's budget (gcs.runtime.radio): present once a RADIO_STATUS has arrived."""
+
+    present: bool
+    status: RadioStatus | None
+    capacity_bps: float
+    budget_bps: float
+    used_bps: float
+    predicted_scale: float
+    scale: float
+    choice: str
+    streams: dict[str, RadioStream]
+
+
+@dataclass(frozen=True, slots=True)
 class StationSnapshot:
     published: float  # UNIX time
     link: LinkSnapshot
@@ -178,3 +227,4 @@ class StationSnapshot:
     estimation: EstimationSnapshot | None
     recording: RecordingSnapshot
     parts: list[PartStatus]
+    radio: RadioSnapshot | None = None

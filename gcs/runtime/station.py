@@ -30,13 +30,17 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline, pipeline_from
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.gains import GainSet, PresetFile
 from gcs.mavlink.ascii import SEED000, AsciiFormat
+from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import MessageBus
 from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
+from gcs.runtime.firmware import request_version
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
+from gcs.runtime.logdownload import LogDownloader, LogDownloadError
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
+from gcs.runtime.radio import RadioGovernor
 from gcs.runtime.recorder import SessionRecorder
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import (
@@ -80,6 +84,8 @@ class StationConfig:
     record_dir: str | None = None  # where sessions are recorded; None: no recording
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
     presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
+    signing_key: bytes | None = None  # MAVLink 2 signing key (--signing-key); None: no signing
+    signing_required: bool = True  # refuse unsigned packets (else accept and count them)
 
 
 class StationError(Exception):
@@ -92,6 +98,8 @@ class Station:
         self.bus = bus or MessageBus()
         self.events = EventLog()
         self.supervisor = Supervisor(self.events)
+        key = config.signing_key
+        signing = None if key is None else Signing(key, required=config.signing_required)
         self.link = Link(
             config.connect,
             bus=self.bus,
@@ -99,10 +107,16 @@ class Station:
             speed=config.speed,
             heartbeat_timeout=config.heartbeat_timeout,
             ascii_format=config.ascii_format,
+            signing=signing,
         )
         self.vehicle = VehicleState(self.link)
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.rebooted.connect(self.streams.request_again)
+        #: the telemetry radio's budget: caps the requested rates when a radio reports (gcs.runtime.radio)
+        self.radio = RadioGovernor(
+            self.link, self.streams, self.events, config.baud if isinstance(config.baud, int) else 57600
+        )
+        self.streams.rate_cap = self.radio.cap
         self.params = ParamClient(self.link, self.vehicle, self.events)
         self.outputs = [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
@@ -127,6 +141,9 @@ class Station:
         self._tuning: TuningSession | None = None
         self._tuning_lock: asyncio.Lock | None = None
         self._download: asyncio.Task[Any] | None = None
+        #: the vehicle's onboard logs (gcs.runtime.logdownload); downloads land in the replay folder
+        self.onboard_logs = LogDownloader(self.link)
+        self._log_download: asyncio.Task[Any] | None = None
         self._snapshot: StationSnapshot | None = None
         self._loop_thread: int | None = None
         self._workers: ProcessPoolExecutor | None = None
@@ -142,10 +159,13 @@ class Station:
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
+        if self.config.request_streams:  # not for a parameter-only command: ask the firmware version
+            run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
         for i, output in enumerate(self.outputs):
             run(f"output {i + 1}", output.run())
         if self.config.request_streams:
             run("streams", self.streams.run())
+            run("radio", self.radio.run())
         if self.estimation is not None:
             run("estimation", self.estimation.run())
         if self.recorder is not None:
@@ -183,6 +203,7 @@ class Station:
             estimation=None if self.estimation is None else estimation_snapshot(self.estimation),
             recording=self.recording_snapshot(),
             parts=self.supervisor.statuses(),
+            radio=self.radio.snapshot(),
         )
         self.published.emit(self._snapshot)
         return self._snapshot
@@ -304,6 +325,30 @@ class Station:
         self._download = asyncio.get_running_loop().create_task(self.params.download())
         self._download.add_done_callback(lambda t: t.cancelled() or t.exception())  # the error stays in progress()
         return True
+
+    def start_log_download(self, log_id: int | None) -> bool:
+        """List the vehicle's logs and download `log_id` (None: the latest) into the recording
+        folder, where replay finds it; False if a listing or download is already running."""
+        self._on_loop()
+        if self._log_download is not None and not self._log_download.done():
+            return False
+
+        async def fetch() -> None:
+            entries = await self.onboard_logs.list_logs()
+            chosen = [e for e in entries if log_id is None or e.id == log_id][-1:]
+            if not chosen:
+                raise LogDownloadError(f"the vehicle has no log {log_id}" if log_id else "the vehicle has no logs")
+            path = await self.onboard_logs.download(chosen[0], self.recording_root)
+            self.events.record("log download", "station", log=chosen[0].id, path=str(path))
+
+        self._log_download = asyncio.get_running_loop().create_task(fetch())
+        self._log_download.add_done_callback(self._log_download_done)
+        return True
+
+    def _log_download_done(self, task: asyncio.Task[Any]) -> None:
+        error = None if task.cancelled() else task.exception()
+        if error is not None:  # a refusal, a lost link, a full disk: shown in the progress
+            self.onboard_logs.fail(str(error))
 
     async def tuning(self) -> TuningSession:
         """The tuning session (opened on first use: profile detected, pre-flight values snapshotted)."""

@@ -1,24 +1,41 @@
-"""Ask the vehicle for what the estimators need, and check what actually arrives.
+"""Ask the vehicle for what the estimators need, negotiate each message's rate, and check what
+actually arrives.
 
 Two mechanisms exist in the field:
 - MAV_CMD_SET_MESSAGE_INTERVAL, per message, ACKed (ArduPilot 4.x, PX4);
 - REQUEST_DATA_STREAM, per group of messages, never ACKed (APM 2.5 / ArduPilot 3.x, where
   ArduCopter sends nothing until asked).
-On connect we try the first; a COMMAND_ACK other than ACCEPTED, or silence, selects the
-second. Requests are repeated only after a reconnect, a reboot, or when a message stays far
-below its requested rate (another ground station may have overridden it), and then at most
-once per `retry_interval`: never a flood of requests over a slow radio.
+The negotiation is per message (docs/vehicles.md, "Stream requests"): each message is asked for
+by SET_MESSAGE_INTERVAL; a refused rate (DENIED, or FAILED for being too fast) is retried at the
+highest rate the vehicle allows — read from its STATUSTEXT reason (ArduPilot's "too fast.
+Increase SCHED_LOOP_RATE": 0.8 × SCHED_LOOP_RATE, read from the vehicle) or else a step down a
+ladder of rates; only a message refused at every rate falls back to its REQUEST_DATA_STREAM
+group, and the accepted group-mates are then asked again so the group request does not override
+them.
+A vehicle that does not know the command (no ACK, UNSUPPORTED) gets REQUEST_DATA_STREAM for all.
+Requests are repeated only after a reconnect, a reboot, or when a message stays far below its
+accepted rate (another ground station may have overridden it), and then at most once per
+`retry_interval`: never a flood of requests over a slow radio.
+
+Each message's target rate passes through `target_rate(name, hz)` before it is asked for: the one
+place where a per-message cap (a radio's budget) applies.
 """
 
 from __future__ import annotations
 
 import asyncio
+import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.params import param_name
 from gcs.runtime.link import Link, LinkState
 from gcs.runtime.snapshots import StreamRate, StreamsSnapshot
+
+SET_MESSAGE_INTERVAL = "SET_MESSAGE_INTERVAL"
+REQUEST_DATA_STREAM = "REQUEST_DATA_STREAM"
 
 #: REQUEST_DATA_STREAM group of each message, as ArduPilot assigns them.
 STREAM_GROUPS = {
@@ -49,6 +66,18 @@ MESSAGE_IDS = {
     )
 }
 
+#: Rates tried, highest first, below a refused one when the vehicle does not say its limit
+#: (divisors of the usual 400/300/50 Hz scheduler loops).
+STEP_DOWN_HZ = (200.0, 100.0, 80.0, 50.0, 40.0, 25.0, 20.0, 10.0, 5.0, 2.0, 1.0)
+#: ArduPilot refuses an interval shorter than 1/(0.8 · SCHED_LOOP_RATE) with this STATUSTEXT
+#: (GCS_MAVLINK::set_message_interval): the vehicle's own limit is then 0.8 × its loop rate.
+TOO_FAST = re.compile(r"too fast", re.IGNORECASE)
+LOOP_RATE_FRACTION = 0.8
+#: How long a STATUSTEXT may follow its refused COMMAND_ACK (ArduPilot queues the text).
+REASON_WAIT = 0.5
+#: STATUSTEXT.text length: a chunk this long may be continued in the next one (same id).
+STATUSTEXT_CHUNK = 50
+
 
 @dataclass
 class StreamPlan:
@@ -75,19 +104,40 @@ class StreamPlan:
 
 
 @dataclass
+class Negotiated:
+    """What was agreed for one message: asked `requested_hz`, the vehicle `accepted_hz` through
+    `method`; `ack` is the last COMMAND_ACK result, `reason` why the two rates differ."""
+
+    requested_hz: float
+    accepted_hz: float | None = None
+    method: str | None = None
+    ack: str | None = None
+    reason: str | None = None
+
+
+@dataclass
 class StreamRequester:
     link: Link
     plan: StreamPlan = field(default_factory=StreamPlan)
     ack_timeout: float = 1.0
     retry_interval: float = 10.0
     check_interval: float = 5.0
-    method: str | None = None  # "SET_MESSAGE_INTERVAL" | "REQUEST_DATA_STREAM"
+    method: str | None = None  # SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM, or "mixed" once decided
     requested: dict[str, float] = field(default_factory=dict)
-    acks: dict[str, str] = field(default_factory=dict)
+    negotiated: dict[str, Negotiated] = field(default_factory=dict)
     requests_sent: int = 0
     autopilot: str | None = None
+    #: the radio's budget (gcs.runtime.radio.RadioGovernor.cap): wanted rates → rates to request
+    rate_cap: Callable[[dict[str, float]], dict[str, float]] | None = None
+    #: the vehicle's SCHED_LOOP_RATE once read (after a "too fast" refusal)
+    loop_rate_hz: float | None = None
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
+    _no_intervals: bool = False  # the vehicle does not know SET_MESSAGE_INTERVAL
+
+    @property
+    def acks(self) -> dict[str, str]:
+        return {name: n.ack for name, n in self.negotiated.items() if n.ack is not None}
 
     def _on_link_state(self, old: LinkState, new: LinkState) -> None:
         if new == LinkState.CONNECTED:
@@ -97,50 +147,148 @@ class StreamRequester:
         """Re-request everything soon (after a reconnect or a reboot)."""
         self._wake.set()
 
+    def target_rate(self, name: str, hz: float) -> float:
+        """The rate to ask for `name` given the plan's `hz`: the hook for a per-message cap."""
+        return hz
+
     async def run(self) -> None:
         self.link.state_changed.connect(self._on_link_state)
-        acks = self.link.bus.subscribe("stream-acks", types=["COMMAND_ACK", "HEARTBEAT"], maxlen=200)
+        replies = self.link.bus.subscribe(
+            "stream-acks", types=["COMMAND_ACK", "HEARTBEAT", "STATUSTEXT", "PARAM_VALUE"], maxlen=500
+        )
         try:
             while True:
                 await self.link.wait_connected()
                 self._wake.clear()
-                await self._request_all(acks)
+                await self._request_all(replies)
                 await self._monitor_until_woken()
         finally:
-            acks.close()
+            replies.close()
 
-    async def _request_all(self, acks) -> None:
-        self.autopilot = await self._autopilot(acks)
-        wanted = self.plan.for_autopilot(self.autopilot)
-        if self.method != "REQUEST_DATA_STREAM":
-            first = next(iter(wanted))
-            result = await self._set_interval(first, wanted[first], acks)
-            if result == "ACCEPTED":
-                self.method = "SET_MESSAGE_INTERVAL"
-                for name, hz in list(wanted.items())[1:]:
-                    await self._set_interval(name, hz, acks)
-            elif self.autopilot != "PX4":
-                self.method = "REQUEST_DATA_STREAM"
-        if self.method == "REQUEST_DATA_STREAM":
-            self._request_streams(wanted)
+    async def _request_all(self, replies) -> None:
+        self.autopilot = await self._autopilot(replies)
+        wanted = {name: self.target_rate(name, hz) for name, hz in self.plan.for_autopilot(self.autopilot).items()}
+        if self.rate_cap is not None:  # the radio's budget
+            wanted = self.rate_cap(wanted)
+        self.negotiated = {name: Negotiated(hz) for name, hz in wanted.items()}
+        if not self._no_intervals:
+            for name, hz in wanted.items():
+                result = await self._negotiate(name, hz, replies)
+                if result in ("NO_ACK", "UNSUPPORTED") and all(
+                    n.method is None for n in self.negotiated.values()
+                ):  # the command itself is unknown to this vehicle: no use asking per message
+                    self._no_intervals = self.autopilot != "PX4"
+                    break
+        refused = {name: hz for name, hz in wanted.items() if self.negotiated[name].method is None}
+        if refused and self.autopilot != "PX4":
+            self._request_streams(refused)
+            for name in refused:
+                n = self.negotiated[name]
+                n.method, n.accepted_hz = REQUEST_DATA_STREAM, min(wanted[name], self._group_rate(name, refused))
+            await self._restore_group_mates(refused, replies)
         self.requested = wanted
+        methods = {n.method for n in self.negotiated.values() if n.method is not None}
+        self.method = methods.pop() if len(methods) == 1 else ("mixed" if methods else None)
 
-    async def _autopilot(self, acks) -> str | None:
+    def _group_rate(self, name: str, refused: dict[str, float]) -> float:
+        group = STREAM_GROUPS.get(name)
+        return max((hz for other, hz in refused.items() if STREAM_GROUPS.get(other) == group), default=0.0)
+
+    async def _restore_group_mates(self, refused: dict[str, float], replies) -> None:
+        """A group request sets every message of the group (ArduPilot, the simulator): ask the
+        group-mates that SET_MESSAGE_INTERVAL accepted for their own rates again."""
+        groups = {STREAM_GROUPS.get(name) for name in refused}
+        for name, n in self.negotiated.items():
+            if n.method == SET_MESSAGE_INTERVAL and STREAM_GROUPS.get(name) in groups and n.accepted_hz:
+                await self._set_interval(name, n.accepted_hz, replies, attempts=1)
+
+    async def _negotiate(self, name: str, hz: float, replies) -> str:
+        """SET_MESSAGE_INTERVAL at hz, then, while refused, at the highest rate the vehicle allows."""
+        n = self.negotiated[name]
+        result, text = await self._ask(name, hz, replies)
+        first = result
+        tried = {hz}
+        while result in ("DENIED", "FAILED"):
+            n.reason = f"{result} at {hz:g} Hz" + (f": {text}" if text else "")
+            if result == "FAILED" and not (text and TOO_FAST.search(text)):
+                break  # not about the rate (ArduPilot: a message it cannot send): no lower rate helps
+            lower = await self._lower_rate(hz, text, tried, replies)
+            if lower is None:
+                break
+            tried.add(lower)
+            hz = lower
+            result, text = await self._ask(name, hz, replies)
+        if result == "ACCEPTED":
+            n.method, n.accepted_hz = SET_MESSAGE_INTERVAL, hz
+            if first != "ACCEPTED" and n.reason:
+                n.reason += f"; accepted {hz:g} Hz"
+        elif n.reason is None:
+            n.reason = f"SET_MESSAGE_INTERVAL: {result}"
+        return first
+
+    async def _ask(self, name: str, hz: float, replies) -> tuple[str, str | None]:
+        """(ACK result, the vehicle's STATUSTEXT about a refusal or None)."""
+        result = await self._set_interval(name, hz, replies)
+        if result not in ("DENIED", "FAILED"):
+            return result, None
+        deadline = time.monotonic() + REASON_WAIT
+        reason: list[str] = []
+        chunk_id = None  # MAVLink 2 splits a long text into 50-character chunks of one id
+        while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
+            if item.type != "STATUSTEXT" or item.sysid != self.link.target_system:
+                continue
+            text, text_id = _text(item.msg), getattr(item.msg, "id", 0)
+            if not reason and (TOO_FAST.search(text) or f"ID {MESSAGE_IDS[name]} " in text):
+                reason, chunk_id = [text], text_id
+            elif reason and chunk_id and text_id == chunk_id:
+                reason.append(text)
+            else:
+                continue
+            if len(text) < STATUSTEXT_CHUNK:
+                break
+        return result, "".join(reason) or None
+
+    async def _lower_rate(self, refused_hz: float, reason: str | None, tried: set[float], replies) -> float | None:
+        """The next rate to try below refused_hz: the vehicle's own limit when its reason names
+        the scheduler loop, else the next step of STEP_DOWN_HZ."""
+        if reason and TOO_FAST.search(reason):
+            if self.loop_rate_hz is None:
+                self.loop_rate_hz = await self._read_loop_rate(replies)
+            if self.loop_rate_hz:
+                limit = round(LOOP_RATE_FRACTION * self.loop_rate_hz, 3)
+                if limit < refused_hz and limit not in tried:
+                    return limit
+        return next((hz for hz in STEP_DOWN_HZ if hz < refused_hz and hz not in tried), None)
+
+    async def _read_loop_rate(self, replies) -> float | None:
+        """SCHED_LOOP_RATE from the vehicle (one PARAM_REQUEST_READ), None without an answer."""
+        self.link.send(
+            mavlink.MAVLink_param_request_read_message(
+                self.link.target_system or 1, self.link.target_component or 1, b"SCHED_LOOP_RATE", -1
+            )
+        )
+        deadline = time.monotonic() + self.ack_timeout
+        while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
+            if item.type == "PARAM_VALUE" and param_name(item.msg) == "SCHED_LOOP_RATE":
+                return float(item.msg.param_value) or None
+        return None
+
+    async def _autopilot(self, replies) -> str | None:
         """The autopilot family from the vehicle's heartbeat (waits briefly for one)."""
         deadline = time.monotonic() + 2.0
-        for item in acks.drain():
+        for item in replies.drain():
             if item.type == "HEARTBEAT" and item.sysid == self.link.target_system:
                 return _family(item.msg.autopilot)
-        while (item := await acks.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
+        while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
             if item.type == "HEARTBEAT" and item.sysid == self.link.target_system:
                 return _family(item.msg.autopilot)
         return None
 
-    async def _set_interval(self, name: str, hz: float, acks, attempts: int = 2) -> str:
+    async def _set_interval(self, name: str, hz: float, replies, attempts: int = 2) -> str:
         interval_us = int(round(1e6 / hz)) if hz > 0 else -1
         command = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
         for _ in range(attempts):
-            acks.drain()
+            replies.drain()
             self.link.send(
                 mavlink.MAVLink_command_long_message(
                     self.link.target_system or 1,
@@ -159,12 +307,14 @@ class StreamRequester:
             self.requests_sent += 1
             self._last_request[name] = time.monotonic()
             deadline = time.monotonic() + self.ack_timeout
-            while (item := await acks.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
+            while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
                 if item.type == "COMMAND_ACK" and item.msg.command == command:
                     result = enum_result(item.msg.result)
-                    self.acks[name] = result
+                    if name in self.negotiated:
+                        self.negotiated[name].ack = result
                     return result
-        self.acks[name] = "NO_ACK"
+        if name in self.negotiated:
+            self.negotiated[name].ack = "NO_ACK"
         return "NO_ACK"
 
     def _request_streams(self, wanted: dict[str, float]) -> None:
@@ -185,7 +335,7 @@ class StreamRequester:
             self._last_request[name] = now
 
     async def _monitor_until_woken(self) -> None:
-        """Every `check_interval`, re-request messages far below their rate, rate-limited."""
+        """Every `check_interval`, re-request messages far below their accepted rate, rate-limited."""
         while True:
             try:
                 async with asyncio.timeout(self.check_interval):
@@ -198,32 +348,41 @@ class StreamRequester:
             achieved = self.link.stats.rates()
             now = time.monotonic()
             starved = {
-                name: hz
-                for name, hz in self.requested.items()
-                if achieved.get(name, 0.0) < 0.5 * hz
-                and achieved.get(name, 0.0) > 0.0  # never sent at all: the vehicle lacks it
+                name: n
+                for name, n in self.negotiated.items()
+                if n.accepted_hz
+                and 0.0 < achieved.get(name, 0.0) < 0.5 * n.accepted_hz  # never sent at all: the vehicle lacks it
                 and now - self._last_request.get(name, 0.0) >= self.retry_interval
             }
             if not starved:
                 continue
-            if self.method == "SET_MESSAGE_INTERVAL":
-                sub = self.link.bus.subscribe("stream-reacks", types=["COMMAND_ACK"], maxlen=50)
-                try:
-                    for name, hz in starved.items():
-                        await self._set_interval(name, hz, sub, attempts=1)
-                finally:
-                    sub.close()
-            else:
-                self._request_streams(starved)
+            by_group = {name: n.accepted_hz or 0.0 for name, n in starved.items() if n.method == REQUEST_DATA_STREAM}
+            if by_group:
+                self._request_streams(by_group)
+            sub = self.link.bus.subscribe("stream-reacks", types=["COMMAND_ACK"], maxlen=50)
+            try:
+                for name, n in starved.items():
+                    if n.method == SET_MESSAGE_INTERVAL and n.accepted_hz:
+                        await self._set_interval(name, n.accepted_hz, sub, attempts=1)
+            finally:
+                sub.close()
 
     def snapshot(self) -> StreamsSnapshot:
-        """Requested vs achieved rates per message, as a field engineer reads them."""
+        """Requested, accepted and achieved rates per message, and why they differ."""
         achieved = self.link.stats.rates()
         rows = {}
-        for name, hz in self.requested.items():
+        for name, n in self.negotiated.items():
             got = achieved.get(name, 0.0)
-            rows[name] = StreamRate(hz, round(got, 2), round(got / hz, 3) if hz else None, self.acks.get(name))
+            hz = n.requested_hz
+            rows[name] = StreamRate(
+                hz, round(got, 2), round(got / hz, 3) if hz else None, n.ack, n.accepted_hz, n.method, n.reason
+            )
         return StreamsSnapshot(self.method, self.requests_sent, rows)
+
+
+def _text(msg) -> str:
+    raw = msg.text
+    return (raw if isinstance(raw, str) else raw.decode(errors="replace")).rstrip("\x00")
 
 
 def _family(autopilot: int) -> str | None:

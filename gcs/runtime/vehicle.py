@@ -6,6 +6,7 @@ import asyncio
 from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
+from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import VehicleSnapshot
@@ -65,9 +66,11 @@ class VehicleState:
             self.custom_mode = msg.custom_mode
             self.system_status = enum_name("MAV_STATE", msg.system_status)
         elif item.type == "AUTOPILOT_VERSION":
-            v = msg.flight_sw_version
-            self.firmware = f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}"
+            if self.firmware is None or self.firmware[0].isdigit():  # a banner seen names more
+                self.firmware = version_of(msg)
             self.capabilities = msg.capabilities
+        elif item.type == "STATUSTEXT" and (banner := banner_version(msg.text)):
+            self.firmware = banner
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
             last = self._last_boot_time
             if last is not None and item.vehicle_time < last - REBOOT_JUMP:

@@ -7,7 +7,7 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from gcs.runtime.protocol import ProtocolState
-from gcs.runtime.snapshots import ErrorStats, StreamRate, VehicleSnapshot
+from gcs.runtime.snapshots import ErrorStats, RadioSnapshot, SigningSnapshot, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.live import ClientSnapshot
 
@@ -50,6 +50,7 @@ class LinkStatus(BaseModel):
     rates_hz: dict[str, float]
     stream_method: str | None
     streams: dict[str, StreamRate]
+    signing: SigningSnapshot | None = Field(default=None, description="MAVLink 2 signing counters (None: off)")
 
 
 class EstimatorStatus(BaseModel):
@@ -83,6 +84,10 @@ class StatusResponse(BaseModel):
     clients: list[ClientSnapshot]
     viser_port: int | None
     authorised: bool = Field(description="this request carries the token that changes need")
+    radio: RadioSnapshot | None = Field(
+        default=None,
+        description="the telemetry radio's state and budget: per stream wanted, predicted, requested, achieved",
+    )
 
 
 class GainInfo(BaseModel):

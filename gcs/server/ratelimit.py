@@ -46,6 +46,7 @@ def default_limits() -> dict[str, RateLimit]:
             RateLimit("export", per_minute=30, burst=8),
             RateLimit("replay", per_minute=20, burst=6),
             RateLimit("params download", per_minute=6, burst=3),
+            RateLimit("onboard log download", per_minute=6, burst=3),
         )
     }
 

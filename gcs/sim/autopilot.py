@@ -80,6 +80,7 @@ class Autopilot:
         self.primary, self.secondary = self._make_filters()
         self.armed = False
         self._truth: Truth | None = None
+        self.imu_reading: ImuReading | None = None  # IMU 0 at the last loop (the onboard log's IMU)
 
     def _make_filters(self) -> tuple[OnboardAhrs, OnboardAhrs | None]:
         """The filter behind ATTITUDE and, on Pixhawk ArduPilot, the one behind AHRS2.
@@ -128,7 +129,7 @@ class Autopilot:
 
     def tick(self, t: float) -> None:
         """One autopilot loop: sample IMU 0 and run the attitude filters on it."""
-        r = self.imus[0].sample(self.truth(t))
+        r = self.imu_reading = self.imus[0].sample(self.truth(t))
         self.primary.update(t, r.gyro, r.accel, r.mag, self.gps_accel)
         if self.secondary is not None:
             self.secondary.update(t, r.gyro, r.accel, r.mag, self.gps_accel)

@@ -54,6 +54,9 @@ class Profile:
     flight_sw_version: int = 0
     capabilities: int = 0
     custom_mode: int = 0
+    #: the STATUSTEXT ArduPilot sends on PARAM_REQUEST_LIST ("" for none)
+    banner: str = ""
+    log_time_ms: bool = False  # onboard log in ArduCopter 3.1-3.2's TimeMS layouts (gcs.sim.dataflash)
 
     @property
     def message_intervals(self) -> bool:
@@ -108,6 +111,8 @@ APM25 = Profile(
     param_rows=param_tables.arducopter_32,
     group_share={"SENSOR_OFFSETS": 1 / 11},
     loop_hz=100.0,
+    banner="APM:Copter V3.2.1 (36b405fb)",
+    log_time_ms=True,
 )
 
 PIXHAWK = Profile(

@@ -31,3 +31,16 @@ def write_tlog(
             fh.write(b"".join(tlog_record(BASE_US + int(t * 1e6) & ~3, p) for p in sim.advance(t)))
     partial.rename(target)
     return target
+
+
+def fly_flight_logs(sim: SimVehicle, seconds: list[float]) -> None:
+    """Flights flown before `sim` boots, one per entry (s, vehicle time), each by a vehicle of the
+    same profile and script (seed + k + 1), as fast as the CPU allows: their onboard logs become
+    sim's logs 1..N, the flight `sim` then flies being the next."""
+    for k, duration in enumerate(seconds):
+        earlier = SimVehicle(profile=sim.profile.name, script=sim.script.name, seed=sim.seed + k + 1, home=sim.home)
+        for step in range(1, int(duration) + 1):
+            earlier.advance(float(step))
+        earlier.advance(duration)
+        earlier.logs.close_current()
+        sim.logs.add(earlier.logs.finished[0])

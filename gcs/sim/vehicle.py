@@ -21,18 +21,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
+from gcs.mavlink.signing import Signing
 from gcs.sim.autopilot import GPS_RATE_HZ, Autopilot
+from gcs.sim.dataflash import FlightLog
+from gcs.sim.logserver import SEND_LOOP_HZ, LogServer, LogStore
 from gcs.sim.motion import Truth, make_script
 from gcs.sim.params import ParamServer, ParamTable
 from gcs.sim.profiles import Profile, get_profile
 from gcs.sim.pty import PtyTransport
+from gcs.sim.radio import SikRadio
 from gcs.sim.sensors import Home, SensorFaults, home_declination
 from gcs.transport.pipes import make_transport
 
 #: The vehicle parameters that hold the declination (left out with publish_declination=False).
 DECLINATION_PARAMS = ("COMPASS_DEC", "EKF2_MAG_DECL")
 #: Internal events, ordered before messages due at the same instant.
-_GPS, _LOOP = "_gps", "_loop"
+_GPS, _LOOP, _LOGS = "_gps", "_loop", "_logs"
 #: Wall-clock lag (s) after which run() stops catching up and lets the vehicle clock slip.
 MAX_CATCH_UP = 1.0
 
@@ -71,6 +75,8 @@ class SimVehicle:
         param_drop: float = 0.0,
         param_clamp: dict[str, float] | None = None,
         publish_declination: bool = True,
+        interval_limits: dict[str, float] | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self.profile: Profile = get_profile(profile)
         self.script = make_script(script)
@@ -87,7 +93,7 @@ class SimVehicle:
             self.params["COMPASS_DEC"] = self.faults.declination
         if "EKF2_MAG_DECL" in self.params:  # PX4: degrees
             self.params["EKF2_MAG_DECL"] = math.degrees(self.faults.declination)
-        param_seed, autopilot_seed = np.random.SeedSequence(seed).spawn(2)
+        param_seed, autopilot_seed, log_seed = np.random.SeedSequence(seed).spawn(3)
         self.autopilot = Autopilot(self.profile, self.script, self.faults, self.params, autopilot_seed, self.home)
         self.param_server = ParamServer(
             self.params,
@@ -96,21 +102,35 @@ class SimVehicle:
             clamp=param_clamp,
             on_change=self.autopilot.apply_param,
         )
+        #: the onboard DataFlash logs and the log protocol (gcs.sim.logserver)
+        self.logs = LogStore(self._new_flight_log)
+        self.log_server = LogServer(self.logs, np.random.default_rng(log_seed))
         self._encoder = Encoder(sysid, compid, mavlink1=self.profile.mavlink1)
+        #: message → highest SET_MESSAGE_INTERVAL rate (Hz); faster is DENIED with ArduPlane's
+        #: STATUSTEXT (its 0.8 × SCHED_LOOP_RATE limit), e.g. {"RAW_IMU": 40.0}
+        self.interval_limits = dict(interval_limits or {})
+        #: packets refused for a missing or bad MAVLink 2 signature while signing is on
+        self.signature_rejected = 0
+        self._text_id = 0  # STATUSTEXT.id of the last chunked text
+        self.signing_key: bytes | None = None
         self._parser = mavlink.MAVLink(None)
+        if signing_key is not None:
+            self.set_signing_key(signing_key)
         self._parser.robust_parsing = True
         self.t = 0.0
         self._outbox: list[bytes] = []
         self._heap: list[tuple[float, int, int, _Stream]] = []
         self._streams: dict[str, _Stream] = {}
-        for order, name in enumerate((_GPS, _LOOP) + self.profile.messages):
+        for order, name in enumerate((_GPS, _LOOP, _LOGS) + self.profile.messages):
             self._streams[name] = _Stream(name, order)
         self._group_rates: dict[int, float] = {}
         self._overrides: dict[str, float] = {}  # SET_MESSAGE_INTERVAL, Hz (0 = off)
         self._set_rate(_GPS, GPS_RATE_HZ)
         self._set_rate(_LOOP, self.profile.loop_hz)
+        self._set_rate(_LOGS, SEND_LOOP_HZ)
         self._set_rate("HEARTBEAT", 1.0)
         self._update_rates()
+        self.radio: SikRadio | None = None  # set by gcs.sim.radio.fit_radio
         self.received: dict[str, int] = {}  # messages accepted from ground stations, by type
         self.rejected = 0  # of those, how many had parameters the vehicle could not use
 
@@ -163,8 +183,12 @@ class SimVehicle:
             heapq.heappush(heap, (stream.start + stream.k / stream.rate, stream.order, generation, stream))
             if stream.name == _LOOP:
                 self.autopilot.tick(due)
+                self.logs.record_loop(due, self.autopilot, self.armed)
             elif stream.name == _GPS:
                 self.autopilot.gps_tick(due)
+                self.logs.record_gps(due, self.autopilot.fix)
+            elif stream.name == _LOGS:
+                out += [self._encode(m) for m in self.log_server.pump(due, self.armed)]
             else:
                 out.append(self._encode(self.autopilot.build(stream.name, due)))
         self.t = max(self.t, t)
@@ -176,6 +200,8 @@ class SimVehicle:
         for msg in self._parser.parse_buffer(data) or []:
             kind = msg.get_type()
             if kind == "BAD_DATA":
+                if "signature" in getattr(msg, "reason", ""):
+                    self.signature_rejected += 1
                 continue
             if self.profile.mavlink1 and msg.get_msgbuf()[0] == MARKER_V2:
                 continue  # APM 2.5 firmware has no MAVLink 2 parser
@@ -190,6 +216,20 @@ class SimVehicle:
                 continue
             self._outbox += [self._encode(reply) for reply in replies]
 
+    def set_signing_key(self, key: bytes | None, timestamp: int = 0) -> None:
+        """Sign what the vehicle sends and refuse unsigned or badly signed packets (pymavlink's
+        own check, as ArduPilot's), or, with None or an all-zero key, stop: SETUP_SIGNING's rule."""
+        if key is None or not any(key):
+            self.signing_key = None
+            self._parser.signing.secret_key = None
+            self._encoder.mav.signing.sign_outgoing = False
+            return
+        self.signing_key = key
+        self._parser.signing.secret_key = key
+        self._parser.signing.timestamp = max(self._parser.signing.timestamp, timestamp)
+        Signing(key).sign_with(self._encoder)
+        self._encoder.mavlink1 = self.profile.mavlink1  # an APM 2.5 cannot sign (MAVLink 1 only)
+
     def take_replies(self) -> list[bytes]:
         """Replies produced by `handle_bytes` since the last advance, removed from the outbox."""
         out, self._outbox = self._outbox, []
@@ -199,6 +239,8 @@ class SimVehicle:
         """Serve the link at `address` (udpout:, udpin:, tcp:, tcpin:, pty:) until cancelled;
         `on_open` is called once the link is open (OSError if it cannot be opened)."""
         endpoint = open_endpoint(address)
+        if self.radio is not None:  # a bandwidth-limited telemetry radio in between (gcs.sim.radio)
+            endpoint = self.radio.attach(endpoint)
 
         def on_data(data: bytes) -> None:
             self.handle_bytes(data)
@@ -261,14 +303,25 @@ class SimVehicle:
     def _encode(self, msg) -> bytes:
         return self._encoder.encode(msg)
 
+    def _new_flight_log(self) -> FlightLog:
+        """A flight's onboard log: the 3.1-3.2 TimeMS layouts on the APM 2.5, TimeUS otherwise."""
+        return FlightLog(self.profile.log_time_ms, self.params.as_dict().items(), self.home)
+
     def _handle(self, msg) -> list:
         kind = msg.get_type()
         if kind.startswith("PARAM_"):
-            return self.param_server.handle(msg, self.t)
+            banner = []
+            if kind == "PARAM_REQUEST_LIST" and self.profile.banner:  # ArduPilot's send_banner()
+                banner = [mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, self.profile.banner.encode())]
+            return banner + self.param_server.handle(msg, self.t)
+        if kind.startswith("LOG_") or kind == "HEARTBEAT":
+            return self.log_server.handle(msg, self.t, self.armed)
         if kind == "REQUEST_DATA_STREAM":
             self._request_data_stream(msg)
         elif kind == "COMMAND_LONG":
             return self._command(msg)
+        elif kind == "SETUP_SIGNING" and not self.profile.mavlink1:
+            self.set_signing_key(bytes(msg.secret_key), msg.initial_timestamp)
         return []
 
     def _request_data_stream(self, msg) -> None:
@@ -293,7 +346,11 @@ class SimVehicle:
             self.autopilot.armed = msg.param1 >= 0.5
             result = mavlink.MAV_RESULT_ACCEPTED
         elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and p.message_intervals:
-            result = self._set_message_interval(int(msg.param1), msg.param2)
+            refusal = self._interval_refusal(int(msg.param1), msg.param2)
+            if refusal is not None:
+                result, extra = mavlink.MAV_RESULT_DENIED, refusal
+            else:
+                result = self._set_message_interval(int(msg.param1), msg.param2)
         elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL and p.message_intervals:
             name = _message_name(int(msg.param1))
             rate = self._streams[name].rate if name in self._streams else 0.0
@@ -315,6 +372,19 @@ class SimVehicle:
                 result = mavlink.MAV_RESULT_FAILED
         ack = mavlink.MAVLink_command_ack_message(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         return [ack] + extra
+
+    def _interval_refusal(self, msg_id: int, interval_us: float) -> list | None:
+        """ArduPlane's STATUSTEXT for an interval faster than `interval_limits` allows (in 50-byte
+        chunks of one id, as ArduPilot sends a long text over MAVLink 2), else None."""
+        limit = self.interval_limits.get(_message_name(msg_id))
+        if limit is None or interval_us <= 0 or 1e6 / interval_us <= limit + 1e-9:
+            return None
+        text = f"Requested rate for message ID {msg_id} too fast. Increase SCHED_LOOP_RATE".encode()
+        self._text_id = self._text_id % 65535 + 1
+        return [
+            mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text[i : i + 50], self._text_id, i // 50)
+            for i in range(0, len(text), 50)
+        ]
 
     def _set_message_interval(self, msg_id: int, interval_us: float) -> int:
         """param2: interval µs; 0 = back to the default, −1 = off. Rate capped per profile."""

@@ -68,7 +68,8 @@ function showStatus(s) {
   for (const p of s.parts.filter((x) => x.state === "failed")) warn.unshift(`station part ${p.name} failed: ${p.error}`);
   $("warnings").innerHTML = warn.map((w) => `<div>⚠ ${escapeHtml(w)}</div>`).join("");
   const rows = Object.entries(l.streams).map(([name, r]) =>
-    `<tr><td>${name}</td><td>${fmt(r.requested_hz)}</td><td class="${r.ratio != null && r.ratio < 0.9 ? "low" : ""}">${fmt(r.achieved_hz)}</td></tr>`);
+    `<tr title="${escapeHtml(r.reason || r.method || "")}"><td>${name}</td><td>${fmt(r.requested_hz)}${r.accepted_hz != null && r.accepted_hz !== r.requested_hz ? ` → ${fmt(r.accepted_hz)}` : ""}</td><td class="${r.ratio != null && r.ratio < 0.9 ? "low" : ""}">${fmt(r.achieved_hz)}</td></tr>`
+    + (r.reason ? `<tr><td></td><td colspan="2" class="why">${escapeHtml(r.reason)}</td></tr>` : ""));
   const est = Object.entries(s.estimators).map(([n, e]) =>
     `<tr><td>${n} (${e.preset})</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="${e.reliable ? "" : "low"}">${e.reliable ? "reliable" : "unreliable"}`
     + `${e.lag_s == null ? "" : `, lag ${1000 * e.lag_s >= 0 ? "+" : ""}${fmt(1000 * e.lag_s, 0)} ms`}</td></tr>`);

@@ -10,4 +10,5 @@ ROUTERS: list[str] = [
     "gcs.server.routers.params",
     "gcs.server.routers.sessions",
     "gcs.server.routers.protocol",
+    "gcs.server.routers.logs",
 ]

@@ -33,6 +33,7 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
             rates_hz=stats.rates_hz,
             stream_method=streams.method,
             streams=streams.messages,
+            signing=link.signing,
         ),
         vehicle=snap.vehicle,
         data_age_ms=None if age is None else round(age * 1000, 1),
@@ -57,4 +58,5 @@ async def get_status(request: Request, station: StationDep, hub: HubDep) -> Stat
         clients=[c.snapshot() for c in hub.clients.values()],
         viser_port=request.app.state.viser_port,
         authorised=is_authorised(request),
+        radio=snap.radio,
     )

@@ -1,0 +1,109 @@
+"""The 57600-baud telemetry radio: the simulator's SiK radio (bandwidth, buffer, RADIO_STATUS), the
+station's budget (predicted rates, back-off on a filling buffer) and a log download through it."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import httpx
+from live import running_station, wait_for
+
+from gcs.commands.status import format_report
+from gcs.mavlink.radio import frame_bytes, link_capacity, predict
+from gcs.runtime.logdownload import LogDownloader
+from gcs.runtime.streams import STREAM_GROUPS, StreamPlan
+from gcs.server.app import create_app
+from gcs.sim import SimVehicle
+from gcs.sim.radio import fit_radio
+from gcs.sim.recording import fly_flight_logs
+
+
+def test_prediction_fits_the_apm25_streams_into_57600_baud():
+    wanted = {k: v for k, v in StreamPlan().for_autopilot("ArduPilot").items() if k not in ("SCALED_IMU2", "AHRS2")}
+    budget = 0.8 * link_capacity(57600)
+    full = predict(wanted, 1, 1e9, groups=STREAM_GROUPS)
+    fitted = predict(wanted, 1, budget, background_bps=300, groups=STREAM_GROUPS)
+    assert full.scale == 1.0 and full.total_bps > budget  # 50 Hz IMU + attitude + truth do not fit
+    assert fitted.total_bps <= budget < fitted.total_bps + 3 * 50 * 52  # fits, with little left over
+    assert fitted.rates["GPS_RAW_INT"] == 5.0 and 5 < fitted.rates["RAW_IMU"] < 50
+    assert fitted.rates["RAW_IMU"] == fitted.rates["ATTITUDE"] and fitted.rates["RAW_IMU"].is_integer()
+    # a group member costs its group's rate: the barometer rides with the IMU
+    assert fitted.cost_bps["SCALED_PRESSURE"] == fitted.rates["RAW_IMU"] * frame_bytes("SCALED_PRESSURE", 1)
+
+
+async def _radio_run(port: int, station_baud: int, seconds: float):
+    """apm25 behind a simulated 57600 radio; the station told the link runs at station_baud."""
+    async with running_station(f"udpin:127.0.0.1:{port}", estimate=False, baud=station_baud) as station:
+        sim = SimVehicle(profile="apm25", script="bench")
+        radio = fit_radio(sim, 57600)
+        task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
+        try:
+            await wait_for(lambda: station.radio.present, 30, "the radio's RADIO_STATUS")
+            txbufs, lost = [], []  # each second: % free, packets the radio link lost so far
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                await asyncio.sleep(1.0)
+                txbufs.append(radio.txbuf)
+                lost.append(radio.overflowed + radio.skipped)
+            snapshot = station.publish()
+            app = create_app(station, token="t", bound_host="127.0.0.1")
+            transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 5000))
+            async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+                api = (await client.get("/api/status")).json()["radio"]  # what the page's radio table shows
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+    return snapshot, radio, txbufs, lost, api
+
+
+def test_station_settles_on_rates_the_57600_radio_carries(udp_port):
+    snapshot, radio, txbufs, lost, api = asyncio.run(_radio_run(udp_port, 57600, 20.0))
+    r = snapshot.radio
+    print("\n" + format_report(snapshot).split("\nrecording")[0])
+    imu = r.streams["RAW_IMU"]
+    assert r.present and r.status is not None and 0 < r.status.rssi <= 255
+    assert 5 < imu.predicted_hz < 50 and imu.requested_hz < 50  # predicted to fit, not the wanted 50 Hz
+    assert lost[-1] == lost[-10]  # once settled the link carries it all: nothing skipped or overflowed
+    assert min(txbufs[-10:]) >= 50  # and the radio's buffer never filled
+    assert imu.achieved_hz > 0.6 * imu.requested_hz  # (not tighter: a loaded machine slows the vehicle's clock)
+    assert r.used_bps < radio.capacity_bps
+    assert "RADIO_STATUS" not in r.streams and "predicted" in format_report(snapshot)
+    row = api["streams"]["RAW_IMU"]
+    assert api["present"] and row["predicted_hz"] == imu.predicted_hz and row["requested_hz"] == imu.requested_hz
+    assert 0 < row["achieved_hz"] and 0 <= api["status"]["txbuf"] <= 100
+
+
+def test_station_backs_off_when_the_radio_buffer_fills(udp_port):
+    # told the link is 230400 baud, the station first asks for everything; the 57600 radio's buffer fills
+    snapshot, radio, txbufs, lost, _ = asyncio.run(_radio_run(udp_port, 230400, 24.0))
+    r = snapshot.radio
+    print(f"\ntxbuf each second: {txbufs}\n{r.choice}; RAW_IMU requested {r.streams['RAW_IMU'].requested_hz}")
+    assert min(txbufs[:10]) < 50  # it filled...
+    assert r.scale < 1.0 and r.streams["RAW_IMU"].requested_hz < 50  # ...so the station lowered its requests
+    assert min(txbufs[-6:]) >= 50 and lost[-1] == lost[-6]  # and the buffer recovered: nothing lost
+
+
+def test_log_download_over_the_57600_radio_completes(tmp_path, udp_port):
+    async def scenario():
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False) as station:
+            sim = SimVehicle(profile="apm25", script="bench")
+            fly_flight_logs(sim, [4.0])
+            radio = fit_radio(sim, 57600)
+            task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{udp_port}"))
+            try:
+                assert await station.link.wait_connected(30)
+                downloader = LogDownloader(station.link)
+                entry = (await downloader.list_logs(30))[0]
+                path = await asyncio.wait_for(downloader.download(entry, tmp_path), 180)
+            finally:
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
+        return path, sim, radio, downloader.progress
+
+    path, sim, radio, progress = asyncio.run(scenario())
+    print(
+        f"\n{progress.size} B over the 57600 radio at {progress.rate_bps:.0f} B/s, {progress.re_requests} re-requests"
+    )
+    assert path.read_bytes() == sim.logs.finished[0]
+    assert 0 < progress.rate_bps <= radio.capacity_bps  # the radio's pace, reported

@@ -1,0 +1,54 @@
+"""MAVLink 2 signing against the real ArduCopter SITL (../shared/sitl): `gcs signing setup` over
+SERIAL0 (ArduPilot's secure channel 0, where it takes unsigned packets) gives it the key; from then
+on the vehicle signs everything it sends, a station with the key is fully usable (streams by
+SET_MESSAGE_INTERVAL, parameters), and a station with a wrong key accepts nothing and counts why."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import sys
+
+import pytest
+from conftest import ROOT
+from live import running_station, wait_for
+from test_sitl_copter import sitl  # noqa: F401  (the fixture)
+
+pytestmark = pytest.mark.slow
+
+PASSPHRASE = "flight test 13"
+
+
+@pytest.mark.timeout(240)
+def test_arducopter_keyed_by_gcs_signing_setup_then_usable_only_with_the_key(sitl):  # noqa: F811
+    connect = f"tcp:127.0.0.1:{sitl}"
+
+    async def setup() -> tuple[int | None, str, str]:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "gcs", "signing", "setup", "--connect", connect, "--signing-key", PASSPHRASE,
+            "--timeout", "60", "--no-record", cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        out, err = await asyncio.wait_for(proc.communicate(), 120)
+        return proc.returncode, out.decode(), err.decode()
+
+    rc, out, err = asyncio.run(setup())
+    assert rc == 0, (out, err)
+    assert "signing set up; its heartbeats are signed with this key" in out
+
+    async def with_key(key: bytes):
+        async with running_station(connect, estimate=False, signing_key=key) as station:
+            if not await station.link.wait_connected(20):
+                await asyncio.sleep(2)
+                return station.publish(), None
+            await wait_for(lambda: station.link.stats.rates().get("ATTITUDE", 0) > 30, 30, "ATTITUDE streaming")
+            value = (await station.params.read("SCHED_LOOP_RATE")).value
+            return station.publish(), value
+
+    good, loop_rate = asyncio.run(with_key(hashlib.sha256(PASSPHRASE.encode()).digest()))
+    assert loop_rate == 400
+    assert good.link.signing.good > 100 and good.link.signing.rejected == {}
+    assert good.streams.messages["ATTITUDE"].method == "SET_MESSAGE_INTERVAL"
+
+    wrong, nothing = asyncio.run(with_key(hashlib.sha256(b"not the key").digest()))
+    assert nothing is None and wrong.vehicle.heartbeats == 0 and wrong.link.stats.counts == {}
+    assert wrong.link.signing.good == 0 and wrong.link.signing.rejected.get("bad signature", 0) >= 3

@@ -1,0 +1,44 @@
+// The vehicle's onboard log: one button that downloads the latest log into the recording folder
+// (POST /api/onboard-logs/download) and follows its progress (GET /api/onboard-logs); when done,
+// the sessions and replay lists are refreshed so the log can be opened next to the live session.
+// Uses call() from panels.js and $ from dashboard.js.
+"use strict";
+
+(() => {
+  const button = $("onboard-log-btn"), status = $("onboard-log-status");
+  const kb = (n) => `${(n / 1000).toFixed(1)} kB`;
+  let timer = null;
+
+  function show(p) {
+    if (p.state === "downloading") {
+      status.textContent = `log ${p.log_id}: ${kb(p.bytes_received)} of ${kb(p.size)} `
+        + `(${(100 * p.fraction).toFixed(0)} %), ${kb(p.rate_bps)}/s, ${p.re_requests} re-requests`;
+    } else if (p.state === "done") {
+      status.textContent = `log ${p.log_id} downloaded (${kb(p.size)} at ${kb(p.rate_bps)}/s): `
+        + `${p.path.split("/").pop()} is in the Replay list`;
+    } else if (p.state === "failed") {
+      status.textContent = `log download failed: ${p.error}`;
+    } else if (p.state === "listing") {
+      status.textContent = "asking the vehicle for its logs…";
+    }
+  }
+
+  async function poll() {
+    const r = await call("GET", "/api/onboard-logs");
+    if (r.ok) show(r.data.progress);
+    if (!r.ok || !["listing", "downloading"].includes(r.data.progress.state)) {
+      clearInterval(timer);
+      timer = null;
+      button.disabled = false;
+      $("sessions-refresh").click();  // the new log appears among the replay sources
+    }
+  }
+
+  button.addEventListener("click", async () => {
+    const r = await call("POST", "/api/onboard-logs/download", {});
+    if (!r.ok) { status.textContent = r.message; return; }
+    button.disabled = true;
+    show(r.data.progress);
+    if (timer === null) timer = setInterval(poll, 1000);
+  });
+})();

@@ -1,0 +1,31 @@
+// The telemetry radio's budget under the stream table (Live tab), from GET /api/status: the radio's
+// signal and free buffer, what the link carries, and per stream the wanted, predicted (to fit),
+// requested and achieved rates with their cost. Hidden until a radio reports (RADIO_STATUS).
+// Uses call() from panels.js and $, escapeHtml from dashboard.js.
+"use strict";
+
+(() => {
+  const section = document.createElement("section");
+  section.id = "radio";
+  section.hidden = true;
+  $("streams").insertAdjacentElement("afterend", section);
+  const hz = (x) => Number(x).toFixed(1);
+
+  async function refresh() {
+    const r = await call("GET", "/api/status");
+    const radio = r.ok ? r.data.radio : null;
+    section.hidden = !(radio && radio.present && radio.status);
+    if (section.hidden) return;
+    const s = radio.status;
+    const rows = Object.entries(radio.streams).map(([name, x]) =>
+      `<tr><td>${escapeHtml(name)}</td><td>${hz(x.wanted_hz)}</td><td>${hz(x.predicted_hz)}</td>`
+      + `<td>${hz(x.requested_hz)}</td><td>${hz(x.achieved_hz)}</td><td>${Math.round(x.cost_bps)}</td></tr>`);
+    section.innerHTML = `<h2>Radio</h2><p class="hint">rssi ${s.rssi}/${s.remrssi}, noise ${s.noise}/${s.remnoise}, `
+      + `txbuf ${s.txbuf} % free; ${Math.round(radio.used_bps)} of ${Math.round(radio.capacity_bps)} B/s used. `
+      + `${escapeHtml(radio.choice)}</p><table><tr><th>stream</th><th>wanted</th><th>predicted</th>`
+      + `<th>requested</th><th>achieved Hz</th><th>B/s</th></tr>${rows.join("")}</table>`;
+  }
+
+  refresh();
+  setInterval(refresh, 2000);
+})();
