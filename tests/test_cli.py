@@ -29,7 +29,7 @@ def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port
     )
     try:
         done = subprocess.run(
-            GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8", "--no-record", "--json"],
+            GCS + ["status", "--connect", f"udpin:127.0.0.1:{udp_port}", "--duration", "8", "--json"],
             capture_output=True,
             text=True,
             timeout=60,

@@ -222,29 +222,24 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                 os.symlink(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")
                 await page.click("#sessions-refresh")
                 await page.wait_for_selector(
-                    "#replay-source option[value='fragment.bin']", state="attached", timeout=20_000
+                    "#whatif-source option[value='fragment.bin']", state="attached", timeout=20_000
                 )
-                assert await page.locator("#whatif-source option[value='fragment.bin']").count() == 1
 
-                # Replay (the simulator is gone): the replayed points reach the plots, and the page says it is a replay.
-                assert await page.locator("#replay-banner").is_hidden()
-                assert await page.evaluate("fetch('/api/replay/current').then((r) => r.json())") == {"loaded": False}
-                await page.select_option("#replay-source", name)
-                await page.select_option("#replay-speed", "2")
+                # Replay opens in its own view (the session row's link), never in the live plots.
+                href = await page.get_attribute("#sessions-table tr[data-session] a.replay", "href")
+                assert href == f"replay.html?source={name}", href
+                assert await page.get_attribute("#replay-link", "href") == "replay.html"
                 received = await page.evaluate("gcsStats.received.onboard || 0")
-                await page.click("#replay-load")
-                await page.wait_for_selector("#replay-banner", state="visible", timeout=20_000)
-                assert "REPLAY" in await page.text_content("#replay-pill")
-                await page.wait_for_function(f"(gcsStats.received.onboard || 0) > {received} + 50", timeout=30_000)
-                await page.wait_for_function("(gcsStats.received.dcm || 0) > 50", timeout=30_000)
-                await page.click("#replay-pause")
-                await page.wait_for_function(
-                    "document.querySelector('#replay-pill').textContent.includes('paused')", timeout=20_000
-                )
-                await page.screenshot(path=str(artifacts_dir / "dashboard-replay.png"))
-                await page.locator("#tab-sessions").screenshot(path=str(artifacts_dir / "panel-sessions.png"))
-                await page.click("#replay-close")
-                await page.wait_for_selector("#replay-banner", state="hidden", timeout=20_000)
+                replay = await browser.new_page(viewport={"width": 1366, "height": 768})
+                replay.on("pageerror", lambda e: errors.append(str(e)))
+                await replay.goto(f"http://127.0.0.1:{server.port}/{href}")
+                await replay.wait_for_function("['playing', 'error'].includes(gcsReplay.state)", timeout=60_000)
+                assert await replay.evaluate("gcsReplay.error") is None
+                await replay.select_option("#replay-speed", "4")
+                await replay.wait_for_function("(gcsReplay.added.dcm || 0) > 50", timeout=30_000)
+                await replay.screenshot(path=str(artifacts_dir / "replay-view-session.png"))
+                await replay.close()
+                assert await page.evaluate("gcsStats.received.onboard || 0") == received  # the simulator is gone
 
                 # What-if: a table of old vs new RMS and the new output over the old one.
                 await page.click("#tabs button[data-tab=whatif]")

@@ -79,7 +79,7 @@ def test_cli_save_set_diff_load_against_the_vehicle(tmp_path):
 
     async def scenario():
         port = free_port()
-        link = ["--connect", f"udpin:127.0.0.1:{port}", "--no-record"]
+        link = ["--connect", f"udpin:127.0.0.1:{port}"]  # params record only with --record
         async with running_sim(f"udpout:127.0.0.1:{port}", profile="apm25", param_drop=0.1) as sim:
             before = sim.params.as_dict()
             rc, out, err = await _gcs("save", str(saved), *link)

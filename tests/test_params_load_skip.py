@@ -39,7 +39,7 @@ def test_full_file_load_skips_counters_and_profile_load_writes_only_tunables(tmp
 
     async def scenario():
         port = free_port()
-        link = ["--connect", f"udpin:127.0.0.1:{port}", "--no-record"]
+        link = ["--connect", f"udpin:127.0.0.1:{port}"]  # params record only with --record
         async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk") as sim:
             before = sim.params.as_dict()
             param_files.save(saved, before)  # as `gcs params save` writes it (test_params_files)

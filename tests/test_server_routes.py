@@ -105,8 +105,6 @@ class FakeStation:
         self.events = EventLog()
         self.params = None
         self.points: Signal[[list[AttitudePoint]]] = Signal()
-        self.replay_loaded: Signal = Signal()
-        self.replay = None
         self.estimators = {name: registry.create(name) for name in ("dcm", "kf")}
         self.snapshot_reads = 0
         self._snapshot = canned_snapshot()

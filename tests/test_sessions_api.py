@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import io
 import json
-import time
 
 import httpx
 import pyarrow.parquet as pq
@@ -15,6 +14,13 @@ from live import running_station, sim_process, wait_for
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
+
+ATTITUDE = 30
+
+
+def msg_id(raw: bytes) -> int:
+    """The message id of one MAVLink 1 or 2 packet."""
+    return raw[5] if raw[0] == 0xFE else int.from_bytes(raw[7:10], "little")
 
 
 def test_sessions_api(udp_port, tmp_path):
@@ -54,21 +60,30 @@ async def scenario(udp_port: int, root) -> None:
                 assert (await api.post("/api/recording/start")).json()["state"] == "recording"
                 assert len((await api.get("/api/sessions")).json()) == 2
 
-                loaded = (await api.post("/api/replay", json={"source": name, "speed": 0})).json()
-                assert loaded["kind"] == "session" and loaded["frames"] > 0
-                # speed 0: as fast as it goes, which on a loaded machine is still seconds
-                deadline = time.monotonic() + 60
-                while not (await api.get("/api/replay")).json()["finished"]:
-                    assert time.monotonic() < deadline, "the replay at speed 0 did not finish within 60 s"
-                    await asyncio.sleep(0.05)
-                seeked = (await api.post("/api/replay/seek", json={"offset_s": 1.0})).json()
-                # the first record at least 1 s after the first (the tlog read independently of the replay)
-                times = [(usec & ~3) / 1e6 for usec, _ in read_tlog_records(root / name / layout.TLOG)]
-                first = next(k for k, t in enumerate(times) if t >= times[0] + 1.0)
-                assert (seeked["frame"], seeked["position_s"]) == (first, round(times[first] - times[0], 3))
-                assert not seeked["seeking"]
-                assert (await api.post("/api/replay/speed", json={"speed": 2})).json()["speed"] == 2
-                assert (await api.post("/api/replay/pause")).json()["playing"] is False
+                # A replay is one read-only request, computed in the worker: every source's series.
+                replay = await api.get("/api/replay", params={"source": name})
+                assert replay.status_code == 200, replay.text
+                body = replay.json()
+                assert body["kind"] == "session" and body["frames"] > 0
+                # the onboard series is every ATTITUDE of the session's tlog (read independently)
+                records = [raw for _, raw in read_tlog_records(root / name / layout.TLOG)]
+                attitudes = sum(msg_id(raw) == ATTITUDE for raw in records)
+                t, roll = body["points"]["onboard"][0], body["points"]["onboard"][1]
+                assert len(t) == len(roll) == attitudes > 100
+                assert all(b > a for a, b in zip(t, t[1:]))
+                assert len(body["points"]["dcm"][0]) == body["imu_samples"] > 100
+                assert {(r["estimator"], r["reference"]) for r in body["table"]} >= {
+                    ("dcm", "onboard"),
+                    ("ekf", "onboard"),
+                }
+                # one estimator, another gain: only it runs, and its figures change
+                other = (
+                    await api.get("/api/replay", params={"source": name, "estimator": "dcm", "gain": "kp_rp=0.9"})
+                ).json()
+                assert set(other["estimators"]) == {"dcm"} and "kf" not in other["points"]
+                rms = {(r["estimator"], r["reference"]): r["rms_deg"] for r in body["table"]}
+                assert other["table"][0]["rms_deg"] != rms[("dcm", other["table"][0]["reference"])]
+                assert (await api.get("/api/replay", params={"source": name, "estimator": "nope"})).status_code == 422
 
                 result = (
                     await api.post("/api/whatif", json={"source": name, "estimator": "dcm", "gains": {"kp_rp": 0.9}})
@@ -81,7 +96,8 @@ async def scenario(udp_port: int, root) -> None:
 
             async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as api:  # no token
                 assert (await api.post("/api/recording/stop")).status_code == 401
-                assert (await api.post("/api/replay/play")).status_code == 401
+                assert (await api.post("/api/recording/start")).status_code == 401
+                assert (await api.get("/api/replay", params={"source": name})).status_code == 200  # read-only
                 assert (await api.get("/api/sessions")).status_code == 200
         finally:
             await server.stop()

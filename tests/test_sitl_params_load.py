@@ -28,7 +28,7 @@ async def _gcs(*args: str) -> tuple[int | None, str, str]:
 
 @pytest.mark.timeout(400)
 def test_full_sitl_table_loads_back_without_touching_counters_or_sensor_ids(sitl, tmp_path):  # noqa: F811
-    link = ["--connect", f"tcp:127.0.0.1:{sitl}", "--no-record"]
+    link = ["--connect", f"tcp:127.0.0.1:{sitl}"]  # params record only with --record
     saved, edited = tmp_path / "copter.param", tmp_path / "edited.param"
 
     async def scenario():

@@ -7,7 +7,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from gcs.commands.replay import selection
+from gcs.runtime.replay import selection
 
 if TYPE_CHECKING:
     from gcs.batch.flight import FlightResult

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from gcs.provenance import provenance
@@ -12,9 +13,15 @@ from gcs.provenance import provenance
 #: subcommand -> (module, one-line help). Modules are imported only when their command runs.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("gcs.commands.demo", "start the simulated vehicle and the ground station together (no hardware needed)"),
-    "status": ("gcs.commands.status", "connect to a vehicle and print link health, rates requested vs achieved"),
+    "status": (
+        "gcs.commands.status",
+        "connect to a vehicle and print link health, rates requested vs achieved (records only with --record)",
+    ),
     "sim": ("gcs.commands.sim", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
-    "estimate": ("gcs.commands.estimate", "run an attitude estimator over a log or CSV and write its output CSV"),
+    "estimate": (
+        "gcs.commands.estimate",
+        "run an attitude estimator over a .tlog, DataFlash .bin, PX4 .ulg or CSV and write its output CSV",
+    ),
     "serve": (
         "gcs.commands.serve",
         "connect to a vehicle and serve the browser dashboard (plots, 3-D view, gain sliders)",
@@ -24,7 +31,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gcs.commands.replay",
         "replay a session, .tlog, .bin or .ulg through the estimators (play at any speed)",
     ),
-    "export": ("gcs.commands.export", "export a session's telemetry and estimator outputs as CSV or Parquet"),
+    "export": (
+        "gcs.commands.export",
+        "export the attitude of every source (onboard, references, estimators) of a session or log as CSV, "
+        "Parquet, MAT or MCAP",
+    ),
     "report": ("gcs.commands.report", "write a self-contained HTML flight-test report of a session or log"),
     "batch": (
         "gcs.commands.batch",
@@ -32,7 +43,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "sweep": ("gcs.commands.sweep", "search estimator gains over many flights (Dask tasks) and write a preset file"),
     "fleet": ("gcs.commands.fleet", "fleet datasets: `gcs fleet report DATASET --out FILE.html`"),
-    "params": ("gcs.commands.params", "read, write (verified), save, load and diff the vehicle's parameters"),
+    "params": (
+        "gcs.commands.params",
+        "read, write (verified), save, load and diff the vehicle's parameters (records only with --record)",
+    ),
     "signing": ("gcs.commands.signing", "MAVLink 2 signing: `gcs signing setup` sends the vehicle its key"),
     "logs": ("gcs.commands.logs", "list and download the vehicle's onboard DataFlash logs (resumable)"),
     "protocol": (
@@ -62,10 +76,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    terminated = stop_on_sigterm()
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt:
-        return 130
+        return 143 if terminated else 130
+
+
+def stop_on_sigterm() -> list[int]:
+    """SIGTERM (systemd, docker, kill) stops a command as Ctrl-C does: it becomes SIGINT, which
+    asyncio turns into a cancellation of the main task, so every `finally` runs (the session is
+    closed, its files completed). The returned list gets the signal number once it arrived."""
+    received: list[int] = []
+
+    def interrupt(signum: int, frame: object) -> None:
+        received.append(signum)
+        signal.raise_signal(signal.SIGINT)
+
+    signal.signal(signal.SIGTERM, interrupt)
+    return received
 
 
 if __name__ == "__main__":

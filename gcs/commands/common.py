@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable
+from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
 from gcs.core.gains import PresetFile
 from gcs.logs.logfile import InputError
+from gcs.mavlink.params import float32
 
 
 def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int:
@@ -47,3 +51,24 @@ def load_preset_file(path: str) -> PresetFile:
     """A preset file (`gcs sweep` writes them); OSError or GainError say what is wrong."""
     with open(path) as fh:
         return PresetFile.from_toml(fh.read(), path)
+
+
+def tidy(value: Any) -> Any:
+    """value with every float shown without binary noise, for what a command prints: a float32
+    (0.1f is 0.10000000149 as a double; 0.7f - 0.6f is 0.099999994) as the shortest text within
+    one float32 step of it (0.1), any other double to 15 significant digits (49.033249999999995
+    → 49.03325). Lists, tuples and dicts are walked; everything else is returned as is."""
+    if isinstance(value, float) and math.isfinite(value):
+        if float32(value) != value:
+            return float(f"{value:.15g}")
+        step = abs(float(np.spacing(np.float32(value))))
+        for digits in range(1, 10):
+            text = f"{value:.{digits}g}"
+            if abs(float(text) - value) <= step:
+                return float(text)
+        return value
+    if isinstance(value, dict):
+        return {k: tidy(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [tidy(v) for v in value]
+    return value

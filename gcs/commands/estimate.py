@@ -23,8 +23,8 @@ import argparse
 import math
 import os
 import sys
-import tempfile
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import TextIO
 
 from tqdm import tqdm
@@ -37,16 +37,20 @@ from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
 from gcs.logs.logfile import InputError, LogFile
-from gcs.logs.readers import Sample, read_samples
+from gcs.logs.readers import READERS, Sample, read_samples
 from gcs.logs.tlog import read_tlog
 from gcs.mavlink.sampling import MessageInputs
+from gcs.sessions.export import write_beside
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "input", nargs="?", help="a .tlog, or a CSV with header t,gx,gy,gz,ax,ay,az,mx,my,mz[,vn,ve,vd]"
+        "input",
+        nargs="?",
+        help=f"a log ({', '.join(s for s in READERS if s != '.csv')}: MAVLink telemetry, DataFlash, PX4 ULog) "
+        "or a .csv with header t,gx,gy,gz,ax,ay,az,mx,my,mz[,vn,ve,vd]",
     )
     parser.add_argument("--estimator", "-e", help="estimator name (see --list)")
     parser.add_argument("--preset", "-p", help="gain preset (default: the estimator's default)")
@@ -149,34 +153,6 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
     return rows
 
 
-def _default_mode() -> int:
-    """The permissions open() would give a new file (mkstemp's are 0600)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-def write_atomically(path: str, write: Callable[[TextIO], int]) -> int:
-    """Run write(file) on a temporary file beside path and rename it to path once write returns a
-    non-zero row count; on an exception or no rows the temporary file is removed and path is
-    untouched. Returns the row count."""
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder)
-    except OSError as exc:  # name the output the user gave, not the temporary one
-        raise OSError(exc.errno, exc.strerror, path) from None
-    try:
-        with os.fdopen(fd, "w", newline="") as out:
-            rows = write(out)
-        if rows:
-            os.chmod(tmp, os.stat(path).st_mode & 0o7777 if os.path.exists(path) else _default_mode())
-            os.replace(tmp, path)
-        return rows
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def _fail(message: str) -> int:
     print(f"gcs estimate: error: {message}", file=sys.stderr)
     return 2
@@ -205,14 +181,20 @@ def run(args: argparse.Namespace) -> int:
     if args.imu < 0:
         return _fail(f"--imu {args.imu}: an IMU instance is 0 or more")
     declination = Declination("declination" in gains, estimator.gains["declination"])
+
+    def write(tmp: Path) -> int:
+        with open(tmp, "w", newline="") as out:
+            rows = estimate(args.input, estimator, out, args.imu, declination)
+        if rows == 0:
+            raise InputError(f"{args.input}: no IMU samples")  # OUT is left as it was
+        return rows
+
     try:
-        rows = write_atomically(args.out, lambda out: estimate(args.input, estimator, out, args.imu, declination))
+        write_beside(Path(args.out), write)
     except InputError as exc:
         return _fail(str(exc))
     except OSError as exc:
         return _fail(f"{exc.filename or args.out}: {exc.strerror}")
-    if rows == 0:
-        return _fail(f"{args.input}: no IMU samples")
     print(
         f"gcs estimate: declination {math.degrees(declination.value):.2f} deg from {declination.source}",
         file=sys.stderr,

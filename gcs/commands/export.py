@@ -11,9 +11,18 @@ from gcs.sessions.export import FORMATS, UNITS, export
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("session", help="a session folder (or a .tlog, .bin, .ulg to estimate first)")
-    parser.add_argument("--format", choices=FORMATS, default="csv", help="output format (default csv)")
-    parser.add_argument("--out", help="output file (default: <session name>.<format> here)")
+    parser.add_argument("session", help="a session folder (or a .tlog, .bin, .ulg run through the estimators first)")
+    parser.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="csv",
+        help="csv or parquet: one row per attitude sample of every source, degrees; mat: MATLAB/Octave structs "
+        "per source, errors, gain changes; mcap: Foxglove/PlotJuggler with raw IMU, comparisons, events "
+        "(default csv)",
+    )
+    parser.add_argument(
+        "--out", help="output file, written only when the export succeeds (default: <session name>.<format> here)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

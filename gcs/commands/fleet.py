@@ -9,7 +9,11 @@ from gcs.commands.common import run_reporting_errors
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    report = sub.add_parser("report", help="one self-contained HTML page across the flights of a dataset")
+    report = sub.add_parser(
+        "report",
+        help="one self-contained HTML page across the flights of a dataset",
+        description="one self-contained HTML page across the flights of a dataset",
+    )
     report.add_argument("dataset", help="a dataset written by gcs batch (and gcs sweep)")
     report.add_argument("--out", required=True, help="the HTML file to write")
     report.add_argument("--worst", type=int, default=3, metavar="N", help="per-flight reports for the N worst flights")

@@ -26,8 +26,16 @@ REPORT_INTERVAL = 5.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    list_ = actions.add_parser("list", help="list the logs on the vehicle (id, size, date)")
-    download = actions.add_parser("download", help="download one log (byte-identical, resumable)")
+    list_ = actions.add_parser(
+        "list",
+        help="list the logs on the vehicle (id, size, date)",
+        description="list the logs on the vehicle (id, size, date)",
+    )
+    download = actions.add_parser(
+        "download",
+        help="download one log (byte-identical, resumable)",
+        description="download one log (byte-identical, resumable)",
+    )
     download.add_argument("log", nargs="?", default="latest", metavar="N|latest", help="log id (default latest)")
     download.add_argument("--out", default="logs", metavar="DIR", help="folder for the log (default ./logs)")
     for p in (list_, download):

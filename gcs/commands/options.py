@@ -11,19 +11,25 @@ from gcs.mavlink.signing import parse_key
 from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.transport.address import AddressError, parse_address
+from gcs.transport.pipes import probe_serial
 
 
-def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool = True) -> None:
-    """--connect and the link, stream-rate, forwarding and recording options."""
+def add_link_arguments(
+    parser: argparse.ArgumentParser, connect_required: bool = True, *, streams: bool = True, record: str = "default"
+) -> None:
+    """--connect and the link and forwarding options; with `streams`, the stream-rate, replay
+    speed and ascii-line options (what the estimators need); `record`: "default" records unless
+    --no-record (serve, protocol), "opt-in" only with --record (status, params: a quick look
+    leaves no session folder behind)."""
     parser.add_argument(
         "--connect",
         required=connect_required,
         metavar="URL",
         help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:0.0.0.0:5760, "
-        "a serial device, or a .tlog to replay; ascii:ADDRESS for text attitude lines (seed 000's firmware)",
+        "a serial device, or a .tlog to replay"
+        + ("; ascii:ADDRESS for text attitude lines (seed 000's firmware)" if streams else ""),
     )
     parser.add_argument("--baud", default="57600", help="serial baud rate, or 'auto' (default 57600)")
-    parser.add_argument("--speed", type=float, default=1.0, help="replay speed for a .tlog (0 = as fast as possible)")
     parser.add_argument(
         "--out",
         action="append",
@@ -32,18 +38,26 @@ def add_link_arguments(parser: argparse.ArgumentParser, connect_required: bool =
         help="forward every vehicle packet to this address and back (repeatable)",
     )
     parser.add_argument("--heartbeat-timeout", type=float, default=3.0, help="seconds without heartbeat before 'lost'")
-    parser.add_argument("--imu-rate", type=float, default=50.0, help="raw IMU rate to request, Hz (default 50)")
-    parser.add_argument("--attitude-rate", type=float, default=50.0, help="ATTITUDE rate to request, Hz (default 50)")
-    parser.add_argument("--gps-rate", type=float, default=5.0, help="GPS rate to request, Hz (default 5)")
-    parser.add_argument(
-        "--ascii-fields",
-        default="pitch,yaw,roll",
-        metavar="A,B,C",
-        help="column order of an ascii: link's lines, - for a column to ignore (default seed 000's pitch,yaw,roll)",
-    )
-    parser.add_argument("--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)")
+    if streams:
+        parser.add_argument(
+            "--speed", type=float, default=1.0, help="replay speed for a .tlog (0 = as fast as possible)"
+        )
+        parser.add_argument("--imu-rate", type=float, default=50.0, help="raw IMU rate to request, Hz (default 50)")
+        parser.add_argument(
+            "--attitude-rate", type=float, default=50.0, help="ATTITUDE rate to request, Hz (default 50)"
+        )
+        parser.add_argument("--gps-rate", type=float, default=5.0, help="GPS rate to request, Hz (default 5)")
+        parser.add_argument(
+            "--ascii-fields",
+            default="pitch,yaw,roll",
+            metavar="A,B,C",
+            help="column order of an ascii: link's lines, - for a column to ignore (default seed 000's pitch,yaw,roll)",
+        )
+        parser.add_argument(
+            "--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)"
+        )
     add_signing_arguments(parser)
-    add_record_arguments(parser)
+    add_record_arguments(parser, opt_in=record == "opt-in")
 
 
 def add_signing_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +80,14 @@ def signing_key(args: argparse.Namespace) -> bytes | None:
     return None if value is None else parse_key(value)
 
 
-def add_record_arguments(parser: argparse.ArgumentParser) -> None:
+def add_record_arguments(parser: argparse.ArgumentParser, opt_in: bool = False) -> None:
+    """--record-dir and --no-record, or (opt_in) --record and --record-dir."""
+    if opt_in:
+        parser.add_argument("--record", action="store_true", help="record this session (default: not recorded)")
+        parser.add_argument(
+            "--record-dir", default="sessions", metavar="DIR", help="with --record: the folder (default ./sessions)"
+        )
+        return
     parser.add_argument(
         "--record-dir",
         default="sessions",
@@ -77,29 +98,37 @@ def add_record_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def record_dir(args: argparse.Namespace) -> str | None:
-    return None if args.no_record else args.record_dir
+    """Where to record, or None: --no-record, or an opt-in command without --record."""
+    if getattr(args, "no_record", False) or not getattr(args, "record", True):
+        return None
+    return args.record_dir
 
 
 def station_config(args: argparse.Namespace):
-    """The StationConfig the link options ask for; AddressError/ValueError for bad options."""
+    """The StationConfig the link options ask for; AddressError/ValueError for bad options,
+    OSError (one line) for a serial port that cannot be opened now."""
 
-    for address in (args.connect, *args.out):
-        parse_address(address)
+    addresses = [parse_address(address) for address in (args.connect, *args.out)]
     if args.baud != "auto" and not args.baud.isdigit():
         raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
-    return StationConfig(
+    for address in addresses:
+        if address.kind == "serial" and address.path:
+            probe_serial(address.path, 57600 if baud == "auto" else baud)
+    config = StationConfig(
         connect=args.connect,
         baud=baud,
-        speed=args.speed,
         outputs=args.out,
         heartbeat_timeout=args.heartbeat_timeout,
-        plan=StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate),
         record_dir=record_dir(args),
-        ascii_format=AsciiFormat.parse(args.ascii_fields, args.ascii_unit),
         signing_key=signing_key(args),
         signing_required=args.signing == "required",
     )
+    if hasattr(args, "imu_rate"):  # the stream options (add_link_arguments(streams=True))
+        config.speed = args.speed
+        config.plan = StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate)
+        config.ascii_format = AsciiFormat.parse(args.ascii_fields, args.ascii_unit)
+    return config
 
 
 def station_config_or_report(args: argparse.Namespace, command: str):
@@ -109,4 +138,7 @@ def station_config_or_report(args: argparse.Namespace, command: str):
         return station_config(args)
     except (AddressError, ValueError) as exc:
         print(f"gcs {command}: {exc}", file=sys.stderr)
+        return None
+    except OSError as exc:
+        print(f"gcs {command}: error: {exc.strerror or exc}", file=sys.stderr)
         return None

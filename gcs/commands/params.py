@@ -27,19 +27,23 @@ CLIENT = "cli"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    get = actions.add_parser("get", help="print parameters (all of them when no NAME is given)")
-    get.add_argument("names", nargs="*", metavar="NAME")
-    set_ = actions.add_parser("set", help="write one parameter, verified by the vehicle's echo")
-    set_.add_argument("name", metavar="NAME")
-    set_.add_argument("value", type=float, metavar="VALUE")
-    save = actions.add_parser("save", help="download the whole table into a .param file")
-    save.add_argument("file", metavar="FILE")
-    load = actions.add_parser("load", help="write the values of a .param file that differ from the vehicle")
-    load.add_argument("file", metavar="FILE")
+
+    def action(name: str, text: str) -> argparse.ArgumentParser:
+        return actions.add_parser(name, help=text, description=text)
+
+    get = action("get", "print parameters (all of them when no NAME is given)")
+    get.add_argument("names", nargs="*", metavar="NAME", help="parameter names (default: the whole table)")
+    set_ = action("set", "write one parameter, verified by the vehicle's echo")
+    set_.add_argument("name", metavar="NAME", help="the parameter, e.g. ATC_RAT_RLL_P")
+    set_.add_argument("value", type=float, metavar="VALUE", help="the new value")
+    save = action("save", "download the whole table into a Mission Planner/MAVProxy .param file")
+    save.add_argument("file", metavar="FILE", help="the .param file to write")
+    load = action("load", "write the values of a .param file that differ from the vehicle's, each verified")
+    load.add_argument("file", metavar="FILE", help="the .param file to read")
     load.add_argument("--dry-run", action="store_true", help="only print what would change")
-    diff = actions.add_parser("diff", help="compare a .param file with the vehicle (--connect) or another file")
-    diff.add_argument("file", metavar="FILE")
-    diff.add_argument("other", nargs="?", metavar="FILE2")
+    diff = action("diff", "compare a .param file with the vehicle (--connect) or with another file (FILE2)")
+    diff.add_argument("file", metavar="FILE", help="a .param file")
+    diff.add_argument("other", nargs="?", metavar="FILE2", help="a second .param file (then no vehicle is needed)")
     for p in (set_, load):
         p.add_argument(
             "--profile",
@@ -47,7 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             help=f"refuse values outside this tuning profile's limits ({', '.join(available_profiles())})",
         )
     for p in (get, set_, save, load, diff):
-        add_link_arguments(p, connect_required=p is not diff)  # two files need no vehicle
+        # parameters only: no stream requests, no estimators; two files need no vehicle
+        add_link_arguments(p, connect_required=p is not diff, streams=False, record="opt-in")
+    for p in (get, save, load, diff):
         p.add_argument("--timeout", type=float, default=120.0, help="seconds allowed for a full download")
 
 
@@ -63,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
         config = station_config(args)
     except (ParamError, ProfileError, ValueError) as exc:
         print(f"gcs params {args.action}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"gcs params {args.action}: error: {exc.strerror or exc}", file=sys.stderr)
         return 2
     config.request_streams = False  # keep the link for the parameter traffic
     config.estimate = False

@@ -10,10 +10,10 @@ from pathlib import Path
 
 from gcs.commands.common import run_reporting_errors
 from gcs.commands.options import add_link_arguments, station_config_or_report
-from gcs.commands.replay import parse_gains
 from gcs.core.gains import GainError
 from gcs.core.protocol import ProtocolError, ProtocolTables, SourceMetrics, StepWindow
 from gcs.runtime.protocol import LiveProtocol, ProtocolState
+from gcs.runtime.replay import parse_gains
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions.contents import open_contents
 from gcs.sessions.export import write_protocol_csv
@@ -33,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_parser = sub.add_parser(
         "run",
         help="prompt each step, detect the holds, score every source",
+        description="run a test protocol against a vehicle: prompt each step, detect the holds, score every source",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=_KEYS,
     )
@@ -59,10 +60,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_parser.add_argument(
         "--timeout", type=float, default=None, help="give up after this many seconds (default: wait for every step)"
     )
-    report_parser = sub.add_parser("report", help="the protocol tables of a recorded session")
+    report_parser = sub.add_parser(
+        "report",
+        help="the protocol tables of a recorded session",
+        description="the protocol tables of a recorded session",
+    )
     report_parser.add_argument("session", help="a session folder with a protocol run")
     report_parser.add_argument("--csv", default=None, metavar="FILE", help="also write the tables as CSV")
-    sub.add_parser("list", help="the shipped protocols")
+    sub.add_parser("list", help="the shipped protocols", description="list the shipped protocols, one a line")
 
 
 def run(args: argparse.Namespace) -> int:

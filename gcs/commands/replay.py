@@ -10,10 +10,9 @@ import time
 
 from gcs.commands.common import progress_bar
 from gcs.core.estimation import EstimationPipeline
-from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.logs.logfile import InputError
-from gcs.runtime.replay import ReplaySession
+from gcs.runtime.replay import ReplaySession, selection
 from gcs.sessions.sources import open_source
 
 
@@ -35,26 +34,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def parse_gains(items: list[str], names: list[str]) -> dict[str, dict[str, float]]:
-    """`[EST.]NAME=VALUE` items → {estimator: {gain: value}}; ValueError says which item is wrong."""
-    out: dict[str, dict[str, float]] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE with a number") from None
-        if not sep:
-            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE")
-        est, dot, gain = key.strip().rpartition(".")
-        targets = [est] if dot else [n for n in names if any(g.name == gain for g in registry.get(n).GAINS)]
-        if not targets:
-            raise ValueError(f"--gain {item!r}: no selected estimator ({', '.join(names)}) has a gain {gain!r}")
-        for name in targets:
-            out.setdefault(name, {})[gain] = value
-    return out
-
-
 def comparison_table(pipeline: EstimationPipeline) -> list[str]:
     """Session RMS / max error per estimator per reference, degrees (roll, pitch, yaw)."""
     lines = [f"{'estimator':<10}{'reference':<10}{'n':>7}  {'RMS roll/pitch/yaw deg':<26}{'max roll/pitch/yaw deg'}"]
@@ -68,15 +47,6 @@ def comparison_table(pipeline: EstimationPipeline) -> list[str]:
                 + " ".join(f"{v:7.2f}" for v in s["max"])
             )
     return lines
-
-
-def selection(estimators: list[str] | None, gain_items: list[str]) -> tuple[list[str], dict[str, dict[str, float]]]:
-    """`--estimator` (default: all) and `--gain` items → (names, gains per estimator); KeyError
-    names an unknown estimator, ValueError a bad gain item."""
-    names = estimators or registry.names()
-    for name in names:
-        registry.get(name)
-    return names, parse_gains(gain_items, names)
 
 
 def run(args: argparse.Namespace) -> int:

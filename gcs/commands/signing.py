@@ -22,7 +22,11 @@ SENDS = 3
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    setup = actions.add_parser("setup", help="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle")
+    setup = actions.add_parser(
+        "setup",
+        help="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle",
+        description="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle",
+    )
     add_link_arguments(setup)
     setup.add_argument("--disable", action="store_true", help="send the all-zero key: the vehicle stops signing")
     setup.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the vehicle (default 10)")

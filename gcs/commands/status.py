@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import dataclasses
 
+from gcs.commands.common import tidy
 from gcs.commands.options import add_link_arguments, station_config_or_report
 from gcs.core import strict_json
 from gcs.runtime.snapshots import StationSnapshot
@@ -14,7 +15,7 @@ from gcs.runtime.station import Station, StationConfig
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
 
-    add_link_arguments(parser)
+    add_link_arguments(parser, record="opt-in")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to listen (default 10)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
@@ -26,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     snapshot = asyncio.run(_collect(config, args.duration))
     if args.json:
-        print(strict_json.dumps(dataclasses.asdict(snapshot), indent=2))
+        print(strict_json.dumps(tidy(dataclasses.asdict(snapshot)), indent=2))
     else:
         print(format_report(snapshot))
     return 0 if snapshot.vehicle.heartbeats else 1

@@ -25,7 +25,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--gain", "-g", action="append", required=True, metavar="NAME=LOW:HIGH", help="a gain to search (repeatable)"
     )
     parser.add_argument("--trials", type=int, default=40, metavar="N", help="gain sets to try (default 40)")
-    parser.add_argument("--objective", choices=list(OBJECTIVES), default="rms_vs_onboard")
+    parser.add_argument(
+        "--objective",
+        choices=list(OBJECTIVES),
+        default="rms_vs_onboard",
+        help="what a trial minimises: RMS error against the simulator's truth or the autopilot's own attitude "
+        "(default rms_vs_onboard)",
+    )
     parser.add_argument(
         "--holdout", action="append", default=[], metavar="LOGS", help="flights kept out of the search, scored after"
     )

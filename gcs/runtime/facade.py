@@ -16,7 +16,6 @@ from gcs.runtime.events import EventLog
 from gcs.runtime.logdownload import LogDownloader
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
-from gcs.runtime.replay import ReplaySession
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
 from gcs.runtime.tuning import TuningSession
@@ -29,8 +28,6 @@ class StationFacade(Protocol):
     events: EventLog
     params: ParamClient
     points: Signal[[list[AttitudePoint]]]
-    replay_loaded: Signal[[ReplaySession]]
-    replay: ReplaySession | None
     protocol: LiveProtocol | None
     onboard_logs: LogDownloader
 
@@ -52,8 +49,4 @@ class StationFacade(Protocol):
     def start_param_download(self) -> bool: ...
     def start_log_download(self, log_id: int | None) -> bool: ...
     async def tuning(self) -> TuningSession: ...
-    async def load_replay(
-        self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]
-    ) -> ReplaySession: ...
-    async def unload_replay(self) -> None: ...
     async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R: ...

@@ -1,8 +1,11 @@
 """Records a ground station's session to disk from its first byte.
 
 A `SessionRecorder` belongs to one `Station`. `start()` (before the link runs) closes sessions
-a crash left open, opens a new session folder and hooks in: bus → `telemetry.tlog` (received packets,
-link bits 0) and the link's sent packets (link bits 3, as MAVProxy marks its own); estimation points
+a crash left open and waits for the link's first byte: only then is the session folder opened (a
+connection that never delivers anything leaves no folder; what happened before, events and packets
+sent, is written first). It hooks in: bus → `telemetry.tlog` (received packets, link bits 0) and
+the link's sent packets (link bits 3, as MAVProxy marks its own), in one order with
+never-decreasing stamps (`TlogClock`); estimation points
 → the `attitude` table, the station's published snapshots (every second) → `comparison`; the event
 log → `events.jsonl` (a gain change also carries `input_index`, the estimation input count where a
 replay applies it again); vehicle, parameters and estimator configuration → `meta.json`.
@@ -25,6 +28,7 @@ from typing import Protocol
 from gcs import __version__
 from gcs.core import strict_json
 from gcs.mavlink.params import param_name
+from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.mavlink.tlog import tlog_record
 from gcs.provenance import provenance
 from gcs.runtime.bus import MessageBus, Subscription
@@ -46,6 +50,8 @@ FLUSH_INTERVAL = 0.25
 SNAPSHOT_INTERVAL = 1.0
 #: Link bits of a tlog timestamp (MAVProxy convention): 0 received, 3 sent by the ground station.
 RECEIVED, SENT = 0, 3
+#: Events and sent packets kept while waiting for the first byte (a link that never answers).
+EARLY_MAX = 1000
 #: VehicleState fields kept in meta.json (the ones that describe the vehicle, not its moment).
 VEHICLE_FIELDS = ("sysid", "compid", "autopilot", "vehicle_type", "mavlink_version", "firmware")
 
@@ -57,6 +63,21 @@ def _nan(x: float | None) -> float:
 def tlog_usec(wall_time: float, link_bits: int) -> int:
     """µs UNIX timestamp with the low 2 bits replaced by the link bits."""
     return (int(wall_time * 1e6) & ~3) | link_bits
+
+
+class TlogClock:
+    """Stamps of one .tlog, never decreasing. A received packet carries the wall time its chunk
+    was read and a sent packet the time it was sent; a packet sent while a chunk is being parsed
+    would otherwise go in between packets stamped earlier (by the parse time), so a stamp below
+    the last one is raised to it (by at most that parse time)."""
+
+    def __init__(self) -> None:
+        self.last = 0
+
+    def stamp(self, wall_time: float, link_bits: int) -> int:
+        usec = max(tlog_usec(wall_time, 0), self.last)
+        self.last = usec
+        return usec | link_bits
 
 
 class Session:
@@ -119,7 +140,7 @@ class SessionRecorder:
         self.station = station
         self.root = Path(root)
         self.session: Session | None = None
-        self.state = "off"  # off | recording | failed | stopped
+        self.state = "off"  # off | waiting (for the first byte) | recording | failed | stopped
         self.error: str | None = None
         self.recovered: list[dict] = []
         self.packets = {"received": 0, "sent": 0}
@@ -128,6 +149,10 @@ class SessionRecorder:
         self._input_base = 0  # bus input messages published before the session's first tlog record
         self._meta_dirty = False
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._clock = TlogClock()
+        self._armed = False  # open a session at the link's first byte
+        self._early_events: list[bytes] = []  # event lines and sent tlog records from before it
+        self._early_sent: list[bytes] = []
         station.link.packet_sent.connect(self._on_send)
         station.events.recorded.connect(self._on_event)
         if station.estimation is not None:
@@ -136,7 +161,8 @@ class SessionRecorder:
 
     # ---- lifecycle ---------------------------------------------------------------------
     def start(self) -> None:
-        """Recover abandoned sessions, then open a new one. Errors are reported, not raised."""
+        """Recover abandoned sessions, then wait for the link's first byte to open a new one.
+        Errors are reported, not raised."""
         try:
             self._loop = asyncio.get_running_loop()
         except RuntimeError:
@@ -147,16 +173,19 @@ class SessionRecorder:
         except OSError as exc:
             self.report_error(f"cannot use recording folder {self.root}: {exc.strerror or exc}")
             return
+        self.state, self._armed = "waiting", True
+        if self._sub is None:
+            self._sub = self.station.bus.subscribe("recorder", maxlen=200_000)
         for report in self.recovered:
             self.station.events.record("recording", "recorder", event="recovered", **report)
-        self.start_recording()
 
-    def start_recording(self) -> None:
+    def start_recording(self, start: float | None = None) -> None:
         """Open a new session folder now (the dashboard's "start recording")."""
         if self.state == "recording":
             return
         self.stop_recording()  # a session stopped by an error is closed before the next one opens
-        start = time.time()
+        self._armed, self._early_events, self._early_sent = False, [], []
+        start = time.time() if start is None else start
         folder = layout.unique_folder(self.root, layout.folder_name(start, self._vehicle_label() or "unknown"))
         try:
             folder.mkdir(parents=True)
@@ -173,6 +202,20 @@ class SessionRecorder:
         self._input_base = self.station.bus.inputs_published
         self.station.events.record("recording", "recorder", event="start", folder=str(folder))
 
+    def _open_at_first_byte(self, items: list) -> None:
+        """The first received packets are here: open the session with them as its tlog's start,
+        after what was recorded while waiting (events, packets sent)."""
+        early_events, early_sent = self._early_events, self._early_sent
+        self._early_events, self._early_sent = [], []
+        self.start_recording(start=items[0].wall_time)
+        session = self.session
+        if session is None:
+            return
+        self._input_base -= sum(item.type in INPUT_TYPES for item in items)  # they are in its tlog
+        session.writer.append(layout.EVENTS, b"".join(early_events))
+        session.writer.append(layout.TLOG, b"".join(early_sent))
+        self.packets["sent"] += len(early_sent)
+
     def stop_recording(self, client: str = "recorder") -> dict | None:
         """Stop and close the current session now (blocking: the station's shutdown); returns its meta."""
         session = self.detach(client)
@@ -186,6 +229,9 @@ class SessionRecorder:
 
     def detach(self, client: str = "recorder") -> Session | None:
         """Stop feeding the current session (in the event loop); close it with `finish`."""
+        self._armed = False
+        if self.state == "waiting":
+            self.state = "stopped"
         session = self.session
         if session is None:
             return None
@@ -246,12 +292,14 @@ class SessionRecorder:
         if self._sub is None:
             return
         items = self._sub.drain()
+        if self.session is None and self._armed and items:
+            self._open_at_first_byte(items)
         session = self.session
         if session is None or not items:
             return
         parts = []
         for item in items:
-            parts.append(tlog_record(tlog_usec(item.wall_time, RECEIVED), item.raw))
+            parts.append(tlog_record(self._clock.stamp(item.wall_time, RECEIVED), item.raw))
             if item.type == "PARAM_VALUE":
                 self._on_param(item.msg)
         session.writer.append(layout.TLOG, b"".join(parts))
@@ -278,21 +326,30 @@ class SessionRecorder:
         self.session.add_rows("comparison", rows)
 
     def _on_send(self, packet: bytes) -> None:
+        """A sent packet goes after every packet received before it (drained first), stamped now."""
+        self._drain()
+        record = tlog_record(self._clock.stamp(time.time(), SENT), packet)
         if self.session is not None:
-            self.session.writer.append(layout.TLOG, tlog_record(tlog_usec(time.time(), SENT), packet))
+            self.session.writer.append(layout.TLOG, record)
             self.packets["sent"] += 1
+        elif self._armed and len(self._early_sent) < EARLY_MAX:
+            self._early_sent.append(record)
 
     def _on_points(self, points) -> None:
         if self.session is not None:
             self.session.add_rows("attitude", columnar.attitude_rows(points, time.time()))
 
     def _on_event(self, event) -> None:
-        if self.session is None:
+        if self.session is None and not self._armed:
             return
         line = event.as_dict()
         if event.kind == "gain" and self.station.estimation is not None:
             line["input_index"] = max(0, self.station.estimation.messages_fed - self._input_base)
-        self.session.writer.append(layout.EVENTS, (strict_json.dumps(line, default=str) + "\n").encode())
+        encoded = (strict_json.dumps(line, default=str) + "\n").encode()
+        if self.session is not None:
+            self.session.writer.append(layout.EVENTS, encoded)
+        elif len(self._early_events) < EARLY_MAX:
+            self._early_events.append(encoded)
 
     def _on_param(self, msg) -> None:
         name = param_name(msg)

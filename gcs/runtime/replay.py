@@ -1,30 +1,38 @@
-"""Paced replay: a recorded session or a foreign log through the estimators on the event loop,
-with play, pause, seek and speed.
+"""Replay: a recorded session or a foreign log through the estimators, paced or flat out.
 
-`ReplaySession` is what the server drives: it has a `bus` (tlog packets, read back from the file,
-are published there as `Message`s stamped with their recorded wall time, so the dashboard shows
-them as it shows a live link), a `points` signal like `LiveEstimation`'s, and `play()`,
-`pause()`, `seek(t)`, `set_speed(x)`, `snapshot()`. Seeking rebuilds the estimators by re-running
-the inputs from the start without pacing (they carry state, so there is no other exact way), in
-chunks that let the loop serve everything else meanwhile.
+`ReplaySession` is what `gcs replay` drives (in its own process): it has a `bus` (tlog packets,
+read back from the file, are published there as `Message`s stamped with their recorded wall time),
+a `points` signal like `LiveEstimation`'s, and `play()`, `pause()`, `seek(t)`, `set_speed(x)`,
+`snapshot()`. Seeking rebuilds the estimators by re-running the inputs from the start without
+pacing (they carry state, so there is no other exact way), in chunks that let the loop serve
+everything else meanwhile.
+
+The dashboard never plays a replay on the live loop: `replay_series` runs a whole replay in the
+station's worker process and returns the encoded series, which each viewer's replay page
+(web/public/replay.html) plays by itself, beside the live page (docs/design.md, "Replay").
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import islice
 
 import numpy as np
 
-from gcs.core.estimation import AttitudePoint
+from gcs.core import strict_json
+from gcs.core.estimation import AttitudePoint, EstimationPipeline
+from gcs.core.estimators import registry
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.signal import Signal
-from gcs.sessions.sources import PacketReader, ReplaySource
+from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
+from gcs.sessions.workbench import workbench
 
 #: Inputs fed between two yields to the loop while seeking or replaying flat out.
 CHUNK = 2000
@@ -226,3 +234,101 @@ class ReplaySession:
         if self._packets is not None:
             self._packets.close()
             self._packets = None
+
+
+def parse_gains(items: list[str], names: list[str]) -> dict[str, dict[str, float]]:
+    """`[EST.]NAME=VALUE` items → {estimator: {gain: value}}; ValueError says which item is wrong."""
+    out: dict[str, dict[str, float]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE with a number") from None
+        if not sep:
+            raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE")
+        est, dot, gain = key.strip().rpartition(".")
+        targets = [est] if dot else [n for n in names if any(g.name == gain for g in registry.get(n).GAINS)]
+        if not targets:
+            raise ValueError(f"--gain {item!r}: no selected estimator ({', '.join(names)}) has a gain {gain!r}")
+        for name in targets:
+            out.setdefault(name, {})[gain] = value
+    return out
+
+
+def selection(estimators: list[str] | None, gain_items: list[str]) -> tuple[list[str], dict[str, dict[str, float]]]:
+    """Estimator names (default: all) and `[EST.]NAME=VALUE` gain items → (names, gains per
+    estimator); KeyError names an unknown estimator, ValueError a bad gain item."""
+    names = estimators or registry.names()
+    for name in names:
+        registry.get(name)
+    return names, parse_gains(gain_items, names)
+
+
+def session_table(pipeline: EstimationPipeline) -> list[dict[str, object]]:
+    """Session RMS / max error per estimator per reference, degrees (roll, pitch, yaw)."""
+    rows: list[dict[str, object]] = []
+    for name, comparison in pipeline.comparisons.items():
+        for ref, stats in comparison.summary()["references"].items():
+            s = stats["session"]
+            rows.append({"estimator": name, "reference": ref, "n": s["n"], "rms_deg": s["rms"], "max_deg": s["max"]})
+    return rows
+
+
+#: Replays kept encoded in the worker (a 10-minute session at 50 Hz is a few MB).
+SERIES_CACHED = 4
+
+
+def replay_series(path: str | os.PathLike, estimators: list[str], gains: dict[str, dict[str, float]]) -> bytes:
+    """A whole replay of the source at path as the replay page's JSON: every source's attitude
+    (`{SOURCE: [[t...], [roll...], [pitch...], [yaw...]]}`, vehicle s and degrees, the live
+    frames' columns) and the session error table. Runs in the station's worker process (the
+    source decoded once through its workbench), never on the live loop; InputError, KeyError or
+    GainError as the source and the request say."""
+    source = workbench().source(path)
+    frozen = tuple(sorted((est, tuple(sorted(g.items()))) for est, g in gains.items()))
+    if source.key is None:
+        return _encoded_series(source, tuple(estimators), frozen)
+    return _cached_series(source.key, str(path), tuple(estimators), frozen)
+
+
+@lru_cache(maxsize=SERIES_CACHED)
+def _cached_series(
+    key: SourceKey, path: str, estimators: tuple[str, ...], gains: tuple[tuple[str, tuple[tuple[str, float], ...]], ...]
+) -> bytes:
+    return _encoded_series(workbench().source(path), estimators, gains)
+
+
+def _encoded_series(
+    source: ReplaySource, estimators: tuple[str, ...], gains: tuple[tuple[str, tuple[tuple[str, float], ...]], ...]
+) -> bytes:
+    session = ReplaySession(source, 0, list(estimators), {est: dict(g) for est, g in gains})
+    columns: dict[str, list[list[float]]] = {}
+    deg = 180.0 / math.pi
+
+    def collect(points: list[AttitudePoint]) -> None:
+        for p in points:
+            cols = columns.get(p.source)
+            if cols is None:
+                cols = columns[p.source] = [[], [], [], []]
+            cols[0].append(round(p.t, 4))
+            cols[1].append(round(p.roll * deg, 3))
+            cols[2].append(round(p.pitch * deg, 3))
+            cols[3].append(round(p.yaw * deg, 3))
+
+    session.points.connect(collect)
+    session.run_to_end()
+    return strict_json.dumps(
+        {
+            "source": os.path.basename(source.path.rstrip("/\\")),
+            "kind": source.kind,
+            "duration_s": round(source.duration, 3),
+            "frames": len(source.frames),
+            "imu_samples": session.pipeline.imu_samples,
+            "damage": source.damage,
+            "estimators": list(session.pipeline.estimators),
+            "table": session_table(session.pipeline),
+            "points": columns,
+        },
+        separators=(",", ":"),
+    ).encode()

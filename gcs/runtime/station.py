@@ -1,10 +1,10 @@
 """The Station: one vehicle's live core and the one way in for the server and the CLI.
 
 It owns every piece of loop-side state (link, vehicle, streams, parameters, forwarding outputs,
-estimation, recording, tuning, replay) and runs each part under a `Supervisor`. Readers get typed
+estimation, recording, tuning) and runs each part under a `Supervisor`. Readers get typed
 `StationSnapshot`s published at a fixed rate; writers call its commands, which must run on the
 event loop thread (a route handler is `async def`; anything else hops in with
-`loop.call_soon_threadsafe`). Heavy work (what-if, export) runs in a worker process.
+`loop.call_soon_threadsafe`). Heavy work (replay, what-if, export) runs in a worker process.
 Data flow and conventions: docs/design.md
 """
 
@@ -14,6 +14,7 @@ import asyncio
 import dataclasses
 import math
 import multiprocessing
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -41,7 +42,6 @@ from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.radio import RadioGovernor
 from gcs.runtime.recorder import SessionRecorder
-from gcs.runtime.replay import ReplaySession
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import (
     ErrorStats,
@@ -57,10 +57,13 @@ from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
 from gcs.runtime.vehicle import VehicleState
 from gcs.sessions.protocol import load_protocol
-from gcs.sessions.workbench import load_source
+from gcs.sessions.workbench import warm_up
 
 #: Seconds between published snapshots (and comparison rows in a recording).
 SNAPSHOT_INTERVAL = 1.0
+
+#: How much lower the worker process's priority is than the station's (Unix nice increment).
+WORKER_NICE = 10
 
 NOT_RECORDING = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
 
@@ -133,9 +136,6 @@ class Station:
             self.estimation.points.connect(self.points.emit)
         replaying = self.link.address.kind == "tlog"  # a replayed log is not a new session
         self.recorder = SessionRecorder(self, config.record_dir) if config.record_dir and not replaying else None
-        self.replay: ReplaySession | None = None
-        self.replay_loaded: Signal[[ReplaySession]] = Signal()
-        self._replay_task: asyncio.Task[None] | None = None
         #: the test protocol being run (or the last one), see gcs.runtime.protocol
         self.protocol: LiveProtocol | None = None
         self._tuning: TuningSession | None = None
@@ -175,7 +175,6 @@ class Station:
     async def stop(self) -> None:
         if self.protocol is not None:
             self.protocol.finish()
-        await self.unload_replay()
         await self.supervisor.stop(first="link")  # nothing arrives while the others finish
         if self.recorder is not None:
             self.recorder.close()
@@ -361,35 +360,20 @@ class Station:
                 self._tuning = await open_session(self.params)
         return self._tuning
 
-    # ---- commands: replay ------------------------------------------------------------------
-    async def load_replay(
-        self, path: Path, speed: float, estimators: list[str] | None, gains: dict[str, dict[str, float]]
-    ) -> ReplaySession:
-        """Decode a source (in the worker process, which keeps it cached), then play it on the
-        loop, replacing any replay already loaded. InputError/KeyError/GainError as the source says."""
-        self._on_loop()
-        source = await self.in_worker(load_source, path)
-        replay = ReplaySession(source, speed, estimators, gains)
-        await self.unload_replay()
-        self.replay = replay
-        self._replay_task = asyncio.create_task(replay.run(), name="gcs:replay")
-        self.replay_loaded.emit(replay)
-        return replay
-
-    async def unload_replay(self) -> None:
-        task, self._replay_task, self.replay = self._replay_task, None, None
-        if task is not None:
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-
     # ---- heavy work ------------------------------------------------------------------------
     async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R:
-        """Run function(*args) in the station's worker process: CPU-heavy work (what-if, export)
-        on its own copy of the data, so the live loop never waits on it. The worker keeps its
-        decode caches between calls."""
+        """Run function(*args) in the station's worker process: CPU-heavy work (replay, what-if,
+        export, report) on its own copy of the data, so the live loop never waits on it. The
+        worker keeps its decode caches between calls, and runs at a lower priority (nice
+        WORKER_NICE) so that on a machine with few cores it yields the CPU to the live process."""
         if self._workers is None:
             # spawned, not forked: a fork would inherit the server's sockets and pipes (and threads)
-            self._workers = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+            self._workers = ProcessPoolExecutor(
+                max_workers=1,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_lower_priority,
+                initargs=(WORKER_NICE,),
+            )
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(self._workers, _call, function, args, kwargs)
 
@@ -414,6 +398,13 @@ class Station:
         """Commands touch live state: only the event loop's thread may call them."""
         if self._loop_thread is not None and threading.get_ident() != self._loop_thread:
             raise RuntimeError("Station commands run on the event loop thread (use loop.call_soon_threadsafe)")
+
+
+def _lower_priority(increment: int) -> None:
+    """The worker's initializer: nice it (and import the workbench, so the first call is quick)."""
+    if hasattr(os, "nice"):
+        os.nice(increment)
+    warm_up()
 
 
 def _call(function: Callable[..., R], args: tuple[Any, ...], kwargs: dict[str, Any]) -> R:

@@ -17,7 +17,6 @@ from gcs import __version__
 from gcs.core import strict_json
 from gcs.runtime.events import Client, Event
 from gcs.runtime.facade import StationFacade
-from gcs.runtime.replay import ReplaySession
 from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
 from gcs.server.guard import Refusal, RequestGuard
@@ -37,7 +36,8 @@ def create_app(
 ) -> FastAPI:
     """The app for one running station. `token`: required on every state-changing request.
     `bound_host` and `allow_origins` set which Host and Origin
-    headers the guard accepts. The hub follows the station's estimation, replays and events."""
+    headers the guard accepts. The hub follows the station's live estimation and events (never a replay: replays
+    are computed in the worker and played by their own page)."""
     assets = web_assets()
     hub = hub or LiveHub()
     app = FastAPI(
@@ -62,7 +62,6 @@ def create_app(
         on_refused=lambda r: record_refusal(station, r),
     )
     station.points.connect(hub.on_points)
-    station.replay_loaded.connect(lambda replay: follow_replay(hub, replay))
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
     for module in ROUTERS:
         app.include_router(importlib.import_module(module).router)
@@ -90,11 +89,6 @@ async def refuse_invalid(request: Request, exc: Exception) -> Response:
 
 async def colors_js() -> Response:
     return Response(colors_script(), media_type="text/javascript")
-
-
-def follow_replay(hub: LiveHub, replay: ReplaySession) -> None:
-    """The dashboard plots replayed points as it plots live ones."""
-    replay.points.connect(hub.on_points)
 
 
 def record_refusal(station: StationFacade, refusal: Refusal) -> None:

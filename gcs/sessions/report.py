@@ -3,9 +3,10 @@
 The source is replayed through every estimator (for a session this reproduces the live
 numbers). The page holds: what was replayed (vehicle, duration, damage), the attitude of every
 source, each estimator's error against the best reference (truth if the log has it, else the
-onboard estimate), an RMS / max table per estimator, reference and axis, and the message rates
-and packet loss. Plots are PNG images (matplotlib, Agg) embedded as data URIs, so the one file
-can be attached to a write-up.
+onboard estimate), an RMS / max table per estimator, reference and axis, a session's gain
+changes, notes and events (its events.jsonl), and the message rates and packet loss. Every
+source has the dashboard's colour (gcs.core.colors). Plots are PNG images (matplotlib, Agg)
+embedded as data URIs, so the one file can be attached to a write-up.
 """
 
 from __future__ import annotations
@@ -13,24 +14,30 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from gcs.core.colors import hex_color
 from gcs.core.comparison import errors_against
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
 from gcs.provenance import provenance
 from gcs.sessions import layout
-from gcs.sessions.contents import Contents
+from gcs.sessions.contents import Contents, read_events
 from gcs.sessions.protocol import formatted, session_tables
 from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
 #: Reference used for the error plot, best first.
 ERROR_REFERENCES = ("truth", "onboard", "ahrs2")
+#: Line style per source, as the page draws them (truth dashed).
+LINESTYLES = {"truth": "--"}
+#: Event fields shown as their own columns (the rest goes to "detail").
+EVENT_COLUMNS = ("wall_time", "host_time", "kind", "client")
 
 
 def collect(source, progress=None, estimators: list[str] | None = None) -> tuple[dict[str, np.ndarray], object]:
@@ -59,7 +66,14 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
     axes = fig.subplots(3, 1, sharex=True)
     for name, data in sorted(series.items()):
         for k, ax in enumerate(axes):
-            ax.plot(data[:, 0], np.degrees(data[:, 1 + k]), lw=0.8, label=name)
+            ax.plot(
+                data[:, 0],
+                np.degrees(data[:, 1 + k]),
+                lw=0.8,
+                label=name,
+                color=hex_color(name),
+                ls=LINESTYLES.get(name, "-"),
+            )
     for k, ax in enumerate(axes):
         ax.set_ylabel(f"{AXES[k]} (deg)")
         ax.grid(alpha=0.3)
@@ -79,7 +93,7 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
             continue
         err = errors_against(series[name], ref)
         for k, ax in enumerate(axes):
-            ax.plot(err[:, 0], err[:, 1 + k], lw=0.8, label=name)
+            ax.plot(err[:, 0], err[:, 1 + k], lw=0.8, label=name, color=hex_color(name))
     for k, ax in enumerate(axes):
         ax.set_ylabel(f"{AXES[k]} error (deg)")
         ax.grid(alpha=0.3)
@@ -111,7 +125,7 @@ def plot_holds(tables: ProtocolTables, series: dict[str, Series]) -> str:
         k = AXES.index(step.axis)
         for name, data in sorted(series.items()):
             part = data[(data[:, 0] >= window.t_start) & (data[:, 0] <= window.t_hold_end)]
-            ax.plot(part[:, 0], np.degrees(part[:, 1 + k]), lw=0.8, label=name)
+            ax.plot(part[:, 0], np.degrees(part[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
         ax.axhline(step.target_deg, color="k", lw=0.6, ls="--")
         ax.axvspan(window.t_hold_start, window.t_hold_end, color="0.9")
         ax.set_title(f"{window.index + 1}. {step.name}", fontsize=9)
@@ -197,7 +211,58 @@ def loss_rows(source) -> list[list]:
     ]
 
 
-def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTables | None = None) -> str:
+def legend(names: list[str]) -> str:
+    """The sources with their colours, as the dashboard shows them."""
+    swatch = "<span class='source'><span class='swatch' style='background:{}'></span>{}</span>"
+    return "<p class='legend'>" + " ".join(swatch.format(hex_color(n), html.escape(n)) for n in names) + "</p>"
+
+
+def _number(value: object) -> str:
+    """A gain value as typed: 6 significant digits, no float noise (0.0005, not 0.001)."""
+    return f"{value:.6g}" if isinstance(value, int | float) and not isinstance(value, bool) else "–"
+
+
+def _since(event: dict, start: float | None) -> str:
+    t = event.get("wall_time")
+    if not isinstance(t, int | float) or start is None:
+        return "–"
+    return f"{t - start:.1f}"
+
+
+def event_sections(events: list[dict], start: float | None) -> list[str]:
+    """A session's gain changes, notes and whole event log (times in s from the session start)."""
+    gains = [
+        [_since(e, start), e.get("estimator"), e.get("gain"), _number(e.get("old")), _number(e.get("new")),
+         e.get("client")]
+        for e in events
+        if e.get("kind") == "gain"
+    ]  # fmt: skip
+    notes = [[_since(e, start), e.get("text"), e.get("client")] for e in events if e.get("kind") == "note"]
+    rows = [
+        [_since(e, start), e.get("kind"), e.get("client"),
+         json.dumps({k: v for k, v in e.items() if k not in EVENT_COLUMNS}, default=str)]
+        for e in events
+    ]  # fmt: skip
+    out = [
+        "<h2>Gain changes</h2>"
+        + (
+            html_table(["t (s)", "estimator", "gain", "old", "new", "by"], gains, "gain-changes")
+            if gains
+            else "<p>none</p>"
+        ),
+        "<h2>Notes</h2>" + (html_table(["t (s)", "note", "by"], notes, "notes") if notes else "<p>none</p>"),
+        "<h2>Events</h2>" + html_table(["t (s)", "kind", "by", "detail"], rows, "events"),
+    ]
+    return out
+
+
+def render(
+    source,
+    series: dict[str, np.ndarray],
+    pipeline,
+    protocol: ProtocolTables | None = None,
+    events: list[dict] | None = None,
+) -> str:
 
     estimators = list(pipeline.estimators)
     reference = next((r for r in ERROR_REFERENCES if r in series), None)
@@ -219,7 +284,7 @@ def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTa
         ]
     sections = [f"<h2>Summary</h2>{html_table(['', ''], facts)}"]
     if series:
-        sections.append(f"<h2>Attitude, every source</h2><img src='{plot_attitude(series)}'>")
+        sections.append(f"<h2>Attitude, every source</h2>{legend(sorted(series))}<img src='{plot_attitude(series)}'>")
     if reference is not None:
         sections.append(f"<h2>Errors against {reference}</h2><img src='{plot_errors(series, estimators, reference)}'>")
     sections.append(
@@ -233,6 +298,9 @@ def render(source, series: dict[str, np.ndarray], pipeline, protocol: ProtocolTa
         reliable, reason = comparison.reliability()
         if not reliable:
             sections.append(f"<p class='warn'>{html.escape(name)}: {html.escape(reason)}</p>")
+    if events is not None:
+        start = meta.get("start") if meta else None
+        sections += event_sections(events, start if isinstance(start, int | float) else None)
     if protocol is not None:
         sections += protocol_sections(protocol, series)
     sections.append("<h2>Rates</h2>" + html_table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
@@ -246,7 +314,8 @@ def page(title: str, sections: list[str]) -> str:
     deps = ", ".join(f"{name} {version}" for name, version in provenance().dependencies.items())
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse;margin:8px 0}}
-td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:100%}}.warn{{color:#a40}}</style>
+td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:100%}}.warn{{color:#a40}}
+.source{{margin-right:1em}}.swatch{{display:inline-block;width:1em;height:.6em;margin-right:.3em}}</style>
 </head><body><h1>{html.escape(title)}</h1>
 <p>generated {time.strftime("%Y-%m-%d %H:%M:%S")} by {html.escape(str(provenance()))}; {html.escape(deps)}</p>
 {"".join(sections)}</body></html>"""
@@ -255,10 +324,11 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 def write_report(path: str, out: str, progress=None, estimators: list[str] | None = None) -> None:
     source = open_source(path)
     series, pipeline = collect(source, progress, estimators)
-    tables = None
+    tables, events = None, None
     if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
         tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
-    text = render(source, series, pipeline, tables)
+        events = read_events(Path(path))
+    text = render(source, series, pipeline, tables, events)
     partial = f"{out}.partial"  # a failed write leaves any earlier report as it was
     try:
         with open(partial, "w") as fh:

@@ -258,6 +258,22 @@ class TcpServerTransport(Transport):
         self._mark_closed()
 
 
+def open_serial(path: str, baud: int) -> serial.Serial:
+    """The serial port at path, non-blocking; OSError with one line (`cannot open serial port
+    PATH: No such file or directory`), not pyserial's message nested in another."""
+    try:
+        return serial.Serial(path, baud, timeout=0, exclusive=False)
+    except serial.SerialException as exc:
+        reason = os.strerror(exc.errno) if isinstance(exc.errno, int) else str(exc)
+        raise OSError(exc.errno or errno.ENODEV, f"cannot open serial port {path}: {reason}") from None
+
+
+def probe_serial(path: str, baud: int) -> None:
+    """Open and close the port: a command fails at once, in one line, on a port that is not
+    there, rather than waiting for it as a running link does (OSError as open_serial)."""
+    open_serial(path, baud).close()
+
+
 class SerialTransport(Transport):
     """A serial device (USB CDC, FTDI + telemetry radio, a pseudo-terminal).
 
@@ -275,10 +291,7 @@ class SerialTransport(Transport):
     async def open(self, on_data: DataCallback) -> None:
 
         self._new_closed_future()
-        try:
-            self._port = serial.Serial(self.address.path, self.baud, timeout=0, exclusive=False)
-        except serial.SerialException as exc:
-            raise OSError(errno.ENODEV, f"cannot open serial port {self.address.path}: {exc}") from None
+        self._port = open_serial(self.address.path, self.baud)
         self._fd = self._port.fileno()
         os.set_blocking(self._fd, False)
         self._on_data = on_data

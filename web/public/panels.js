@@ -1,5 +1,5 @@
 // The side panels besides the live view: vehicle tuning (/api/tuning, /api/params), recording and
-// sessions (/api/recording, /api/sessions, export links), replay control (/api/replay) and what-if
+// sessions (/api/recording, /api/sessions, export and replay links) and what-if
 // (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js.
 "use strict";
 
@@ -29,7 +29,7 @@ function bytes(n) {
   for (const u of ["B", "KiB", "MiB", "GiB"]) { if (n < 1024 || u === "GiB") return u === "B" ? `${n} B` : `${n.toFixed(1)} ${u}`; n /= 1024; }
 }
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
-const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, replay: null, sessions: [], whatif: null });
+const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, sessions: [], whatif: null });
 
 // ---- tabs ----------------------------------------------------------------------------------
 function showTab(name) {
@@ -231,55 +231,19 @@ async function refreshSessions() {
     const q = encodeURIComponent(x.name);
     return `<tr data-session="${html(x.name)}"><td title="${html(x.name)}">${html(start)}${state ? ` <span class="hint">(${state})</span>` : ""}</td>`
       + `<td>${x.duration_s == null ? "–" : `${fmt(x.duration_s, 1)} s`}</td><td>${bytes(x.size_bytes)}</td><td>${html(x.vehicle || "–")}</td>`
-      + `<td>${EXPORTS.map(([f, label, title]) => `<a class="export-${f}" href="/api/sessions/${q}/export?format=${f}" title="${title}" download>${label}</a>`).join(" ")}</td></tr>`;
+      + `<td><a class="replay" href="replay.html?source=${q}" target="_blank">replay</a> ${EXPORTS.map(([f, label, title]) => `<a class="export-${f}" href="/api/sessions/${q}/export?format=${f}" title="${title}" download>${label}</a>`).join(" ")}</td></tr>`;
   });
   $("sessions-table").innerHTML = `<tr><th>start</th><th>duration</th><th>size</th><th>vehicle</th><th>export</th></tr>`
     + (rows.join("") || `<tr><td colspan="5" class="hint">no recorded sessions yet</td></tr>`);
   const logs = l.ok ? l.data : [];
   const options = [...s.data.slice().reverse().map((x) => ({ name: x.name, label: `session ${x.start ? new Date(x.start * 1000).toLocaleString() : x.name}` })),
     ...logs.map((x) => ({ name: x.name, label: `log ${x.name}` }))];
-  for (const id of ["replay-source", "whatif-source"]) {
+  for (const id of ["whatif-source"]) {
     const sel = $(id), keep = sel.value;
     sel.innerHTML = options.map((o) => `<option value="${html(o.name)}">${html(o.label)}</option>`).join("")
       || `<option value="">(nothing recorded yet)</option>`;
     if (options.some((o) => o.name === keep)) sel.value = keep;
   }
-}
-
-// ---- replay --------------------------------------------------------------------------------
-async function refreshReplay() {
-  const r = await call("GET", "/api/replay/current");
-  if (r.ok) showReplay(r.data.loaded ? r.data : null);
-}
-
-function showReplay(s) {
-  panelState.replay = s;
-  const pill = $("replay-pill"), banner = $("replay-banner");
-  document.body.classList.toggle("replaying", !!s);
-  if (!s) {
-    pill.hidden = banner.hidden = true;
-    $("replay-status").textContent = "no replay open: the plots show the live vehicle.";
-    for (const id of ["replay-play", "replay-pause", "replay-close", "replay-seek"]) $(id).disabled = true;
-    return;
-  }
-  const name = s.path.split(/[\\/]/).pop();
-  const state = s.finished ? "finished" : s.playing ? `playing ${s.speed ? `${s.speed}×` : "as fast as possible"}` : "paused";
-  const where = `${fmt(s.position_s, 1)} / ${fmt(s.duration_s, 1)} s`;
-  pill.hidden = false; pill.textContent = `REPLAY ${name} · ${where} · ${state}`;
-  banner.hidden = false;
-  banner.textContent = `Showing a REPLAY of ${s.kind} “${name}” (${where}, ${state}), not the live vehicle. Close the replay in Sessions to go back to live.`;
-  $("replay-status").textContent = `${s.kind} ${name}: frame ${s.frame} / ${s.frames}, ${where}, ${state}`
-    + (s.damage && Object.keys(s.damage).length ? ` · damage: ${JSON.stringify(s.damage)}` : "");
-  const seek = $("replay-seek");
-  seek.max = Math.max(0.1, s.duration_s);
-  if (document.activeElement !== seek) seek.value = s.position_s;
-  for (const id of ["replay-play", "replay-pause", "replay-close", "replay-seek"]) $(id).disabled = !canChange();
-}
-
-async function replayAction(method, path, body) {
-  const res = await call(method, path, body);
-  say("replay-message", res.ok ? "" : `✗ ${res.message}`, res.ok ? "" : "error");
-  await refreshReplay();
 }
 
 // ---- what-if -------------------------------------------------------------------------------
@@ -398,16 +362,6 @@ async function initPanels() {
     if (await recordingAction("/api/recording/note", { text }, `note added: “${text}”`)) $("rec-note").value = "";
   });
   $("sessions-refresh").addEventListener("click", refreshSessions);
-  $("replay-load").addEventListener("click", () => {
-    const source = $("replay-source").value;
-    if (!source) { say("replay-message", "nothing to replay yet", "error"); return; }
-    replayAction("POST", "/api/replay", { source, speed: Number($("replay-speed").value) });
-  });
-  $("replay-play").addEventListener("click", () => replayAction("POST", "/api/replay/play"));
-  $("replay-pause").addEventListener("click", () => replayAction("POST", "/api/replay/pause"));
-  $("replay-close").addEventListener("click", () => replayAction("DELETE", "/api/replay"));
-  $("replay-seek").addEventListener("change", (ev) => replayAction("POST", "/api/replay/seek", { offset_s: Number(ev.target.value) }));
-  $("replay-speed").addEventListener("change", (ev) => { if (panelState.replay) replayAction("POST", "/api/replay/speed", { speed: Number(ev.target.value) }); });
   const est = await call("GET", "/api/estimators");
   estimatorInfo = est.ok ? est.data : [];
   $("whatif-estimator").innerHTML = estimatorInfo.map((e) => `<option>${html(e.name)}</option>`).join("");
@@ -421,9 +375,8 @@ async function initPanels() {
   $("protocol-repeat").addEventListener("click", () => protocolAction("/api/protocol/repeat"));
   $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
   setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
-  refreshRecording(); refreshReplay(); refreshSessions();
+  refreshRecording(); refreshSessions();
   setInterval(refreshRecording, 2000);
-  setInterval(refreshReplay, 1000);
   setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) refreshTuning(); }, 5000);
 }
 

@@ -1,28 +1,30 @@
 """Sessions over REST: list recorded sessions, download an export, start/stop the recording,
-add a note, list log files beside the sessions, drive a replay (play, pause, seek, speed) and ask what-if questions.
+add a note, list log files beside the sessions, compute a replay and ask what-if questions.
 
 Sources are named, never given as paths: a session folder name or a log file name inside the
 recording folder, so a remote page cannot read arbitrary files. State-changing requests need the
-token. Exports and what-if run in the station's worker process, so the link reader and the live
-view never wait on them, and each client may ask for only so many a minute (`server.ratelimit`).
+token. Replays, exports and what-if run in the station's worker process, so the link reader and
+the live view never wait on them, and each client may ask for only so many a minute
+(`server.ratelimit`). A replay is one request (GET /api/replay): the whole replay, computed in the
+worker, for the asking viewer's replay page to play (web/public/replay.html); nothing of it goes to
+the live plots or to any other viewer.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, status
-from fastapi.responses import FileResponse
+from fastapi import APIRouter, Depends, HTTPException, Query, status
+from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, Field
 from starlette.background import BackgroundTask
 
 from gcs.core.gains import GainError
 from gcs.logs.logfile import InputError
 from gcs.runtime.facade import StationFacade
-from gcs.runtime.replay import ReplaySession, ReplaySnapshot
+from gcs.runtime.replay import replay_series, selection
 from gcs.runtime.snapshots import RecordingSnapshot
 from gcs.runtime.station import StationError
 from gcs.server.deps import TOKEN, ClientDep, StationDep
@@ -40,21 +42,6 @@ class Note(BaseModel):
     text: str = Field(min_length=1, max_length=2000)
 
 
-class ReplayRequest(BaseModel):
-    source: str = Field(description="session folder name or log file name in the recording folder")
-    speed: float = Field(1.0, ge=0, allow_inf_nan=False, description="0 = as fast as possible")
-    estimators: list[str] | None = None
-    gains: dict[str, dict[str, float]] = Field(default_factory=dict, description="{estimator: {gain: value}}")
-
-
-class Seek(BaseModel):
-    offset_s: float = Field(ge=0, allow_inf_nan=False)
-
-
-class Speed(BaseModel):
-    speed: float = Field(ge=0, allow_inf_nan=False)
-
-
 class WhatIfRequest(BaseModel):
     source: str
     estimator: str
@@ -68,12 +55,6 @@ def named_source(station: StationFacade, name: str) -> Path:
     if path.parent != root or not path.exists():
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no session or log {name!r} in {root}")
     return path
-
-
-def loaded_replay(station: StationFacade) -> ReplaySession:
-    if station.replay is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, detail="no replay loaded: POST /api/replay first")
-    return station.replay
 
 
 def conflict(exc: StationError) -> HTTPException:
@@ -146,62 +127,23 @@ async def add_note(note: Note, station: StationDep, client: ClientDep) -> dict[s
     return {"ok": True}
 
 
-@router.post("/replay", dependencies=[TOKEN, Depends(rate_limited("replay"))])
-async def load_replay(body: ReplayRequest, station: StationDep) -> ReplaySnapshot:
-    """Load a source and start playing it (replacing any replay already loaded)."""
-    path = named_source(station, body.source)
+@router.get("/replay", dependencies=[Depends(rate_limited("replay"))])
+async def replay(
+    station: StationDep,
+    source: str = Query(description="session folder name or log file name in the recording folder"),
+    estimator: list[str] | None = Query(None, description="estimators to run (repeatable; default all)"),
+    gain: list[str] = Query([], description="[EST.]NAME=VALUE gain overrides (repeatable)"),
+) -> Response:
+    """The whole replay of a session or log, computed in the worker process: every source's
+    attitude (vehicle s, degrees; the live frames' columns) and the session error table. Read-only:
+    it changes nothing on the station, and only the viewer that asked sees it."""
+    path = named_source(station, source)
     try:
-        replay = await station.load_replay(path, body.speed, body.estimators, body.gains)
-    except (InputError, KeyError, GainError) as exc:
-        raise HTTPException(422, detail=str(exc).strip("'")) from None
-    return replay.snapshot()
-
-
-@router.get("/replay")
-async def replay_status(station: StationDep) -> ReplaySnapshot:
-    return loaded_replay(station).snapshot()
-
-
-@router.get("/replay/current")
-async def current_replay(station: StationDep) -> dict[str, Any]:
-    """The loaded replay's status with loaded=true, or {"loaded": false}: what the page polls
-    (no 404 every second while nothing is replayed)."""
-    replay = station.replay
-    return {"loaded": False} if replay is None else {"loaded": True, **dataclasses.asdict(replay.snapshot())}
-
-
-@router.post("/replay/play", dependencies=[TOKEN])
-async def play(station: StationDep) -> ReplaySnapshot:
-    replay = loaded_replay(station)
-    replay.play()
-    return replay.snapshot()
-
-
-@router.post("/replay/pause", dependencies=[TOKEN])
-async def pause(station: StationDep) -> ReplaySnapshot:
-    replay = loaded_replay(station)
-    replay.pause()
-    return replay.snapshot()
-
-
-@router.post("/replay/seek", dependencies=[TOKEN])
-async def seek(body: Seek, station: StationDep) -> ReplaySnapshot:
-    replay = loaded_replay(station)
-    await replay.seek(body.offset_s)
-    return replay.snapshot()
-
-
-@router.post("/replay/speed", dependencies=[TOKEN])
-async def speed(body: Speed, station: StationDep) -> ReplaySnapshot:
-    replay = loaded_replay(station)
-    replay.set_speed(body.speed)
-    return replay.snapshot()
-
-
-@router.delete("/replay", dependencies=[TOKEN])
-async def unload_replay(station: StationDep) -> dict[str, bool]:
-    await station.unload_replay()
-    return {"ok": True}
+        names, gains = selection(estimator, gain)
+        body = await station.in_worker(replay_series, path, names, gains)
+    except (InputError, KeyError, GainError, ValueError) as exc:
+        raise HTTPException(422, detail=str(exc.args[0] if isinstance(exc, KeyError) else exc)) from None
+    return Response(body, media_type="application/json")
 
 
 @router.post("/whatif", dependencies=[TOKEN, Depends(rate_limited("whatif"))])

@@ -1,0 +1,223 @@
+"""The command line and its sessions, kept clean (issue 12, item 6): SIGTERM closes a session as
+Ctrl-C does, .tlog stamps never go backwards, quick looks (`status`, `params`) record only when
+asked, a link that never delivered a byte leaves no folder, a failed run never clobbers its
+output, a missing serial port fails at once in one line, every --help says what it does, and
+numbers are printed without binary noise. Real processes, sockets and files throughout."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from live import running_station, sim_process, wait_for
+
+from gcs.commands.cli import build_parser
+from gcs.commands.common import tidy
+from gcs.logs.readers import READERS
+from gcs.mavlink.tlog import read_tlog_records
+from gcs.runtime.recorder import SENT
+from gcs.sessions import layout
+from gcs.sessions.export import FORMATS
+from gcs.sessions.recovery import release_lock, take_lock
+from gcs.transport.address import free_port
+
+GCS = [sys.executable, "-m", "gcs"]
+
+
+def sessions_in(root: Path) -> list[Path]:
+    return [p for p in root.iterdir() if layout.is_session(p)] if root.is_dir() else []
+
+
+def recorded(root: Path, size: int) -> bool:
+    """A session under root whose .tlog has `size` bytes."""
+    return any((s / layout.TLOG).exists() and (s / layout.TLOG).stat().st_size > size for s in sessions_in(root))
+
+
+def wait_until(predicate, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out after {timeout} s waiting for {what}"
+        time.sleep(0.1)
+
+
+# ---- --help --------------------------------------------------------------------------------
+def parsers(parser: argparse.ArgumentParser, name: str = "gcs"):
+    """Every parser under `gcs`, with its command line."""
+    yield name, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub, p in action.choices.items():
+                yield from parsers(p, f"{name} {sub}")
+
+
+def test_every_help_has_a_description_and_every_option_a_meaning():
+    found = dict(parsers(build_parser()))
+    assert {"gcs params get", "gcs params diff", "gcs fleet report", "gcs protocol run"} <= set(found)
+    for name, parser in found.items():
+        assert parser.description and len(parser.description) > 20, name
+        for action in parser._actions:
+            if not isinstance(action, argparse._SubParsersAction):
+                assert action.help and action.help != argparse.SUPPRESS, (name, action.dest)
+
+
+def test_help_texts_name_what_the_commands_read_and_write():
+    found = dict(parsers(build_parser()))
+    estimate = found["gcs estimate"].format_help()
+    assert all(suffix in estimate for suffix in READERS), estimate  # every input format
+    export = found["gcs export"].format_help()
+    assert all(fmt in export for fmt in FORMATS) and "attitude" in export and "telemetry" not in export.split(":")[0]
+    for action in ("get", "set", "save", "load", "diff"):  # parameters only: no stream or estimator options
+        text = found[f"gcs params {action}"].format_help()
+        for irrelevant in ("--imu-rate", "--attitude-rate", "--ascii-fields", "--speed", "--no-record"):
+            assert irrelevant not in text, (action, irrelevant)
+        assert "--record" in text
+    assert "--timeout" not in found["gcs params set"].format_help()  # set reads one value, no download
+
+
+# ---- numbers -------------------------------------------------------------------------------
+def test_numbers_are_printed_without_binary_noise():
+    f32 = lambda x: float(np.float32(x))  # noqa: E731
+    assert tidy(f32(0.1)) == 0.1 and repr(tidy(f32(0.099999994))) == "0.1"
+    assert tidy(49.033249999999995) == 49.03325 and tidy(f32(-0.15381026)) == -0.15381026
+    assert tidy({"a": [f32(0.2), 3, True, None, "x"]}) == {"a": [0.2, 3, True, None, "x"]}
+    assert tidy(1796195034.596995) == 1796195034.597  # a double: 15 significant digits (10 µs here)
+
+
+# ---- failing fast, failing clean -------------------------------------------------------------
+def test_a_missing_serial_port_fails_at_once_in_one_line():
+    started = time.monotonic()
+    done = subprocess.run(
+        GCS + ["status", "--connect", "/dev/ttyUSB9", "--duration", "30"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
+    lines = done.stderr.strip().splitlines()
+    assert lines == ["gcs status: error: cannot open serial port /dev/ttyUSB9: No such file or directory"], lines
+
+
+def test_a_failed_estimate_never_clobbers_its_output(tmp_path):
+    keep = tmp_path / "keep.csv"
+    keep.write_text("the user's earlier results\n")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("t,gx,gy,gz,ax,ay,az,mx,my,mz\n")  # a valid header, no samples
+    for source in (tmp_path / "flihgt.tlog", empty):  # mistyped, then no IMU samples
+        done = subprocess.run(
+            GCS + ["estimate", str(source), "-e", "dcm", "--out", str(keep)], capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 2 and done.stderr.startswith("gcs estimate: error:"), done.stderr
+        assert keep.read_text() == "the user's earlier results\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.csv", "keep.csv"]  # no temporary left
+
+
+# ---- recording only when asked, and only what arrived -------------------------------------------
+def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
+    quiet = tmp_path / "quiet"
+    done = subprocess.run(
+        GCS
+        + ["status", "--connect", f"udpin:127.0.0.1:{free_port()}", "--duration", "1"]
+        + ["--record", "--record-dir", str(quiet)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1  # no heartbeat
+    assert sessions_in(quiet) == []  # asked to record, but nothing ever arrived: no folder
+
+    port = free_port()
+    sim = subprocess.Popen(
+        GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{port}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        for extra, root in (([], tmp_path / "plain"), (["--record"], tmp_path / "asked")):
+            done = subprocess.run(
+                GCS
+                + ["status", "--connect", f"udpin:127.0.0.1:{port}", "--duration", "4"]
+                + [*extra, "--record-dir", str(root)],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=tmp_path,
+            )
+            assert done.returncode == 0, done.stderr
+    finally:
+        sim.terminate()
+        sim.wait(10)
+    assert not (tmp_path / "plain").exists() and not (tmp_path / "sessions").exists()
+    [session] = sessions_in(tmp_path / "asked")
+    assert (session / layout.TLOG).stat().st_size > 0
+
+
+# ---- SIGTERM is Ctrl-C ----------------------------------------------------------------------
+def test_sigterm_closes_the_session_as_ctrl_c_does(tmp_path):
+    port = free_port()
+    sim = subprocess.Popen(
+        GCS + ["sim", "--profile", "pixhawk", "--script", "quad", "--link", f"udpout:127.0.0.1:{port}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    commands = {
+        "serve": ["serve", "--port", str(free_port(__import__("socket").SOCK_STREAM))],
+        "status": ["status", "--duration", "600", "--record"],
+    }
+    try:
+        for name, command in commands.items():
+            root = tmp_path / name
+            proc = subprocess.Popen(
+                GCS + [*command, "--connect", f"udpin:127.0.0.1:{port}", "--record-dir", str(root)],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            try:
+                wait_until(lambda root=root: recorded(root, 20_000), 90, f"gcs {name} recording")
+                proc.send_signal(signal.SIGTERM)
+                rc = proc.wait(60)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            assert rc == 143, (name, rc, proc.stderr.read() if proc.stderr else "")
+            [info] = layout.list_sessions(root)
+            assert not info.open and info.end is not None and info.duration_s > 0, (name, info)
+            session = Path(info.path)
+            meta = json.loads((session / layout.META).read_text())
+            assert meta["end"] is not None
+            assert any(session.glob("*.parquet")), sorted(p.name for p in session.iterdir())
+            release_lock(take_lock(session))  # no process holds it any more (take_lock raises if one does)
+    finally:
+        sim.terminate()
+        sim.wait(10)
+
+
+# ---- .tlog stamps ---------------------------------------------------------------------------------
+def test_tlog_stamps_never_go_backwards_with_sent_and_received_packets(udp_port, tmp_path):
+    async def scenario() -> Path:
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+        ):
+            await wait_for(lambda: station.recorder.packets["sent"] >= 8, 90, "packets sent to the vehicle")
+            await wait_for(lambda: station.recorder.packets["received"] > 2000, 90, "packets received")
+            station.params.request(["COMPASS_DEC", "SYSID_THISMAV"])  # more sends amid the stream
+            await asyncio.sleep(0)
+            await wait_for(lambda: station.recorder.packets["sent"] >= 10, 60, "the parameter requests")
+            folder = station.recorder.session.folder
+        return folder
+
+    folder = asyncio.run(scenario())
+    stamps = [usec for usec, _ in read_tlog_records(folder / layout.TLOG)]
+    sent = [k for k, usec in enumerate(stamps) if usec & 3 == SENT]
+    assert len(sent) >= 10 and len(stamps) > 2000
+    assert 0 < sent[-1] < len(stamps) - 1  # sends between received packets, not only at an end
+    backwards = [
+        (k, stamps[k - 1] - stamps[k]) for k in range(1, len(stamps)) if (stamps[k] & ~3) < (stamps[k - 1] & ~3)
+    ]
+    assert backwards == [], backwards[:5]
