@@ -58,6 +58,8 @@ def test_full_sitl_table_loads_back_without_touching_counters_or_sensor_ids(sitl
     for name in ("STAT_RUNTIME", "STAT_BOOTCNT", "INS_ACC_ID", "FORMAT_VERSION"):
         assert f"skipped {name} (file " in out, name
     assert after["ATC_RAT_RLL_P"] == pytest.approx(table["ATC_RAT_RLL_P"] + 0.01, rel=1e-5)
-    assert after["INS_ACC_ID"] == table["INS_ACC_ID"] and after["FORMAT_VERSION"] == table["FORMAT_VERSION"]
+    # the file's INS_ACC_ID (1) was not written; the vehicle's own may still change (SITL sets it once its
+    # simulated IMU is up, which can be after the first download)
+    assert after["INS_ACC_ID"] != 1 and after["FORMAT_VERSION"] == table["FORMAT_VERSION"]
     assert after["STAT_BOOTCNT"] == table["STAT_BOOTCNT"]
     assert after["STAT_RUNTIME"] < table["STAT_RUNTIME"] + 5000  # kept counting from the vehicle's value

@@ -163,7 +163,8 @@ class McapExport:
             )
 
     def events(self, channel: int) -> Iterator[Message]:
-        for event in self.contents.event_list:
+        # in wall-time order: a line can be written after a later one (events held until the session opened)
+        for event in sorted(self.contents.event_list, key=lambda e: float(e.get("wall_time") or 0.0)):
             wall = float(event.get("wall_time") or 0.0)
             details = {k: v for k, v in event.items() if k not in ("wall_time", "host_time", "kind", "client")}
             message = f"{event.get('kind', '?')} ({event.get('client', '?')}): " + ", ".join(
