@@ -39,10 +39,10 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
-        # the compiled estimators load (or, the first time, compile) off the loop: what arrives
-        # meanwhile waits in the subscription
-        await asyncio.to_thread(registry.warm)
         try:
+            # the compiled estimators load (or, the first time, compile) off the loop: what arrives
+            # meanwhile waits in the subscription (and is estimated below if the station stops first)
+            await asyncio.to_thread(registry.warm)
             while True:
                 self._feed([await sub.next(), *sub.drain()])
         finally:
