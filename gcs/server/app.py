@@ -66,9 +66,10 @@ def create_app(
         on_refused=lambda r: record_refusal(station, r),
     )
     follow(station, hub)
-    for module in ROUTERS:
-        app.include_router(importlib.import_module(module).router)
-    serve_vehicles(app, fleet, hub, follow)
+    routers = [importlib.import_module(module).router for module in ROUTERS]
+    for each in routers:
+        app.include_router(each)
+    serve_vehicles(app, routers, fleet, hub, follow)
     app.add_api_route("/colors.js", colors_js, include_in_schema=False)
     app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
     app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")

@@ -49,11 +49,15 @@ def summary(station: StationFacade, link: str | None, first: bool) -> VehicleSum
 
 
 def serve_vehicles(
-    app: FastAPI, fleet: FleetFacade | None, hub: LiveHub, follow: Callable[[StationFacade, LiveHub], None]
+    app: FastAPI,
+    routers: list[APIRouter],
+    fleet: FleetFacade | None,
+    hub: LiveHub,
+    follow: Callable[[StationFacade, LiveHub], None],
 ) -> None:
-    """Add /api/vehicles and the per-vehicle copy of every /api and /ws route (call it after
-    the routers are included, before the page's static mount); each vehicle after the first
-    gets its own hub, `follow`ed, as it is heard."""
+    """Add /api/vehicles and the per-vehicle copy of every /api and /ws route of `routers`
+    (before the page's static mount); each vehicle after the first gets its own hub,
+    `follow`ed, as it is heard."""
     app.state.fleet = fleet
     app.state.hubs = {id(app.state.station): hub}
 
@@ -72,10 +76,13 @@ def serve_vehicles(
         for entry in fleet.vehicles():
             add(entry)
         fleet.vehicle_added.connect(add)
-    for route in list(app.router.routes):
-        if isinstance(route, APIRoute | APIWebSocketRoute) and route.path.startswith(("/api/", "/ws/")):
-            app.router.routes.append(vehicle_route(route))
     app.include_router(router)
+    per_vehicle = APIRouter()
+    for each in routers:
+        for route in each.routes:
+            if isinstance(route, APIRoute | APIWebSocketRoute) and route.path.startswith(("/api/", "/ws/")):
+                per_vehicle.routes.append(vehicle_route(route))
+    app.include_router(per_vehicle)
 
 
 def vehicle_route(route: APIRoute | APIWebSocketRoute) -> APIRoute | APIWebSocketRoute:
