@@ -196,7 +196,7 @@ def test_status_lists_every_vehicle() -> None:
             stop_process(status)
     assert status.returncode == 0, err
     assert out.startswith("vehicles   3\n"), out
-    for sysid, profile, link in VEHICLES:
+    for sysid, _, link in VEHICLES:
         assert f"== vehicle sysid {sysid} ==" in out
         line = next(line for line in out.splitlines() if line.startswith(f"  sysid {sysid} "))
         assert f"on udpin:127.0.0.1:{ports[link]}" in line and "connected" in line
