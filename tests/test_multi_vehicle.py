@@ -200,3 +200,58 @@ def test_status_lists_every_vehicle() -> None:
         assert f"== vehicle sysid {sysid} ==" in out
         line = next(line for line in out.splitlines() if line.startswith(f"  sysid {sysid} "))
         assert f"on udpin:127.0.0.1:{ports[link]}" in line and "connected" in line
+
+
+@pytest.mark.timeout(600)
+def test_dashboard_vehicle_selector() -> None:
+    """Real Chromium: the selector lists both vehicles on one port, and choosing the second
+    switches the page's REST and WebSocket URLs to /api/vehicles/2/... (its panel shows its own
+    firmware: ArduCopter 4.5.7, not the APM 2.5's 3.2.1)."""
+    from playwright.async_api import async_playwright
+    from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
+
+    port = free_port(socket.SOCK_DGRAM)
+
+    async def scenario() -> tuple[list[str], list[str], str]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}"))
+        server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
+        await fleet.start()
+        await server.start()
+        urls: list[str] = []
+        try:
+            with sim_processes([port, free_port(socket.SOCK_DGRAM)]):  # the third one talks to nobody
+                await wait_for(lambda: len(fleet.vehicles()) == 2, 60, "two vehicles")
+                async with async_playwright() as pw:
+                    browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                    page = await browser.new_page()
+                    page.on("request", lambda request: urls.append(request.url))
+                    page.on("websocket", lambda ws: urls.append(ws.url))
+                    await page.goto(server.url, timeout=120_000, wait_until="commit")
+                    select = "#vehicle-select"
+                    await page.wait_for_function(
+                        f"!document.querySelector('{select}').hidden "
+                        f"&& document.querySelector('{select}').options.length === 2",
+                        polling=POLL_MS,
+                        timeout=120_000,
+                    )
+                    options = await page.eval_on_selector_all(f"{select} option", "os => os.map(o => o.value)")
+                    await page.select_option(select, "2")
+                    await page.wait_for_function("window.gcsVehicle === '2'", polling=POLL_MS, timeout=60_000)
+                    await page.wait_for_function(
+                        "(document.querySelector('#vehicle-autopilot') || {}).textContent?.includes('4.5.7')",
+                        polling=POLL_MS,
+                        timeout=120_000,
+                    )
+                    await page.wait_for_function("window.gcsStats.messages > 0", polling=POLL_MS, timeout=60_000)
+                    shown = await page.text_content("#vehicle-autopilot") or ""
+                    await browser.close()
+        finally:
+            await server.stop()
+            await fleet.stop()
+        return options, urls, shown
+
+    options, urls, shown = asyncio.run(scenario())
+    assert sorted(options) == ["1", "2"]
+    assert any(u.endswith("/api/vehicles/2/status") for u in urls)
+    assert any(u.endswith("/api/vehicles/2/ws/live") for u in urls)
+    assert "3.2.1" not in shown
