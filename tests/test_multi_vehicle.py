@@ -255,3 +255,10 @@ def test_dashboard_vehicle_selector() -> None:
     assert any(u.endswith("/api/vehicles/2/status") for u in urls)
     assert any(u.endswith("/api/vehicles/2/ws/live") for u in urls)
     assert "3.2.1" not in shown
+
+
+def test_demo_refuses_two_vehicles_with_one_sysid() -> None:
+    command = [sys.executable, "-m", "gcs", "demo", "--vehicles", "apm25:1,pixhawk:1"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().endswith("'apm25:1,pixhawk:1': each vehicle needs a system id of its own")
