@@ -45,7 +45,8 @@ class _LinkBus(MessageBus):
         self.fleet, self.index = fleet, index
 
     def publish(self, item: Message) -> None:
-        super().publish(item)
+        if self._all or self._by_type:  # the link's own subscribers (none unless a tool adds one)
+            super().publish(item)
         self.fleet.route(self.index, item)
 
 
@@ -72,8 +73,8 @@ class Fleet:
         self.supervisor = Supervisor(first.events)
         self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]
         self._unbound: Station | None = first
-        self._by_key: dict[tuple[int, int], Station] = {}  # (link index, sysid) -> the vehicle's core
-        self._on_link: list[list[Station]] = [[] for _ in self.links]  # bound cores per link
+        self._by_key: dict[tuple[int, int], VehicleLink] = {}  # (link index, sysid) -> the vehicle's view
+        self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._elsewhere: set[tuple[int, int]] = set()  # (link, sysid) served on another link
         self._started = False
         #: a vehicle heard for the first time (its core just started), on the event loop
@@ -108,15 +109,15 @@ class Fleet:
 
     # ---- routing --------------------------------------------------------------------------------
     def route(self, index: int, item: Message) -> None:
-        core = self._by_key.get((index, item.sysid))
-        if core is not None:
-            _view(core).deliver(item)
+        view = self._by_key.get((index, item.sysid))
+        if view is not None:
+            view.deliver(item)
             return
         if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg) and (index, item.sysid) not in self._elsewhere:
             self._adopt(index, item)
             return
-        for core in self._on_link[index]:  # a GCS, a companion, a radio: as on a one-vehicle link
-            _view(core).deliver(item)
+        for view in self._on_link[index]:  # a GCS, a companion, a radio: as on a one-vehicle link
+            view.deliver(item)
         if self._unbound is not None:
             _view(self._unbound).deliver(item)
 
@@ -141,12 +142,12 @@ class Fleet:
             self._entries.append(entry)
             if self._started:
                 core.launch()
-        self._by_key[(index, item.sysid)] = core
-        self._on_link[index].append(core)
+        self._by_key[(index, item.sysid)] = _view(core)
+        self._on_link[index].append(_view(core))
         address = str(link.address)
         core.events.record("vehicle", "fleet", event="heard", sysid=item.sysid, compid=item.compid, link=address)
-        _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
         self.vehicle_added.emit(entry)
+        _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
 
 
 def _view(core: Station) -> VehicleLink:
