@@ -262,3 +262,44 @@ def test_demo_refuses_two_vehicles_with_one_sysid() -> None:
     result = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().endswith("'apm25:1,pixhawk:1': each vehicle needs a system id of its own")
+
+
+def test_routing_by_link_and_sysid() -> None:
+    """The fleet's routing on real packets fed to its link's receive path: vehicles from
+    heartbeats only, each vehicle's data on its own bus, a radio's RADIO_STATUS to every vehicle,
+    sensor data of a vehicle not yet heard to no other vehicle."""
+
+    def packets(sysid: int, compid: int, *msgs) -> bytes:
+        encoder = Encoder(sysid, compid)
+        return b"".join(encoder.encode(m) for m in msgs)
+
+    def beat(kind: int, autopilot: int = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
+        return mavlink.MAVLink_heartbeat_message(kind, autopilot, 0, 0, 4, 3)
+
+    def imu(k: int):
+        return mavlink.MAVLink_raw_imu_message(k * 20_000, 10, -20, -1000, 1, 2, 3, 200, -50, 400)
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect="udpin:127.0.0.1:0", estimate=False))
+        buses = {}
+        fleet.vehicle_added.connect(lambda e: buses.setdefault(e.sysid, e.station.bus.subscribe("t")))
+        feed = fleet.links[0]._on_data
+        feed(packets(1, 1, beat(mavlink.MAV_TYPE_QUADROTOR), imu(1)))
+        feed(packets(2, 1, imu(1)))  # vehicle 2's data before its first heartbeat
+        feed(packets(255, 190, beat(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID)))
+        feed(packets(1, 191, beat(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID)))
+        feed(packets(2, 1, beat(mavlink.MAV_TYPE_FIXED_WING), imu(2)))
+        feed(packets(51, 68, mavlink.MAVLink_radio_status_message(200, 190, 50, 20, 25, 0, 0)))
+        got = {sysid: [(m.type, m.sysid, m.compid) for m in sub.drain()] for sysid, sub in buses.items()}
+        return [(e.sysid, e.compid) for e in fleet.vehicles()], got
+
+    vehicles, got = asyncio.run(scenario())
+    assert vehicles == [(1, 1), (2, 1)]
+    assert got[1] == [
+        ("HEARTBEAT", 1, 1),
+        ("RAW_IMU", 1, 1),
+        ("HEARTBEAT", 255, 190),
+        ("HEARTBEAT", 1, 191),
+        ("RADIO_STATUS", 51, 68),
+    ]
+    assert got[2] == [("HEARTBEAT", 2, 1), ("RAW_IMU", 2, 1), ("RADIO_STATUS", 51, 68)]

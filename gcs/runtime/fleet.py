@@ -7,7 +7,9 @@ unbound, as a one-vehicle station's does (the dashboard, the recorder and `gcs s
 before anything is heard) and takes the first vehicle heard; each further vehicle gets a new core
 at its first heartbeat. Messages from a system that is no vehicle (a GCS, a companion with its own
 sysid, a radio's RADIO_STATUS) go to every vehicle on the link they came on, as they did on a
-one-vehicle link. A sysid already served on one link and heard on another stays on the first.
+one-vehicle link, except sensor data (some vehicle's not yet heard, never another's); until the
+first vehicle is heard, its core gets everything (a link of attitude lines has no heartbeat).
+A sysid already served on one link and heard on another stays on the first.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from gcs.mavlink.identity import is_vehicle_heartbeat
+from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
@@ -109,15 +112,19 @@ class Fleet:
 
     # ---- routing --------------------------------------------------------------------------------
     def route(self, index: int, item: Message) -> None:
-        view = self._by_key.get((index, item.sysid))
+        key = (index, item.sysid)
+        view = self._by_key.get(key)
         if view is not None:
             view.deliver(item)
             return
-        if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg) and (index, item.sysid) not in self._elsewhere:
+        if key in self._elsewhere:
+            return  # a vehicle served on another link
+        if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg):
             self._adopt(index, item)
             return
-        for view in self._on_link[index]:  # a GCS, a companion, a radio: as on a one-vehicle link
-            view.deliver(item)
+        if item.type not in INPUT_TYPES:  # a GCS, a companion, a radio: as on a one-vehicle link
+            for view in self._on_link[index]:  # (sensor data is some vehicle's: never another's)
+                view.deliver(item)
         if self._unbound is not None:
             _view(self._unbound).deliver(item)
 
@@ -132,12 +139,14 @@ class Fleet:
         if self._unbound is not None:
             core, self._unbound = self._unbound, None
             _view(core).bind(link, item.sysid, item.compid)
+            core.follow_system(item.sysid)
             self._entries[0] = VehicleEntry(item.sysid, item.compid, str(link.address), core)
             entry = self._entries[0]
         else:
             view = VehicleLink(link)
             view.bind(link, item.sysid, item.compid)
             core = Station(dataclasses.replace(self.config, outputs=[]), link=view, outputs=[])
+            core.follow_system(item.sysid)
             entry = VehicleEntry(item.sysid, item.compid, str(link.address), core)
             self._entries.append(entry)
             if self._started:
