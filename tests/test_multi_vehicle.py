@@ -107,6 +107,10 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
                     gains2 = (await api.get("/api/vehicles/2/estimators/dcm")).json()["gains"]
                     info = next(g for g in gains2 if g["name"] == gain)
                     new_gain = info["min"] if info["value"] != info["min"] else info["max"]
+                    async with httpx.AsyncClient(base_url=base, timeout=30) as anonymous:  # no token
+                        refused = await anonymous.put(
+                            f"/api/vehicles/2/estimators/dcm/gains/{gain}", json={"value": new_gain}
+                        )
                     put = await api.put(f"/api/vehicles/2/estimators/dcm/gains/{gain}", json={"value": new_gain})
                     after = {e.sysid: e.station.estimator("dcm").gains.values.copy() for e in fleet.vehicles()}
                     tuned = await api.put("/api/vehicles/2/tuning/ATC_RAT_RLL_P", json={"value": 0.15})
@@ -132,6 +136,7 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
             gain=gain,
             new_gain=new_gain,
             put=put.status_code,
+            refused=refused.status_code,
             before=before,
             after=after,
             tuned=(tuned.status_code, tuned.json()),
@@ -166,7 +171,7 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
     assert r["tables"][2]["SYSID_THISMAV"].value == 2 and r["tables"][3]["MAV_SYS_ID"].value == 3
 
     # the gain change on vehicle 2 touched no other vehicle
-    assert r["put"] == 200
+    assert r["refused"] == 401 and r["put"] == 200  # a vehicle's URL takes the token as the plain one does
     assert r["after"][2][r["gain"]] == r["new_gain"] != r["before"][2][r["gain"]]
     assert r["after"][1] == r["before"][1] and r["after"][3] == r["before"][3]
     status, body = r["tuned"]
