@@ -82,9 +82,9 @@ def _rotate_renormalize(s: State, wx: float, wy: float, wz: float) -> float:
 
 
 @kernel
-def step(s: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
-    """DcmEstimator.update_imu. Returns the time policy's code (kernels.STEP ...); on a
-    re-initialisation code the caller initialises from the sample."""
+def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
+    """DcmEstimator.update_imu (hist: unused, the shared signature). Returns the time policy's code
+    (kernels.STEP ...); on a re-initialisation code the caller initialises from the sample."""
     gx, gy, gz = gyro[0], gyro[1], gyro[2]
     fx, fy, fz = accel[0], accel[1], accel[2]
     accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -187,6 +187,8 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     """`dcm` with its per-sample update compiled; same gains, presets, outputs and health as
     DcmEstimator (the reference)."""
 
+    KERNELS = k.Kernels(k.DCM)
+
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[ROWS : ROWS + 9 : 4] = 1.0  # R = I, q = (1, 0, 0, 0) until the first sample
@@ -214,6 +216,7 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         s, gyro, accel, mag = self.s, sample.gyro, sample.accel, sample.mag
         code = step(
             s,
+            self.hist,
             self.gain_vector(),
             sample.t,
             k.floats(gyro),
@@ -221,6 +224,10 @@ class DcmCompiled(k.Compiled, DcmEstimator):
             self._no_mag if mag is None else k.floats(mag),
             mag is not None,
         )
+        return self._after_step(code, sample)
+
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        s = self.s
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -232,7 +239,7 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
         s[ROWS : ROWS + 9] = np.asarray(R, dtype=float).reshape(-1)
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
-        self._reset_correction(vec3(float(v) for v in gyro))
+        self._reset_correction(vec3(float(v) for v in sample.gyro))
         s[k.VALID] = 1.0
         return True
 
