@@ -18,6 +18,7 @@ from gcs.core.comparison import errors_at
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry, whole
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions.input_table import InputTableBuilder
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import run_estimator as what_if_run
@@ -143,3 +144,20 @@ def test_what_if_on_logs(name, which, sources):
         err = errors_at(np.array(t), q, data)[:, 1:]
         assert np.allclose(run.errors[ref]["rms"], np.sqrt(np.mean(err**2, axis=0)), rtol=0, atol=TOL)
         assert np.allclose(run.errors[ref]["max"], np.max(np.abs(err), axis=0), rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("which", ["sitl", "px4", "sim"])
+def test_replay_table_from_whole_runs(which, sources):
+    """`gcs replay --fast`'s table (whole runs) equals the per-sample pipeline's session table."""
+    source = sources[which]
+    session = ReplaySession(source, 0)
+    session.run_to_end()
+    expected = session_table(session.pipeline)
+    rows, fed = whole_table(source, registry.names(), {})
+    assert fed == session.pipeline.imu_samples
+    assert [(r["estimator"], r["reference"], r["n"]) for r in rows] == [
+        (r["estimator"], r["reference"], r["n"]) for r in expected
+    ]
+    for got, want in zip(rows, expected, strict=True):
+        assert np.allclose(got["rms_deg"], want["rms_deg"], rtol=0, atol=TOL)
+        assert np.allclose(got["max_deg"], want["max_deg"], rtol=0, atol=TOL)

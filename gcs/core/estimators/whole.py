@@ -49,11 +49,12 @@ END, GAIN_CHANGE, GROW = -1, -2, -3
 
 @dataclass(frozen=True)
 class WholeRun:
-    """Per IMU row: the attitude quaternion (w, x, y, z, sensor → NED) after it, and whether it
-    was valid then (False for a refused sample, which the estimator never saw)."""
+    """Per IMU row: the attitude quaternion (w, x, y, z, sensor → NED) after it, whether it was
+    valid then, and whether the estimator saw it at all (`fed`: not refused as implausible)."""
 
     q: Floats
     valid: npt.NDArray[np.bool_]
+    fed: npt.NDArray[np.bool_]
 
 
 def imu_accepted(kind: npt.NDArray[np.generic], imu: Floats) -> npt.NDArray[np.bool_]:
@@ -161,7 +162,7 @@ def run_whole(
             i, r_imu, r_gps, out_q, out_valid,
         )  # fmt: skip
         if why == END:
-            return WholeRun(out_q, out_valid)
+            return WholeRun(out_q, out_valid, imu_ok)
         if why == GROW:
             estimator._grow()
             continue
