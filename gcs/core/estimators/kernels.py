@@ -16,6 +16,7 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from gcs.core import rotation
 from gcs.core.estimators.base import GpsAcceleration
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.magnetic import (
@@ -27,7 +28,7 @@ from gcs.core.estimators.magnetic import (
     MAG_WARMUP,
 )
 from gcs.core.gains import Gain, GainSet
-from gcs.core.rotation import Quat, Rows, Vec3
+from gcs.core.rotation import Vec3
 from gcs.core.samples import ImuSample
 
 State = npt.NDArray[np.float64]
@@ -438,53 +439,10 @@ def rows_to_quat(s: State, rows: int) -> None:
     s[Q], s[Q + 1], s[Q + 2], s[Q + 3] = sign * w / n, sign * x / n, sign * y / n, sign * z / n
 
 
-@kernel
-def quat_exp(x: float, y: float, z: float) -> Quat:
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
-    s = math.sin(0.5 * angle) / angle
-    return math.cos(0.5 * angle), x * s, y * s, z * s
-
-
-@kernel
-def quat_mul(p: Quat, q: Quat) -> Quat:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
-
-
-@kernel
-def quat_unit(q: Quat) -> Quat:
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    return w / n, x / n, y / n, z / n
-
-
-@kernel
-def quat_rows(q: Quat) -> Rows:
-    w, x, y, z = q
-    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
-
-
-@kernel
-def euler_quat(roll: float, pitch: float, yaw: float) -> Quat:
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
-
-
-@kernel
-def quat_to_euler(q: Quat) -> Vec3:
-    w, x, y, z = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
+# rotation.py's plain-float formulas, compiled from the same source (one copy of each formula)
+quat_exp = kernel(rotation.quat_exp)
+quat_mul = kernel(rotation.quat_mul)
+quat_unit = kernel(rotation.quat_unit)
+quat_rows = kernel(rotation.quat_rows)
+euler_quat = kernel(rotation.euler_quat)
+quat_to_euler = kernel(rotation.quat_to_euler)
