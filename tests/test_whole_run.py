@@ -161,3 +161,18 @@ def test_replay_table_from_whole_runs(which, sources):
     for got, want in zip(rows, expected, strict=True):
         assert np.allclose(got["rms_deg"], want["rms_deg"], rtol=0, atol=TOL)
         assert np.allclose(got["max_deg"], want["max_deg"], rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_what_if_of_an_estimator_without_kernels(name, sources, monkeypatch):
+    """An estimator without compiled kernels (here the readable reference) still gets a what-if,
+    one call per sample, equal to the compiled estimator's whole run."""
+    source = sources["sitl"]
+    fast = what_if_run(source, name, {})
+    reference = {"dcm": "dcm:DcmEstimator", "kf": "kf:KalmanAttitudeFilter", "ekf": "ekf:EkfEstimator"}[name]
+    monkeypatch.setitem(registry.ESTIMATORS, name, f"gcs.core.estimators.{reference}")
+    slow = what_if_run(source, name, {})
+    assert np.array_equal(slow.t, fast.t) and len(fast.t) > 1000
+    assert np.max(np.abs(slow.euler - fast.euler)) <= TOL
+    for ref, errors in fast.errors.items():
+        assert np.allclose(slow.errors[ref]["rms"], errors["rms"], rtol=0, atol=TOL)

@@ -12,7 +12,7 @@ from typing import Any
 from gcs.commands.common import progress_bar
 from gcs.core.gains import GainError
 from gcs.logs.logfile import InputError
-from gcs.runtime.replay import ReplaySession, selection, session_table, whole_table
+from gcs.runtime.replay import ReplaySession, compiled, selection, session_table, whole_table
 from gcs.sessions.sources import open_source
 
 
@@ -63,10 +63,13 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     decoded = time.perf_counter() - started
-    if args.fast:  # nothing watches the frames: each estimator over the whole arrays at once
+    if args.fast and compiled(names):  # nothing watches the frames: each estimator over whole arrays
         rows, imu_samples = whole_table(source, names, gains, progress_bar("replay"))
     else:
-        asyncio.run(_paced(session))
+        if args.fast:
+            session.run_to_end(progress_bar("replay"))
+        else:
+            asyncio.run(_paced(session))
         rows, imu_samples = session_table(session.pipeline), session.pipeline.imu_samples
     elapsed = time.perf_counter() - started
     print("\n".join(comparison_table(rows)))

@@ -28,6 +28,7 @@ import numpy as np
 from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
+from gcs.core.estimators.kernels import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
@@ -274,6 +275,11 @@ def session_table(pipeline: EstimationPipeline) -> list[dict[str, object]]:
             s = stats["session"]
             rows.append({"estimator": name, "reference": ref, "n": s["n"], "rms_deg": s["rms"], "max_deg": s["max"]})
     return rows
+
+
+def compiled(estimators: list[str]) -> bool:
+    """Whether every estimator named has compiled kernels (whole_table can run it)."""
+    return all(issubclass(registry.get(name), Compiled) for name in estimators)
 
 
 def whole_table(

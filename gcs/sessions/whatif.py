@@ -15,8 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
+from gcs.core.estimators.kernels import Compiled
 from gcs.core.estimators.whole import errors_at, euler_of, run_whole
+from gcs.core.samples import ImuSample
 from gcs.sessions.sources import ReplaySource
 
 
@@ -38,8 +41,16 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
     preset, gains = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**gains, **pinned})
     table = source.table
-    run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name, pinned)
-    t, q = table.imu[run.valid, 0], run.q[run.valid]
+    if isinstance(estimator, Compiled):
+        run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name, pinned)
+        t, q = table.imu[run.valid, 0], run.q[run.valid]
+    else:  # an estimator without kernels (a readable reference): one call per sample
+        times, quats = [], []
+        for item, valid in core_run_estimator(estimator, source.inputs(), name, pinned):
+            if valid and isinstance(item, ImuSample):
+                times.append(item.t)
+                quats.append(estimator.quaternion)
+        t, q = np.array(times), np.array(quats).reshape(-1, 4)
     errors = {}
     for ref, data in source.references.items():
         err = errors_at(t, q, data)[:, 1:]
