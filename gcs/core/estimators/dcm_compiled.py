@@ -188,13 +188,13 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     DcmEstimator (the reference)."""
 
     KERNELS = k.Kernels(k.DCM)
+    STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[ROWS : ROWS + 9 : 4] = 1.0  # R = I, q = (1, 0, 0, 0) until the first sample
         super().__init__(preset, **gains)
         self._mag_view = k.MagView(self.s)
-        self._no_mag = np.zeros(3)
 
     # the reference's attributes the base class and callers use, kept in the state
 
@@ -211,20 +211,6 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
         k.load_gps(self.s, self.gps)
-
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, gyro, accel, mag = self.s, sample.gyro, sample.accel, sample.mag
-        code = step(
-            s,
-            self.hist,
-            self.gain_vector(),
-            sample.t,
-            k.floats(gyro),
-            k.floats(accel),
-            self._no_mag if mag is None else k.floats(mag),
-            mag is not None,
-        )
-        return self._after_step(code, sample)
 
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         s = self.s
@@ -254,10 +240,6 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     @property
     def matrix(self) -> npt.NDArray[np.float64]:
         return self.s[ROWS : ROWS + 9].reshape(3, 3).copy()
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s

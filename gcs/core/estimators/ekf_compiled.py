@@ -373,13 +373,13 @@ class EkfCompiled(k.Compiled, EkfEstimator):
     EkfEstimator (the reference)."""
 
     KERNELS = k.Kernels(k.EKF, INITIALISED, HIST_N)
+    STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[GPS_T_FUSED] = self.s[REST_SINCE] = -math.inf
         self.hist = np.zeros((1024, 4))
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def initialised(self) -> bool:
@@ -405,20 +405,6 @@ class EkfCompiled(k.Compiled, EkfEstimator):
     @b.setter
     def b(self, value: tuple[float, float, float]) -> None:
         self.s[BIAS : BIAS + 3] = value
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
-
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, mag = self.s, sample.mag
-        if s[HIST_N] >= len(self.hist) - 1:  # room for one more velocity: double the buffer
-            self._grow()
-        code = step(
-            s, self.hist, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
-        return self._after_step(code, sample)
 
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         s, mag = self.s, sample.mag

@@ -10,6 +10,7 @@ from BASE. Booleans are 0.0/1.0, "None" is a 0.0 flag slot (or NaN for a time).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -150,6 +151,8 @@ class Compiled:
     figures kept in it, and the gains as a vector."""
 
     KERNELS: ClassVar[Kernels]
+    #: the estimator's step kernel: step(s, hist, g, t, gyro, accel, mag, has_mag) -> code
+    STEP: ClassVar[Callable[..., int]]
     s: State
     hist: State
     t = StateTime()
@@ -162,7 +165,9 @@ class Compiled:
         """Called first in the subclass's __init__: the reference's __init__ writes into it."""
         self.s = new_state(size)
         self.s[Q] = 1.0
+        self._quat_view = self.s[Q : Q + 4]
         self.hist = np.zeros((1, 4))
+        self._no_mag = np.zeros(3)
         self._g = np.zeros(0)
         self._g_version = -1
 
@@ -174,6 +179,23 @@ class Compiled:
             self._g = np.array([values[g.name] for g in self.GAINS])
             self._g_version = gains.version
         return self._g
+
+    def update_imu(self, sample: ImuSample) -> bool:
+        """The reference's update_imu: the step kernel, then Python only when it asks."""
+        n = self.KERNELS.hist_n_slot
+        if n >= 0 and self.s[n] >= len(self.hist) - 1:  # room for one more row: grow
+            self._grow()
+        mag = sample.mag
+        code = self.STEP(
+            self.s, self.hist, self.gain_vector(), sample.t, floats(sample.gyro), floats(sample.accel),
+            self._no_mag if mag is None else floats(mag), mag is not None,
+        )  # fmt: skip
+        return True if code == STEP else self._after_step(code, sample)
+
+    @property
+    def quaternion(self) -> State:
+        """The attitude (w, x, y, z), a copy."""
+        return self._quat_view.copy()
 
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         """What update_imu does after the kernel's step returned code: whether the attitude is

@@ -323,11 +323,11 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     KalmanAttitudeFilter (the reference, on filterpy)."""
 
     KERNELS = k.Kernels(k.KF)
+    STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def valid(self) -> bool:
@@ -340,14 +340,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
         k.load_gps(self.s, self.gps)
-
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, mag = self.s, sample.mag
-        code = step(
-            s, self.hist, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
-        return self._after_step(code, sample)
 
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         s = self.s
@@ -383,10 +375,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     def euler(self) -> tuple[float, float, float]:
         x = self.s[X : X + 3].tolist()
         return x[0], x[1], x[2]
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s
