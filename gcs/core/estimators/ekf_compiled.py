@@ -358,16 +358,28 @@ def gps_step(s: State, hist: State, g: State, t: float, vn: float, ve: float) ->
     s[GPS_T_FUSED] = t
 
 
+@kernel
+def gps_input(
+    s: State, hist: State, g: State, t: float, fix_type: float, vel: State, has_vel: bool, speed: float, course: float
+) -> None:
+    """EkfEstimator.update_gps: its checks, then gps_step (speed and course: unused, the shared signature)."""
+    if fix_type < 3 or not has_vel or s[INITIALISED] == 0.0 or t <= s[GPS_T_FUSED]:
+        return
+    gps_step(s, hist, g, t, vel[0], vel[1])
+
+
 class EkfCompiled(k.Compiled, EkfEstimator):
     """`ekf` with its IMU and GPS steps compiled; same gains, presets, outputs and health as
     EkfEstimator (the reference)."""
+
+    KERNELS = k.Kernels(k.EKF, INITIALISED, HIST_N)
+    STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[GPS_T_FUSED] = self.s[REST_SINCE] = -math.inf
         self.hist = np.zeros((1024, 4))
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def initialised(self) -> bool:
@@ -394,18 +406,8 @@ class EkfCompiled(k.Compiled, EkfEstimator):
     def b(self, value: tuple[float, float, float]) -> None:
         self.s[BIAS : BIAS + 3] = value
 
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
-
-    def update_imu(self, sample: ImuSample) -> bool:
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
         s, mag = self.s, sample.mag
-        if s[HIST_N] >= len(self.hist) - 1:  # room for one more velocity: double the buffer
-            self._grow()
-        code = step(
-            s, self.hist, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -448,11 +450,11 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         self.s[HIST_HEAD] = 0.0
 
     def update_gps(self, sample: GpsSample) -> None:
-        s = self.s
-        if sample.fix_type < 3 or sample.vel_ned is None or not s[INITIALISED] or sample.t <= s[GPS_T_FUSED]:
-            return
-        vel = np.asarray(sample.vel_ned, float).tolist()
-        gps_step(s, self.hist, self.gain_vector(), sample.t, vel[0], vel[1])
+        vel = self._no_mag if sample.vel_ned is None else k.floats(sample.vel_ned)
+        gps_input(
+            self.s, self.hist, self.gain_vector(), sample.t, sample.fix_type, vel, sample.vel_ned is not None,
+            sample.ground_speed, sample.course,
+        )  # fmt: skip
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s

@@ -169,9 +169,9 @@ def _update(s: State, rows: npt.NDArray[np.int64], z: State, r: State) -> State:
 
 
 @kernel
-def step(s: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
-    """KalmanAttitudeFilter.update_imu. Returns the time policy's code (kernels.STEP ...); on a
-    re-initialisation code the caller initialises from the sample."""
+def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
+    """KalmanAttitudeFilter.update_imu (hist: unused, the shared signature). Returns the time
+    policy's code (kernels.STEP ...); on a re-initialisation code the caller initialises from the sample."""
     fx, fy, fz = accel[0], accel[1], accel[2]
     accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
     s[k.ACCEL_NORM] = accel_norm
@@ -322,10 +322,12 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     """`kf` with its per-sample update compiled; same gains, presets, outputs and health as
     KalmanAttitudeFilter (the reference, on filterpy)."""
 
+    KERNELS = k.Kernels(k.KF)
+    STEP = staticmethod(step)
+
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def valid(self) -> bool:
@@ -339,12 +341,8 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         self.gps.update(sample)
         k.load_gps(self.s, self.gps)
 
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, mag = self.s, sample.mag
-        code = step(
-            s, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        s = self.s
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -377,10 +375,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     def euler(self) -> tuple[float, float, float]:
         x = self.s[X : X + 3].tolist()
         return x[0], x[1], x[2]
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s
