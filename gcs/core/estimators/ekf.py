@@ -69,6 +69,9 @@ class EkfEstimator(AttitudeEstimator):
             Gain(
                 "heading_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "heading error growth in motion (gyro_noise, vertical)"
             ),
+            Gain(
+                "pick_dt", 0.01, 0.0, 10.0, "s", "IMU intervals longer than this are picked samples: trapezoid + coning"
+            ),
             Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
             Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
             Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
@@ -101,6 +104,7 @@ class EkfEstimator(AttitudeEstimator):
         self.q: Quat = (1.0, 0.0, 0.0, 0.0)
         self.v: Vec3 = (0.0, 0.0, 0.0)
         self.b: Vec3 = (0.0, 0.0, 0.0)
+        self._gyro_prev: list[float] | None = None  # the last sample's gyro, for picked samples
         self.P = np.zeros((9, 9))
         self._F = np.eye(9)  # only F[_TH, _B] and F[_V, _TH] change (see _predict)
         self._FP = np.empty((9, 9))
@@ -194,6 +198,7 @@ class EkfEstimator(AttitudeEstimator):
         R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), self.gains["declination"])
         self.q = tuple(matrix_to_quat(R).tolist())
         self.v = (0.0, 0.0, 0.0)
+        self._gyro_prev = None
         self._v_hist.clear()
         self._v_offset = (0.0, 0.0, 0.0)
         self._gps_t = -math.inf
@@ -211,12 +216,27 @@ class EkfEstimator(AttitudeEstimator):
     def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float, shock: bool) -> None:
         """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P.
         Through a shock the accelerometer measures the impact: the specific force is taken as
-        gravity alone (v held) and its noise inflated as for the impact."""
+        gravity alone (v held) and its noise inflated as for the impact.
+
+        The turn over dt: a log's every sample is the mean rate over the interval before it
+        (w dt); a slower stream (dt > pick_dt: RAW_IMU at 25-50 Hz) picks samples, each the rate
+        at its instant, so the rate is taken as linear between the last two, whose exact turn
+        to second order is the trapezoid plus the coning term (w0 × w1) dt²/12 (Savage 1998)."""
         g = self.gains.values
         bx, by, bz = self.b
-        self.q = q = quat_unit(
-            quat_mul(self.q, quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt, (gyro[2] - bz) * dt))
-        )
+        w1 = (gyro[0] - bx, gyro[1] - by, gyro[2] - bz)
+        prev, self._gyro_prev = self._gyro_prev, gyro
+        if prev is None or dt <= g["pick_dt"]:
+            turn = (w1[0] * dt, w1[1] * dt, w1[2] * dt)
+        else:
+            w0 = (prev[0] - bx, prev[1] - by, prev[2] - bz)
+            h, c = 0.5 * dt, dt * dt / 12.0
+            turn = (
+                (w0[0] + w1[0]) * h + (w0[1] * w1[2] - w0[2] * w1[1]) * c,
+                (w0[1] + w1[1]) * h + (w0[2] * w1[0] - w0[0] * w1[2]) * c,
+                (w0[2] + w1[2]) * h + (w0[0] * w1[1] - w0[1] * w1[0]) * c,
+            )
+        self.q = q = quat_unit(quat_mul(self.q, quat_exp(*turn)))
         R = quat_rows(q)
         fx, fy, fz = (0.0, 0.0, -G0) if shock else rows_times(R, accel)
         vx, vy, vz = self.v
