@@ -192,8 +192,14 @@ class ReferenceStep:
         self.g = dict(est.gains.values)
         self.q, self.v, self.b, self.P = np.array(est.q), np.array(est.v), np.array(est.b), est.P.copy()
 
-    def predict(self, gyro, accel, dt):
-        self.q = quat_multiply(self.q, quat_from_rotvec((gyro - self.b) * dt))
+    def predict(self, gyro, accel, dt, gyro_prev=None):
+        """gyro_prev: the sample before, for picked samples (dt > pick_dt): the trapezoid plus the
+        coning term (ω₀ × ω₁) dt²/12."""
+        turn = (gyro - self.b) * dt
+        if gyro_prev is not None and dt > self.g["pick_dt"]:
+            w0, w1 = gyro_prev - self.b, gyro - self.b
+            turn = 0.5 * (w0 + w1) * dt + np.cross(w0, w1) * dt * dt / 12.0
+        self.q = quat_multiply(self.q, quat_from_rotvec(turn))
         self.q /= np.linalg.norm(self.q)
         R = quat_to_matrix(self.q)
         self.v = self.v + (R @ accel + G_NED) * dt
@@ -257,7 +263,7 @@ def test_every_step_matches_a_plain_transcription_of_the_equations():
         rejected = est.stats["mag_rejected"]
         est.update_imu(sample)
         gyro, accel, dt = sample.gyro, sample.accel, sample.t - samples[k - 1].t
-        ref.predict(gyro, accel, dt)
+        ref.predict(gyro, accel, dt, samples[k - 1].gyro if k > 1 else None)
         aided, at_rest = est.stats["gps_aided"], est.stats["at_rest"]
         if at_rest:
             ref.update(np.eye(9)[6:9], est.gains["rest_noise"] ** 2 / dt, gyro - ref.b)
