@@ -19,7 +19,15 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.estimators.base import COMMON_GAINS, SHOCK_GAINS, AttitudeEstimator, HealthValue, Shock, initial_attitude
+from gcs.core.estimators.base import (
+    COMMON_GAINS,
+    PICK_GAINS,
+    SHOCK_GAINS,
+    AttitudeEstimator,
+    HealthValue,
+    Shock,
+    initial_attitude,
+)
 from gcs.core.estimators.magnetic import MAG_GAINS, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
@@ -69,9 +77,6 @@ class EkfEstimator(AttitudeEstimator):
             Gain(
                 "heading_noise", 0.01, 1e-5, 1.0, "rad/s/√Hz", "heading error growth in motion (gyro_noise, vertical)"
             ),
-            Gain(
-                "pick_dt", 0.01, 0.0, 10.0, "s", "IMU intervals longer than this are picked samples: trapezoid + coning"
-            ),
             Gain("bias_walk", 1e-5, 0.0, 0.1, "rad/s/√s", "gyro bias random walk: how fast the bias may wander"),
             Gain("bias_init", 0.03, 0.0, 0.5, "rad/s", "1-σ uncertainty of the gyro bias at start"),
             Gain("acc_noise", 0.1, 1e-3, 100.0, "m/s²/√Hz", "accelerometer noise density, integrated into velocity"),
@@ -87,6 +92,7 @@ class EkfEstimator(AttitudeEstimator):
             Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
             Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
         )
+        + PICK_GAINS
         + MAG_GAINS
         + SHOCK_GAINS
         + COMMON_GAINS
