@@ -13,6 +13,8 @@ import json
 import socket
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import httpx
@@ -22,6 +24,7 @@ from live import stop_process, wait_for
 from test_estimation_live import errors_after
 
 from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.station import StationConfig
 from gcs.server.dashboard import DashboardServer
@@ -308,3 +311,81 @@ def test_routing_by_link_and_sysid() -> None:
         ("RADIO_STATUS", 51, 68),
     ]
     assert got[2] == [("HEARTBEAT", 2, 1), ("RAW_IMU", 2, 1), ("RADIO_STATUS", 51, 68)]
+
+
+def test_out_forwards_every_link() -> None:
+    """`--out` behind a fleet of two links: a client there (a MAVProxy's view, raw UDP) sees all
+    three vehicles in the bytes the links received, and its requests reach the vehicle they
+    address on the link it is on (vehicle 3's only on the second link), answered."""
+    ports = [free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)]
+    out_port = free_port(socket.SOCK_DGRAM)
+    config = StationConfig(
+        connect=f"udpin:127.0.0.1:{ports[0]}", estimate=False, outputs=[f"udpout:127.0.0.1:{out_port}"]
+    )
+    asks = {sysid: ROLL_RATE_P[sysid].encode() for sysid in (2, 3)}
+
+    def client(sock: socket.socket, stop: threading.Event) -> dict[int, list]:
+        """Every packet the output sends, by system; once every vehicle is heard, ask vehicles 2
+        and 3 for their roll-rate gain (again every second) until both answer."""
+        decoder, encoder = MavlinkDecoder(), Encoder(255, 190)
+        seen: dict[int, list] = {}
+        sock.settimeout(0.2)
+        asked = 0.0
+        while not stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                data, peer = sock.recvfrom(65536)
+                for msg in decoder.feed(data, final=True):
+                    seen.setdefault(msg.get_srcSystem(), []).append(msg)
+                if {1, 2, 3} <= set(seen) and time.monotonic() - asked > 1.0:
+                    asked = time.monotonic()
+                    for sysid, name in asks.items():
+                        ask = mavlink.MAVLink_param_request_read_message(sysid, 1, name, -1)
+                        sock.sendto(encoder.encode(ask), peer)
+            answered = {m.get_srcSystem() for ms in seen.values() for m in ms if m.get_type() == "PARAM_VALUE"}
+            if {2, 3} <= answered:
+                break
+        return seen
+
+    async def scenario():
+        fleet = Fleet(config, [f"udpin:127.0.0.1:{port}" for port in ports])
+        received = [link.bus.subscribe("test", maxlen=1_000_000) for link in fleet.links]
+        sent: list[list[bytes]] = [[], []]
+        for link, packets in zip(fleet.links, sent):
+            link.packet_sent.connect(packets.append)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", out_port))
+        stop = threading.Event()
+        await fleet.start()
+        try:
+            with sim_processes(ports):
+                watching = asyncio.create_task(asyncio.to_thread(client, sock, stop))
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(asyncio.shield(watching), 90)
+                stop.set()
+                seen = await watching
+        finally:
+            stop.set()
+            sock.close()
+            await fleet.stop()
+        arrived = [{m.raw for m in sub.drain()} for sub in received]
+        return seen, arrived, sent, fleet.outputs[0].snapshot()
+
+    seen, arrived, sent, output = asyncio.run(scenario())
+    assert {1, 2, 3} <= set(seen)
+    for sysid, _, link in VEHICLES:  # the vehicles' packets, byte for byte as their link received them
+        assert {bytes(m.get_msgbuf()) for m in seen[sysid]} <= arrived[link]
+    for sysid, name in asks.items():
+        answer = next(m for m in seen[sysid] if m.get_type() == "PARAM_VALUE")
+        assert answer.param_id == name.decode()
+    # each request went out on the link of the vehicle it addresses, and only there
+    names = {name.decode() for name in asks.values()}
+    asked_on = [
+        {m.target_system for m in MavlinkDecoder().feed(b"".join(packets), final=True) if _param_asked(m) in names}
+        for packets in sent
+    ]
+    assert asked_on == [{2}, {3}]
+    assert output.packets_in > 0 and output.packets_out > 0
+
+
+def _param_asked(msg) -> str | None:
+    return msg.param_id if msg.get_type() == "PARAM_REQUEST_READ" else None

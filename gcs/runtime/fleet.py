@@ -70,8 +70,8 @@ class Fleet:
             )
             for i, address in enumerate(addresses)
         ]
-        #: `--out` forwards the first link (every packet on it, whichever vehicle sent it)
-        self.outputs = [Output(address, self.links[0]) for address in config.outputs]
+        #: `--out` forwards every link (every packet, whichever vehicle sent it; gcs.runtime.forward)
+        self.outputs = [Output(address, self.links) for address in config.outputs]
         first = Station(config, link=VehicleLink(self.links[0]), outputs=self.outputs)
         self.supervisor = Supervisor(first.events)
         self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]

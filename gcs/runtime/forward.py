@@ -1,13 +1,17 @@
 """Forwarding outputs (`--out udpout:127.0.0.1:14551`, repeatable), so Mission Planner,
-QGroundControl, MAVProxy or a MAVSDK script can share one radio link.
+QGroundControl, MAVProxy or a MAVSDK script can share the station's links.
 
-Every packet from the vehicle is written to each output unchanged (the original bytes,
-sequence numbers and signatures intact). What the other side sends is decoded into whole
-packets and passed to the vehicle unchanged, so its bytes never interleave with the ground
-station's own packets on a serial link.
+Every packet from every link (each vehicle of a fleet, gcs.runtime.fleet) is written to each
+output unchanged (the original bytes, sequence numbers and signatures intact). What the other
+side sends is decoded into whole packets, so its bytes never interleave with the ground
+station's own on a serial link, and passed on unchanged as a MAVLink router does: to the link
+its target system was last heard on, or to every link when it has no target, targets every
+system (0) or one not heard yet.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.link import Link, keep_open
@@ -17,25 +21,30 @@ from gcs.transport.pipes import Transport, make_transport
 
 
 class Output:
-    def __init__(self, address: str | Address, link: Link) -> None:
+    def __init__(self, address: str | Address, links: Sequence[Link]) -> None:
         self.address = parse_address(address) if isinstance(address, str) else address
-        self.link = link
+        self.links = list(links)
         self.decoder = MavlinkDecoder()
         self.packets_out = 0
         self.packets_in = 0
         self._transport: Transport | None = None
         self._datagram = self.address.kind in ("udpin", "udpout")
+        self._heard_on: dict[int, Link] = {}  # sysid -> the link it was last heard on
 
     async def run(self) -> None:
-        self.link.outputs.append(self)
+        for link in self.links:
+            link.outputs.append(self)
         try:
             await keep_open(
-                lambda: make_transport(self.address), self._from_peer, self.link._event, self._set_transport
+                lambda: make_transport(self.address), self._from_peer, self.links[0]._event, self._set_transport
             )
         finally:
-            self.link.outputs.remove(self)
+            for link in self.links:
+                link.outputs.remove(self)
 
-    def write(self, packet: bytes) -> None:
+    def write(self, packet: bytes, link: Link, sysid: int) -> None:
+        """A packet `link` received from system `sysid`."""
+        self._heard_on[sysid] = link
         if self._transport is not None:
             self._transport.write(packet)
             self.packets_out += 1
@@ -43,7 +52,10 @@ class Output:
     def _from_peer(self, data: bytes) -> None:
         for msg in self.decoder.feed(data, final=self._datagram):
             self.packets_in += 1
-            self.link.send_raw(bytes(msg.get_msgbuf()))
+            packet = bytes(msg.get_msgbuf())
+            target = self._heard_on.get(getattr(msg, "target_system", 0) or -1)
+            for link in self.links if target is None else (target,):
+                link.send_raw(packet)
 
     def _set_transport(self, transport: Transport | None) -> None:
         self._transport = transport

@@ -216,13 +216,13 @@ class Link:
             if field is not None:
                 self._reject(msg_type, field)
                 continue
-            if self.outputs:
-                raw = msg.get_msgbuf()
-                for out in self.outputs:
-                    out.write(raw)
             header = getattr(msg, "_header", None)
             sysid = header.srcSystem if header else 0
             compid = header.srcComponent if header else 0
+            if self.outputs:
+                raw = msg.get_msgbuf()
+                for out in self.outputs:
+                    out.write(raw, self, sysid)
             if msg_type == "HEARTBEAT":
                 self._on_heartbeat(msg, sysid, compid, now)
             self.bus.publish(Message(msg, msg_type, now, wall, vehicle_time_of(msg), sysid, compid, self.name))

@@ -133,7 +133,7 @@ class Station:
         self.streams.rate_cap = self.radio.cap
         self.params = ParamClient(self.link, self.vehicle, self.events)
         #: forwarding outputs: the station's own, or (with a fleet's link) the fleet's, shown here
-        self.outputs = outputs if outputs is not None else [Output(address, self.link) for address in config.outputs]
+        self.outputs = outputs if outputs is not None else [Output(address, [self.link]) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
