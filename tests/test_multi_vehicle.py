@@ -389,3 +389,45 @@ def test_out_forwards_every_link() -> None:
 
 def _param_asked(msg) -> str | None:
     return msg.param_id if msg.get_type() == "PARAM_REQUEST_READ" else None
+
+
+def test_commands_address_the_vehicle_sysid_names(tmp_path: Path) -> None:
+    """`--sysid` on a link two vehicles share (sysid 1 apm25, sysid 2 pixhawk, each a `gcs sim`
+    with a finished flight log): `params get` and `logs download` reach vehicle 2 and only it,
+    and a sysid never heard is a one-line error naming the vehicles that were."""
+    port = free_port(socket.SOCK_DGRAM)
+    connect = ["--connect", f"udpin:127.0.0.1:{port}"]
+    log_dirs = {sysid: tmp_path / f"vehicle{sysid}" for sysid in (1, 2)}
+    procs = []
+
+    def gcs(*args: str) -> subprocess.CompletedProcess:
+        command = [sys.executable, "-m", "gcs", *args, *connect]
+        return subprocess.run(command, capture_output=True, text=True, timeout=120, check=False)
+
+    try:
+        for sysid, profile in ((1, "apm25"), (2, "pixhawk")):
+            command = [sys.executable, "-m", "gcs", "sim", "--profile", profile, "--sysid", str(sysid)]
+            command += ["--flight-log", "3", "--log-dir", str(log_dirs[sysid]), "--link", f"udpout:127.0.0.1:{port}"]
+            procs.append(subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        got = gcs("params", "get", "ATC_RAT_RLL_P", "SYSID_THISMAV", "--sysid", "2")
+        log = gcs("logs", "download", "latest", "--sysid", "2", "--out", str(tmp_path / "out"))
+        never = gcs("logs", "list", "--sysid", "7", "--timeout", "4")
+    finally:
+        for proc in procs:
+            stop_process(proc)
+
+    assert got.returncode == 0, got.stderr
+    values = {line.split()[0]: float(line.split()[1]) for line in got.stdout.splitlines()}
+    truth = truth_params(2, "pixhawk")  # apm25 (vehicle 1) has neither ATC_RAT_RLL_P nor SYSID_THISMAV 2
+    assert values == {"ATC_RAT_RLL_P": pytest.approx(truth["ATC_RAT_RLL_P"], rel=1e-6), "SYSID_THISMAV": 2.0}
+
+    assert log.returncode == 0, log.stderr
+    (downloaded,) = (tmp_path / "out").glob("log*.bin")
+    assert downloaded.read_bytes() == (log_dirs[2] / "00000002.BIN").read_bytes()
+    assert all(downloaded.read_bytes() != other.read_bytes() for other in log_dirs[1].glob("*.BIN"))
+
+    assert never.returncode == 1 and never.stdout == ""
+    where = f"udpin:127.0.0.1:{port}"
+    said = f"gcs logs list: no heartbeat from vehicle sysid 7 on {where} within 4 s (vehicles heard: 1, 2)\n"
+    assert never.stderr == said
+

@@ -15,9 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gcs.commands.common import progress_bar
+from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink.logtransfer import LogEntry
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError, LogDownloadProgress
-from gcs.runtime.station import Station, StationConfig
+from gcs.runtime.station import StationConfig
 from gcs.transport.address import parse_address
 
 #: Seconds between progress lines when stderr is not a terminal.
@@ -42,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--connect", required=True, metavar="URL", help="the vehicle's link (as gcs status)")
         p.add_argument("--baud", default="57600", help="serial baud rate (default 57600)")
         p.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the vehicle (default 15)")
+        add_sysid_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,11 +68,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _with_station(config, args) -> int:
-    station = Station(config)
-    await station.start()
-    try:
+    async with one_vehicle(config, args.sysid) as (fleet, station):
         if not await station.link.wait_connected(args.timeout):
-            raise LogDownloadError(f"no vehicle heartbeat on {config.connect} within {args.timeout:g} s")
+            raise LogDownloadError(not_heard(fleet, args.timeout))
         downloader = LogDownloader(station.link)
         entries = await downloader.list_logs(args.timeout)
         if args.action == "list":
@@ -81,8 +81,6 @@ async def _with_station(config, args) -> int:
         print(format_done(downloader.progress))
         print(f"replay it: gcs replay {path} --fast   or   gcs estimate {path} -e ekf --out est.csv")
         return 0
-    finally:
-        await station.stop()
 
 
 def progress_reporter(log_id: int) -> Callable[[LogDownloadProgress], None]:

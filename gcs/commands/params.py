@@ -16,10 +16,10 @@ import sys
 
 from gcs.commands.common import progress_bar
 from gcs.commands.options import add_link_arguments, station_config
+from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink import param_files
 from gcs.mavlink.params import ParamError, format_value, type_name
 from gcs.runtime.params import Param, ParamClient
-from gcs.runtime.station import Station
 from gcs.runtime.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
 
 CLIENT = "cli"
@@ -53,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for p in (get, set_, save, load, diff):
         # parameters only: no stream requests, no estimators; two files need no vehicle
         add_link_arguments(p, connect_required=p is not diff, streams=False, record="opt-in")
+        add_sysid_argument(p)
     for p in (get, save, load, diff):
         p.add_argument("--timeout", type=float, default=120.0, help="seconds allowed for a full download")
 
@@ -83,15 +84,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _with_station(config, args, profile) -> int:
-
-    station = Station(config)
-    await station.start()
-    try:
+    async with one_vehicle(config, args.sysid) as (fleet, station):
         if not await station.link.wait_connected(15.0):
-            raise ParamError(f"no heartbeat from a vehicle on {config.connect} within 15 s")
+            raise ParamError(not_heard(fleet, 15.0))
         return await ACTIONS[args.action](station.params, args, profile)
-    finally:
-        await station.stop()
 
 
 async def _get(params, args, profile) -> int:

@@ -10,17 +10,22 @@ from pathlib import Path
 
 from gcs.commands.common import run_reporting_errors
 from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.commands.vehicle_choice import add_sysid_argument, not_heard
 from gcs.core.gains import GainError
 from gcs.core.protocol import ProtocolError, ProtocolTables, SourceMetrics, StepWindow
+from gcs.runtime.fleet import Fleet
 from gcs.runtime.protocol import LiveProtocol, ProtocolState
 from gcs.runtime.replay import parse_gains
-from gcs.runtime.station import Station, StationConfig
+from gcs.runtime.station import StationConfig
 from gcs.sessions.contents import open_contents
 from gcs.sessions.export import write_protocol_csv
 from gcs.sessions.protocol import available_protocols, formatted, load_protocol, session_tables
 
 #: The protocol results written into the session folder at the end of a run.
 RESULTS_NAME = "protocol.csv"
+
+#: Seconds to wait for the vehicle `--sysid` names before giving up (without it, the run waits).
+SYSID_WAIT = 15.0
 
 _KEYS = """\
 keys during a run (type the letter, then Enter):
@@ -39,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     run_parser.add_argument("protocol", help=f"a shipped protocol ({', '.join(available_protocols())}) or a TOML file")
     add_link_arguments(run_parser)
+    add_sysid_argument(run_parser)
     run_parser.add_argument(
         "--detect-source", default=None, help="source whose attitude detects the holds (default: the protocol's)"
     )
@@ -108,13 +114,18 @@ def _report(args: argparse.Namespace) -> int:
 
 
 async def _run(config: StationConfig, args: argparse.Namespace) -> int:
-    station = Station(config)
+    fleet = Fleet(config, single=True, sysid=args.sysid)
+    station = fleet.first
     try:
         gains = parse_gains(args.gain, station.estimator_names())
     except ValueError as exc:
         print(f"gcs protocol: {exc}", file=sys.stderr)
         return 2
-    await station.start()
+    await fleet.start()
+    if args.sysid is not None and not await station.link.wait_connected(SYSID_WAIT):
+        print(f"gcs protocol: {not_heard(fleet, SYSID_WAIT)}", file=sys.stderr)
+        await fleet.stop()
+        return 1
     try:  # once recording: the session's events carry the changes, where they were applied
         for item in args.preset:
             estimator, sep, preset = item.partition("=")
@@ -126,7 +137,7 @@ async def _run(config: StationConfig, args: argparse.Namespace) -> int:
                 station.set_gain(estimator, name, value, "cli")
     except (KeyError, GainError) as exc:
         print(f"gcs protocol: {exc}", file=sys.stderr)
-        await station.stop()
+        await fleet.stop()
         return 2
     live = station.start_protocol(args.protocol, args.detect_source, "cli")
     done = asyncio.Event()
@@ -142,7 +153,7 @@ async def _run(config: StationConfig, args: argparse.Namespace) -> int:
         stop_keys()
         live.finish()
         session = station.recorder.session if station.recorder is not None else None
-        await station.stop()
+        await fleet.stop()
     complete = live.finished and not live.skipped
     if session is None:
         print("gcs protocol: not recorded (--no-record): no tables", file=sys.stderr)

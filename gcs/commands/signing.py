@@ -13,8 +13,9 @@ import sys
 import time
 
 from gcs.commands.options import add_link_arguments, station_config
+from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink.signing import KEY_BYTES, Signing, setup_signing_message
-from gcs.runtime.station import Station, StationConfig
+from gcs.runtime.station import StationConfig
 
 #: SETUP_SIGNING is not acknowledged: it is sent this many times, a little apart (a lost packet).
 SENDS = 3
@@ -28,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle",
     )
     add_link_arguments(setup)
+    add_sysid_argument(setup)
     setup.add_argument("--disable", action="store_true", help="send the all-zero key: the vehicle stops signing")
     setup.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the vehicle (default 10)")
 
@@ -44,19 +46,19 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # The vehicle does not know the key yet: the link itself is unsigned.
     config.signing_key, config.request_streams, config.estimate, config.record_dir = None, False, False, None
-    done, message = asyncio.run(_setup(config, key, args.timeout, disable=args.disable))
+    done, message = asyncio.run(_setup(config, args.sysid, key, args.timeout, disable=args.disable))
     print(message if done else f"gcs signing setup: {message}", file=sys.stdout if done else sys.stderr)
     return 0 if done else 1
 
 
-async def _setup(config: StationConfig, key: bytes, timeout: float, disable: bool) -> tuple[bool, str]:
+async def _setup(
+    config: StationConfig, sysid: int | None, key: bytes, timeout: float, disable: bool
+) -> tuple[bool, str]:
     """(done, what happened)."""
-    station = Station(config)
-    await station.start()
-    link = station.link
-    try:
+    async with one_vehicle(config, sysid) as (fleet, station):
+        link = station.link
         if not await link.wait_connected(timeout):
-            return False, f"no heartbeat from a vehicle on {config.connect} within {timeout:g} s"
+            return False, not_heard(fleet, timeout)
         sysid, compid = link.target_system or 1, link.target_component or 1
         if link.vehicle_mavlink == 1:
             return False, f"vehicle {sysid} speaks only MAVLink 1 (an APM 2.5?): signing needs MAVLink 2; nothing sent"
@@ -68,8 +70,6 @@ async def _setup(config: StationConfig, key: bytes, timeout: float, disable: boo
             return await _verify(beats, sysid, Signing(key), timeout, disable)
         finally:
             beats.close()
-    finally:
-        await station.stop()
 
 
 async def _verify(beats, sysid: int, signing: Signing, timeout: float, disable: bool) -> tuple[bool, str]:

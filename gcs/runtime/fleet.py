@@ -54,8 +54,14 @@ class _LinkBus(MessageBus):
 
 
 class Fleet:
-    def __init__(self, config: StationConfig, connects: Sequence[str] = ()) -> None:
+    """`single`: serve one vehicle only (the commands that address one: params, logs, signing,
+    protocol) — `sysid`, or the first heard without it; every other vehicle is ignored."""
+
+    def __init__(
+        self, config: StationConfig, connects: Sequence[str] = (), *, single: bool = False, sysid: int | None = None
+    ) -> None:
         self.config = config
+        self.single, self.sysid = single or sysid is not None, sysid
         addresses = list(connects) or [config.connect]
         self.links = [
             Link(
@@ -78,8 +84,10 @@ class Fleet:
         self._unbound: Station | None = first
         self._by_key: dict[tuple[int, int], VehicleLink] = {}  # (link index, sysid) -> the vehicle's view
         self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
-        self._elsewhere: set[tuple[int, int]] = set()  # (link, sysid) served on another link
+        self._ignored: set[tuple[int, int]] = set()  # (link, sysid): served on another link, or not followed
         self._started = False
+        #: the sysid of every vehicle heard, followed or not (what a `--sysid` never heard is told)
+        self.heard: set[int] = set()
         #: a vehicle heard for the first time (its core just started), on the event loop
         self.vehicle_added: Signal[[VehicleEntry]] = Signal()
 
@@ -117,8 +125,8 @@ class Fleet:
         if view is not None:
             view.deliver(item)
             return
-        if key in self._elsewhere:
-            return  # a vehicle served on another link
+        if key in self._ignored:
+            return  # a vehicle served on another link, or one a single-vehicle fleet does not follow
         if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg):
             self._adopt(index, item)
             return
@@ -131,9 +139,13 @@ class Fleet:
     def _adopt(self, index: int, item: Message) -> None:
         """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
         link = self.links[index]
+        self.heard.add(item.sysid)
+        if self.single and (self._unbound is None or self.sysid not in (None, item.sysid)):
+            self._ignored.add((index, item.sysid))
+            return
         served = self.vehicle(item.sysid)
         if served is not None:
-            self._elsewhere.add((index, item.sysid))
+            self._ignored.add((index, item.sysid))
             served.events.record("vehicle", "fleet", event="also heard", sysid=item.sysid, link=str(link.address))
             return
         if self._unbound is not None:
