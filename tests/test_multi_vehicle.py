@@ -431,3 +431,60 @@ def test_commands_address_the_vehicle_sysid_names(tmp_path: Path) -> None:
     said = f"gcs logs list: no heartbeat from vehicle sysid 7 on {where} within 4 s (vehicles heard: 1, 2)\n"
     assert never.stderr == said
 
+
+def test_pose_view_shows_every_vehicle_labelled() -> None:
+    """The viser scene with two vehicles on one port (sysid 1 on the bench script, sysid 2 flying
+    the quad script): a body for each, labelled with its sysid, each at its own vehicle's
+    attitude, and a gain folder per vehicle named the same way."""
+    from gcs.core.rotation import euler_to_quat
+    from gcs.server.scene import display_wxyz
+
+    port = free_port(socket.SOCK_DGRAM)
+
+    def onboard(station):
+        point = station.latest_attitudes()[0].get("onboard")
+        return None if point is None else (point.roll, point.pitch, point.yaw)
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}"))
+        server = DashboardServer(fleet.first, port=0, viser_port=free_port(socket.SOCK_STREAM), fleet=fleet)
+        await fleet.start()
+        await server.start()
+        procs = []
+        try:
+            for sysid, profile, script in ((1, "apm25", "bench"), (2, "pixhawk", "quad")):
+                command = [sys.executable, "-m", "gcs", "sim", "--profile", profile, "--script", script]
+                command += ["--sysid", str(sysid), "--link", f"udpout:127.0.0.1:{port}"]
+                procs.append(subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+            def apart() -> bool:  # both vehicles heard, their attitudes more than 3 degrees apart
+                attitudes = [onboard(e.station) for e in fleet.vehicles()]
+                return (
+                    len(attitudes) == 2 and None not in attitudes and max(abs(a - b) for a, b in zip(*attitudes)) > 0.05  # type: ignore[arg-type]
+                )
+
+            await wait_for(apart, 90, "two vehicles at different attitudes")
+            server.scene.update()
+            shown = [
+                (
+                    view.label.text if view.label else None,
+                    view.gains.folder.label,
+                    tuple(view.pose.onboard.wxyz),
+                    display_wxyz(euler_to_quat(*onboard(view.station))),
+                )
+                for view in server.scene.views
+            ]
+            sysids = [next(e.sysid for e in fleet.vehicles() if e.station is v.station) for v in server.scene.views]
+        finally:
+            for proc in procs:
+                stop_process(proc)
+            await server.stop()
+            await fleet.stop()
+        return shown, sysids
+
+    shown, sysids = asyncio.run(scenario())
+    assert sorted(sysids) == [1, 2]
+    for sysid, (label, folder, drawn, attitude) in zip(sysids, shown):
+        assert label == f"sysid {sysid}" and folder == f"Estimator gains, sysid {sysid}"
+        assert drawn == pytest.approx(attitude, abs=1e-6)  # its own vehicle's attitude
+    assert shown[0][2] != pytest.approx(shown[1][2], abs=1e-3)

@@ -20,7 +20,7 @@ from gcs.sessions.workbench import warm_up
 if TYPE_CHECKING:
     from viser import ViserServer
 
-    from gcs.server.scene import PoseView
+    from gcs.server.fleet_scene import FleetScene
 
 #: Pose view refresh, Hz (the eye does not need the 200 Hz the plots get).
 POSE_HZ = 30.0
@@ -103,17 +103,17 @@ class DashboardServer:
         self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
 
     def _start_viser(self) -> None:
-        from gcs.server.scene import GainTable, LocalViserServer, PoseView  # noqa: PLC0415 - imports viser
+        from gcs.server.fleet_scene import FleetScene  # noqa: PLC0415 - imports viser
+        from gcs.server.scene import LocalViserServer  # noqa: PLC0415
 
         server = LocalViserServer(self.host, self.viser_port or self.port + 1)
         self.viser = server
         self.viser_port = server.get_port()
-        self.pose: PoseView = PoseView(server, self.station.estimator_names())
-        self.station.events.recorded.connect(GainTable(server, self.station).reflect)
+        self.scene: FleetScene = FleetScene(server, self.station, self.fleet)
 
     async def _pose_loop(self) -> None:
         while True:
-            self.pose.update(*self.station.latest_attitudes())
+            self.scene.update()
             await asyncio.sleep(1.0 / POSE_HZ)
 
     async def stop(self) -> None:

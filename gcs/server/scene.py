@@ -47,8 +47,10 @@ def display_wxyz(q) -> tuple[float, float, float, float]:
     return float(q[0]), float(q[1]), -float(q[2]), -float(q[3])
 
 
-def add_ground(server: viser.ViserServer) -> None:
-    server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, position=(0.0, 0.0, -0.6))
+def add_ground(server: viser.ViserServer, width: float = 4.0, height: float = 4.0, y: float = 0.0) -> None:
+    """The grid (width along north, height along west, centred at y west; re-added as a fleet
+    grows) and north."""
+    server.scene.add_grid("/grid", width=width, height=height, cell_size=0.25, position=(0.0, y, -0.6))
     server.scene.add_frame("/ground/nwu", axes_length=0.4, axes_radius=0.01)
     server.scene.add_label("/ground/north", "N", position=(2.1, 0.0, 0.0))
     server.initial_camera.position = (-2.2, -2.2, 1.4)
@@ -56,33 +58,33 @@ def add_ground(server: viser.ViserServer) -> None:
 
 
 def add_vehicle(
-    server: viser.ViserServer, name: str, color: tuple[int, int, int], opacity: float | None, axes_length: float
+    server: viser.ViserServer, path: str, color: tuple[int, int, int], opacity: float | None, axes_length: float
 ) -> viser.FrameHandle:
-    """A quadcopter-like body under a frame /name: fuselage, two arms, a nose marker, body axes."""
-    frame = server.scene.add_frame(f"/{name}", axes_length=axes_length, axes_radius=0.012)
-    server.scene.add_box(f"/{name}/fuselage", color=color, dimensions=(0.7, 0.16, 0.08), opacity=opacity)
+    """A quadcopter-like body under a frame `path`: fuselage, two arms, a nose marker, body axes."""
+    frame = server.scene.add_frame(path, axes_length=axes_length, axes_radius=0.012)
+    server.scene.add_box(f"{path}/fuselage", color=color, dimensions=(0.7, 0.16, 0.08), opacity=opacity)
     for k, angle in enumerate((math.pi / 4, -math.pi / 4)):
         server.scene.add_box(
-            f"/{name}/arm{k}",
+            f"{path}/arm{k}",
             color=color,
             dimensions=(0.9, 0.04, 0.03),
             opacity=opacity,
             wxyz=(math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)),
         )
     server.scene.add_icosphere(
-        f"/{name}/nose", radius=0.06, color=(250, 200, 0), opacity=opacity, position=(0.38, 0.0, 0.0)
+        f"{path}/nose", radius=0.06, color=(250, 200, 0), opacity=opacity, position=(0.38, 0.0, 0.0)
     )
     return frame
 
 
 class PoseView:
-    """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output."""
+    """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output;
+    under the frame `root` (a fleet's vehicle, gcs.server.fleet_scene)."""
 
-    def __init__(self, server: viser.ViserServer, estimators: list[str]) -> None:
-        add_ground(server)
-        self.onboard = add_vehicle(server, "onboard", COLORS["onboard"], None, axes_length=0.5)
+    def __init__(self, server: viser.ViserServer, estimators: list[str], root: str = "") -> None:
+        self.onboard = add_vehicle(server, f"{root}/onboard", COLORS["onboard"], None, axes_length=0.5)
         self.ghosts = {
-            name: add_vehicle(server, f"ghost_{name}", COLORS.get(name, OTHER), GHOST_OPACITY, axes_length=0.35)
+            name: add_vehicle(server, f"{root}/ghost_{name}", COLORS.get(name, OTHER), GHOST_OPACITY, axes_length=0.35)
             for name in estimators
         }
 
@@ -103,7 +105,7 @@ class GainTable:
     def __init__(self, server: viser.ViserServer, station: StationFacade) -> None:
         self.station = station
         self.tables: dict[str, viser.GuiMarkdownHandle] = {}
-        with server.gui.add_folder("Estimator gains", expand_by_default=False):
+        with server.gui.add_folder("Estimator gains", expand_by_default=False) as self.folder:
             server.gui.add_markdown("Read-only here: change gains on the dashboard page.")
             for name in station.estimator_names():
                 self.tables[name] = server.gui.add_markdown(self.table(name))
