@@ -28,7 +28,7 @@ GYRO_NOISE, HEADING_NOISE, BIAS_WALK, ACC_NOISE = (
 ACC_GATE, VEL_NOISE, GPS_NOISE, GPS_DELAY = _G["acc_gate"], _G["vel_noise"], _G["gps_noise"], _G["gps_delay"]
 GPS_TIMEOUT, MAG_NOISE, REST_GYRO, REST_ACC_G = _G["gps_timeout"], _G["mag_noise"], _G["rest_gyro"], _G["rest_acc"]
 REST_TIME, REST_NOISE, REST_ACC_NOISE, MAX_GAP = _G["rest_time"], _G["rest_noise"], _G["rest_acc_noise"], _G["max_gap"]
-SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
+SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
 _MAG = (
     "mag_norm_tol",
     "mag_dip_tol",
@@ -49,7 +49,8 @@ ACC_INFLATION, VEL_INNOV, GPS_NIS, GPS_AIDED, MAG_NIS, MAG_INNOV_DEG, MAG_REJECT
     B + 18, B + 27
 )
 P = B + 27  # 9×9
-SIZE = P + 81
+GYRO_PREV_SET, GYRO_PREV = P + 81, P + 82  # flag, 3: the last sample's gyro (picked samples)
+SIZE = P + 85
 #: the stats that are counts or flags (ints in the reference's health)
 _INT_STATS = ("gps_aided", "mag_rejected", "at_rest", "dropped")
 _STATS = (
@@ -188,8 +189,18 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     shock = k.shock_update(s, t, a_norm, spin, g[GYRO_LIMIT], g[SHOCK_ACC], g[SHOCK_HOLD])
     # -- _predict
     bx, by, bz = s[BIAS], s[BIAS + 1], s[BIAS + 2]
+    w0, w1, w2 = g0 - bx, g1 - by, g2 - bz
+    if s[GYRO_PREV_SET] == 0.0 or dt <= g[PICK_DT]:
+        t0, t1, t2 = w0 * dt, w1 * dt, w2 * dt
+    else:  # picked samples: trapezoid + coning between the last two rates
+        p0, p1, p2 = s[GYRO_PREV] - bx, s[GYRO_PREV + 1] - by, s[GYRO_PREV + 2] - bz
+        h, c = 0.5 * dt, dt * dt / 12.0
+        t0 = (p0 + w0) * h + (p1 * w2 - p2 * w1) * c
+        t1 = (p1 + w1) * h + (p2 * w0 - p0 * w2) * c
+        t2 = (p2 + w2) * h + (p0 * w1 - p1 * w0) * c
+    s[GYRO_PREV_SET], s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2] = 1.0, g0, g1, g2
     q = (s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3])
-    q = k.quat_unit(k.quat_mul(q, k.quat_exp((g0 - bx) * dt, (g1 - by) * dt, (g2 - bz) * dt)))
+    q = k.quat_unit(k.quat_mul(q, k.quat_exp(t0, t1, t2)))
     s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = q
     R = k.quat_rows(q)
     if shock:
@@ -428,6 +439,7 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), g["declination"])
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
         s[V : V + 3] = 0.0
+        s[GYRO_PREV_SET] = 0.0
         s[V_OFFSET : V_OFFSET + 3] = 0.0
         s[HIST_HEAD] = s[HIST_N] = 0.0
         s[GPS_T_FUSED] = -math.inf

@@ -42,7 +42,7 @@ K_Q, DT_REF, EXACT, COS_MIN, GIMBAL_R = (
 ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
-GPS_GAIN, GPS_SPEED_MIN, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"]
+GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
 _MAG = (
     "mag_norm_tol",
@@ -188,11 +188,14 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     if exact:
         a0, a1, a2 = s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2]
         c = dt * dt / 12.0
-        turn = k.quat_exp(
-            0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
-            0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
-            0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
-        )
+        if dt <= g[PICK_DT]:
+            turn = k.quat_exp(b0 * dt, b1 * dt, b2 * dt)
+        else:
+            turn = k.quat_exp(
+                0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
+                0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
+                0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
+            )
         q = k.quat_unit(k.quat_mul(k.euler_quat(x0, x1, x2), turn))
         ang = k.quat_to_euler(q)
         rates = _euler_rates(ang[0], ang[1], b0, b1, b2, cmin)
