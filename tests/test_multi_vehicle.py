@@ -488,3 +488,23 @@ def test_pose_view_shows_every_vehicle_labelled() -> None:
         assert label == f"sysid {sysid}" and folder == f"Estimator gains, sysid {sysid}"
         assert drawn == pytest.approx(attitude, abs=1e-6)  # its own vehicle's attitude
     assert shown[0][2] != pytest.approx(shown[1][2], abs=1e-3)
+
+
+def test_sysid_not_heard_on_a_silent_link_is_one_line() -> None:
+    """`signing setup` and `protocol run` name the sysid they waited for, and that no vehicle
+    was heard at all, in one line each (no vehicle on the port; nothing recorded)."""
+    where = f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+    runs = {
+        "signing setup": ["signing", "setup", "--signing-key", "a passphrase", "--timeout", "2"],
+        "protocol": ["protocol", "run", "seed000-bench", "--no-record", "--timeout", "2"],
+    }
+    for command, args in runs.items():
+        done = subprocess.run(
+            [sys.executable, "-m", "gcs", *args, "--connect", where, "--sysid", "5"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        said = f"gcs {command}: no heartbeat from vehicle sysid 5 on {where} within 2 s (vehicles heard: none)\n"
+        assert done.returncode == 1 and done.stderr == said, (command, done.stderr)

@@ -24,7 +24,8 @@ from gcs.sessions.protocol import available_protocols, formatted, load_protocol,
 #: The protocol results written into the session folder at the end of a run.
 RESULTS_NAME = "protocol.csv"
 
-#: Seconds to wait for the vehicle `--sysid` names before giving up (without it, the run waits).
+#: Seconds to wait for the vehicle `--sysid` names (or --timeout if less) before giving up;
+#: without --sysid the run waits for the first vehicle.
 SYSID_WAIT = 15.0
 
 _KEYS = """\
@@ -122,8 +123,9 @@ async def _run(config: StationConfig, args: argparse.Namespace) -> int:
         print(f"gcs protocol: {exc}", file=sys.stderr)
         return 2
     await fleet.start()
-    if args.sysid is not None and not await station.link.wait_connected(SYSID_WAIT):
-        print(f"gcs protocol: {not_heard(fleet, SYSID_WAIT)}", file=sys.stderr)
+    wait = min(SYSID_WAIT, args.timeout or SYSID_WAIT)
+    if args.sysid is not None and not await station.link.wait_connected(wait):
+        print(f"gcs protocol: {not_heard(fleet, wait)}", file=sys.stderr)
         await fleet.stop()
         return 1
     try:  # once recording: the session's events carry the changes, where they were applied
