@@ -316,7 +316,8 @@ def test_routing_by_link_and_sysid() -> None:
 def test_out_forwards_every_link() -> None:
     """`--out` behind a fleet of two links: a client there (a MAVProxy's view, raw UDP) sees all
     three vehicles in the bytes the links received, and its requests reach the vehicle they
-    address on the link it is on (vehicle 3's only on the second link), answered."""
+    address on the link it is on (vehicle 3's only on the second link), answered, and counted
+    (recorded) by that vehicle's core only."""
     ports = [free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)]
     out_port = free_port(socket.SOCK_DGRAM)
     config = StationConfig(
@@ -352,6 +353,8 @@ def test_out_forwards_every_link() -> None:
         sent: list[list[bytes]] = [[], []]
         for link, packets in zip(fleet.links, sent):
             link.packet_sent.connect(packets.append)
+        by_vehicle: dict[int, list[bytes]] = {1: [], 2: [], 3: []}
+        fleet.vehicle_added.connect(lambda e: e.station.link.packet_sent.connect(by_vehicle[e.sysid].append))
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", out_port))
         stop = threading.Event()
@@ -368,9 +371,9 @@ def test_out_forwards_every_link() -> None:
             sock.close()
             await fleet.stop()
         arrived = [{m.raw for m in sub.drain()} for sub in received]
-        return seen, arrived, sent, fleet.outputs[0].snapshot()
+        return seen, arrived, sent, by_vehicle, fleet.outputs[0].snapshot()
 
-    seen, arrived, sent, output = asyncio.run(scenario())
+    seen, arrived, sent, by_vehicle, output = asyncio.run(scenario())
     assert {1, 2, 3} <= set(seen)
     for sysid, _, link in VEHICLES:  # the vehicles' packets, byte for byte as their link received them
         assert {bytes(m.get_msgbuf()) for m in seen[sysid]} <= arrived[link]
@@ -379,16 +382,15 @@ def test_out_forwards_every_link() -> None:
         assert answer.param_id == name.decode()
     # each request went out on the link of the vehicle it addresses, and only there
     names = {name.decode() for name in asks.values()}
-    asked_on = [
-        {m.target_system for m in MavlinkDecoder().feed(b"".join(packets), final=True) if _param_asked(m) in names}
-        for packets in sent
-    ]
-    assert asked_on == [{2}, {3}]
+    assert [_asked(packets, names) for packets in sent] == [{2}, {3}]
+    assert {sysid: _asked(packets, names) for sysid, packets in by_vehicle.items()} == {1: set(), 2: {2}, 3: {3}}
     assert output.packets_in > 0 and output.packets_out > 0
 
 
-def _param_asked(msg) -> str | None:
-    return msg.param_id if msg.get_type() == "PARAM_REQUEST_READ" else None
+def _asked(packets: list[bytes], names: set[str]) -> set[int]:
+    """The systems asked for one of these parameters in these packets."""
+    msgs = MavlinkDecoder().feed(b"".join(packets), final=True)
+    return {m.target_system for m in msgs if m.get_type() == "PARAM_REQUEST_READ" and m.param_id in names}
 
 
 def test_commands_address_the_vehicle_sysid_names(tmp_path: Path) -> None:

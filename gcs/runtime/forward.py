@@ -53,8 +53,12 @@ class Output:
         for msg in self.decoder.feed(data, final=self._datagram):
             self.packets_in += 1
             packet = bytes(msg.get_msgbuf())
-            target = self._heard_on.get(getattr(msg, "target_system", 0) or -1)
-            for link in self.links if target is None else (target,):
+            system = getattr(msg, "target_system", 0)
+            target = self._heard_on.get(system or -1)
+            if target is not None:
+                target.send_raw(packet, system)
+                continue
+            for link in self.links:
                 link.send_raw(packet)
 
     def _set_transport(self, transport: Transport | None) -> None:

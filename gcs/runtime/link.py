@@ -124,6 +124,7 @@ class Link:
         self.target_component: int | None = None
         self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
         self.last_heartbeat: float | None = None  # host monotonic s
+        self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         #: MAVLink 2 signing (gcs.mavlink.signing): what we send is signed, what arrives checked
         self.signing = signing
@@ -175,13 +176,19 @@ class Link:
             encoder.mavlink1 = not mavlink1
         self.send_raw(packet)
 
-    def send_raw(self, packet: bytes) -> None:
+    def send_raw(self, packet: bytes, system: int | None = None) -> None:
+        """`system`: the one system the packet is for (a forwarded one, gcs.runtime.forward), so
+        only that vehicle's view of a shared link counts and records it (gcs.runtime.vehicle_link)."""
         if self._transport is None or self.address.framing == "ascii":  # a text device reads no MAVLink
             return
         self._transport.write(packet)
         self.stats.bytes_out += len(packet)
         self.stats.packets_out += 1
-        self.packet_sent.emit(packet)
+        self.addressed = system
+        try:
+            self.packet_sent.emit(packet)
+        finally:
+            self.addressed = None
 
     def snapshot(self) -> LinkSnapshot:
         now = time.monotonic()

@@ -22,8 +22,9 @@ class VehicleLink(Link):
     """Created unbound (the first vehicle's core exists before anything is heard, as a one-vehicle
     station's does) or bound; `bind` ties it to the link and vehicle it serves."""
 
-    #: the view sending now: the link's `packet_sent` is its alone (others see only untargeted
-    #: packets: the station's heartbeats, forwarded ones). Sends are synchronous, on the loop.
+    #: the view sending now: the link's `packet_sent` is its alone (others see only the station's
+    #: heartbeats and forwarded packets not for one system, `Link.addressed`). Sends are
+    #: synchronous, on the loop.
     _sender: ClassVar[VehicleLink | None] = None
 
     def __init__(self, link: Link) -> None:
@@ -68,18 +69,18 @@ class VehicleLink(Link):
         finally:
             VehicleLink._sender = None
 
-    def send_raw(self, packet: bytes) -> None:
+    def send_raw(self, packet: bytes, system: int | None = None) -> None:
         if self.link is None:
             return
         VehicleLink._sender = self
         try:
-            self.link.send_raw(packet)
+            self.link.send_raw(packet, system)
         finally:
             VehicleLink._sender = None
 
     def _on_link_sent(self, packet: bytes) -> None:
-        if VehicleLink._sender not in (None, self):
-            return  # addressed to another vehicle on this link
+        if VehicleLink._sender not in (None, self) or self._shown.addressed not in (None, self.target_system):
+            return  # addressed to another vehicle on this link (by its core, or forwarded)
         self.stats.bytes_out += len(packet)
         self.stats.packets_out += 1
         self.packet_sent.emit(packet)
