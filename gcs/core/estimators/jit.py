@@ -1,53 +1,45 @@
-"""numba for the estimators' kernels, compiled once and cached to disk.
+"""numba for the estimators' per-sample kernels, compiled once and cached to disk.
 
-numba keys a cached function on its own source file only, not on the functions it calls: after
-an edit of kernels.py, or of a step kernel the whole-run loop (whole.py) inlines, it would load
-stale machine code. So the cache lives in a folder named by a hash of every source the kernels
-are compiled from (this package, core.rotation, core.samples): any edit there starts a new cache
-(and the old folders are removed). The folder is beside the package (`__pycache__`) when that
-is writable, else under the user's cache directory (a pipx or system install). NUMBA_CACHE_DIR
-set by the user wins. All this must happen before numba is imported.
+numba checks a cached kernel only against the file of the function it compiled, not against what
+that function calls or reads (rotation formulas, a gain's position in the state), so a cache
+could outlive a change to `kernels.py` or a reference estimator. The cache therefore lives in a
+folder named after a hash of every source under `gcs.core`: changed code gets a fresh cache.
+The folder sits beside the package when it is writable and under the user's cache directory when
+it is not (a pipx or system install); a NUMBA_CACHE_DIR the user set is the base instead.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-import shutil
 from pathlib import Path
 
-_HERE = Path(__file__).parent
-#: What the kernels are compiled from, besides this package's modules.
-_SOURCES = (_HERE.parent / "rotation.py", _HERE.parent / "samples.py")
+import numba
+
+CORE = Path(__file__).resolve().parents[1]
 
 
-def _source_hash() -> str:
-    digest = hashlib.sha1()
-    for path in sorted(_HERE.glob("*.py")) + list(_SOURCES):
-        digest.update(path.name.encode())
+def source_hash(root: Path = CORE) -> str:
+    """The first 16 hex digits of a SHA-256 over every .py file under root, in path order."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 
 
-def _cache_dir() -> None:
+def cache_base() -> Path:
+    """Where cached kernels go before the source hash is appended."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return
-    here = _HERE / "__pycache__"
-    writable = os.access(_HERE, os.W_OK) and (not here.exists() or os.access(here, os.W_OK))
-    base = here if writable else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gcs"
-    name = f"numba-{_source_hash()}"
-    try:
-        for old in base.glob("numba-*"):
-            if old.name != name:
-                shutil.rmtree(old, ignore_errors=True)
-    except OSError:
-        pass  # another process is at it; a stale folder costs only disk
-    os.environ["NUMBA_CACHE_DIR"] = str(base / name)
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    pycache = Path(__file__).parent / "__pycache__"
+    writable = pycache if pycache.exists() else pycache.parent
+    if os.access(writable, os.W_OK):
+        return pycache / "numba"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gcs" / "numba"
 
 
-_cache_dir()
-
-import numba  # noqa: E402 - after NUMBA_CACHE_DIR is settled
+numba.config.CACHE_DIR = str(cache_base() / source_hash())  # type: ignore[attr-defined]
 
 #: Compiled in nopython mode, cached on disk; no fastmath: the results must equal the reference's.
 kernel = numba.njit(cache=True, nogil=True)
