@@ -28,7 +28,6 @@ function onMessage(msg) {
   gcsStats.messages++;
   gcsStats.lastFrameAt = performance.now();
   if (msg.type === "points") ingestFrame(msg);
-  else if (msg.type === "batch") msg.frames.forEach(onMessage);
   else if (msg.type === "gain") showGain(msg.estimator, msg.gain, msg.new);
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
@@ -54,12 +53,14 @@ async function catchUp() {
 
 function connect() {
   const ws = (window.gcsWs = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/live`));
+  ws.binaryType = "arraybuffer";  // points come as binary frames (wire.js), control messages as JSON text
   let queue = [];  // frames that arrive while the history loads, applied after it
   ws.onopen = async () => {
     try { await catchUp(); } catch (e) { console.warn("history:", e.message); }
     queue.forEach(onMessage); queue = null;
   };
-  ws.onmessage = (ev) => { const msg = JSON.parse(ev.data); if (queue) queue.push(msg); else onMessage(msg); };
+  const take = (msg) => { if (queue) queue.push(msg); else onMessage(msg); };
+  ws.onmessage = (ev) => { if (typeof ev.data === "string") take(JSON.parse(ev.data)); else decodeWire(ev.data, take); };
   ws.onclose = () => setTimeout(connect, 1000);
 }
 
