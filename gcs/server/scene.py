@@ -25,6 +25,19 @@ from gcs.server.colors import COLORS, OTHER
 GHOST_OPACITY = 0.35
 
 
+#: Style for viser's own page, sent as raw HTML (`gui.add_html`, which its client renders
+#: unsanitized, so a <style> applies to the whole frame). In a frame narrower than viser's mobile
+#: breakpoint (Mantine's xs, 36em: the dashboard's 3-D view on a phone) viser's panel is a bottom
+#: sheet over the scene, open at start; and with software WebGL (a laptop without GPU drivers,
+#: headless Chromium) a notice covers the top of the view until closed. The page has the gains and
+#: the controls, so in the dashboard's frame both go: the view shows the scene and nothing over it.
+#: tests/test_layout.py measures what is left inside the frame.
+EMBEDDED_STYLE = """<style>
+.mantine-Notifications-root { display: none !important; }
+@media (max-width: 36em) { .mantine-Paper-root[style*="position: fixed"] { display: none !important; } }
+</style>"""
+
+
 class LocalViserServer(viser.ViserServer):
     """viser, kept on this network: its share button asks viser's relay for a public URL to the
     view, and any client may send that request (viser has no authentication). At the field there
@@ -33,10 +46,11 @@ class LocalViserServer(viser.ViserServer):
 
     def __init__(self, host: str, port: int) -> None:
         super().__init__(host=host, port=port, verbose=False, label="gcs pose")
-        self.gui.configure_theme(show_share_button=False)
+        self.gui.configure_theme(show_share_button=False, show_logo=False)
         # The page's gain panel is the control: viser's panel starts minimized to its title bar, so
-        # it never covers the vehicle (at 600 px and wider; viser shows a bottom sheet below 576 px).
+        # it never covers the vehicle (at 600 px and wider); narrower, it is hidden (EMBEDDED_STYLE).
         self.gui.main_panel.minimize()
+        self.gui.add_html(EMBEDDED_STYLE, order=-1.0)
 
     def request_share_url(self, verbose: bool = True) -> str | None:
         return None
