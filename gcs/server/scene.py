@@ -4,9 +4,10 @@
 which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
 The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
 ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs at
-about 30 Hz on the event loop (viser handles are thread-safe). The panel, minimized at start so it
-does not cover the scene: every estimator's gains as read-only text in their own units, following the
-gain events (viser has no authentication: changes are made on the page).
+about 30 Hz on the event loop (viser handles are thread-safe) and moves only what visibly turned.
+The panel, minimized at start so it does not cover the scene (hidden in a phone's frame): every
+estimator's gains as read-only text in their own units, following the gain events (viser has no
+authentication: changes are made on the page).
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ def display_wxyz(q) -> tuple[float, float, float, float]:
 
 
 def add_ground(server: viser.ViserServer) -> None:
+    # No shadow maps: with software WebGL (no GPU driver; headless Chromium) every frame of the
+    # view is paid in CPU the plots and the station need (bench.page_fps). The image-based
+    # lighting stays: without it the colours that tell the estimators apart turn near black.
+    server.scene.configure_default_lights(cast_shadow=False)
     server.scene.add_grid("/ground", width=4.0, height=4.0, cell_size=0.25, position=(0.0, 0.0, -0.6))
     server.scene.add_frame("/ground/nwu", axes_length=0.4, axes_radius=0.01)
     server.scene.add_label("/ground/north", "N", position=(2.1, 0.0, 0.0))
@@ -89,8 +94,19 @@ def add_vehicle(
     return frame
 
 
+def turned(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Angle (rad) of the rotation between two unit quaternions (w, x, y, z)."""
+    return 2.0 * math.acos(min(1.0, abs(sum(p * q for p, q in zip(a, b, strict=True)))))
+
+
 class PoseView:
-    """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output."""
+    """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output.
+    A body is moved only once it turned by more than `MIN_TURN` since it was last drawn: every
+    change keeps viser's client rendering for the next 250 ms, which with software WebGL costs
+    half a core (bench.page_fps), so a vehicle at rest costs nothing to watch."""
+
+    #: rad, below what the eye sees at the view's scale
+    MIN_TURN = math.radians(0.2)
 
     def __init__(self, server: viser.ViserServer, estimators: list[str]) -> None:
         add_ground(server)
@@ -99,14 +115,20 @@ class PoseView:
             name: add_vehicle(server, f"ghost_{name}", COLORS.get(name, OTHER), GHOST_OPACITY, axes_length=0.35)
             for name in estimators
         }
+        self.drawn: dict[str, tuple[float, float, float, float]] = {}
 
     def update(self, latest: dict[str, AttitudePoint], quaternions: dict[str, np.ndarray]) -> None:
         onboard = latest.get("onboard")
         if onboard is not None:
-            self.onboard.wxyz = display_wxyz(euler_to_quat(onboard.roll, onboard.pitch, onboard.yaw))
+            self._move("onboard", self.onboard, display_wxyz(euler_to_quat(onboard.roll, onboard.pitch, onboard.yaw)))
         for name, ghost in self.ghosts.items():
             if name in latest:
-                ghost.wxyz = display_wxyz(quaternions[name])
+                self._move(name, ghost, display_wxyz(quaternions[name]))
+
+    def _move(self, name: str, frame: viser.FrameHandle, wxyz: tuple[float, float, float, float]) -> None:
+        drawn = self.drawn.get(name)
+        if drawn is None or turned(drawn, wxyz) > self.MIN_TURN:
+            frame.wxyz = self.drawn[name] = wxyz
 
 
 class GainTable:
