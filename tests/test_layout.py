@@ -8,15 +8,11 @@ corners); screenshots of both into test-artifacts/ (layout-laptop.png, layout-ph
 from __future__ import annotations
 
 import asyncio
-import os
 
 import pytest
 from conftest import free_port
-from live import running_station, sim_process
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
-
-from gcs.server.dashboard import DashboardServer
 
 VIEWPORTS = {"laptop": (1366, 768), "phone": (390, 844)}
 # The page's blocks: none may overlap another, none may reach past the viewport's width. A wide
@@ -83,12 +79,6 @@ JS_POSE_FRAME = """() => {
 }"""
 
 
-@pytest.fixture(autouse=True)
-def _chromium_installed() -> None:
-    if not os.path.exists(CHROMIUM):
-        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
-
-
 @pytest.mark.timeout(900)  # under a minute on a quiet machine
 def test_layout_laptop_and_phone(udp_port, artifacts_dir):
     report = asyncio.run(asyncio.wait_for(scenario(udp_port, artifacts_dir), 840))
@@ -111,33 +101,26 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
         sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
     ):
-        server = DashboardServer(station, port=0, viser_port=free_port())
-        await server.start()
-        try:
-            async with async_playwright() as pw:
-                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                for name, (width, height) in VIEWPORTS.items():
-                    page = await browser.new_page(viewport={"width": width, "height": height})
-                    page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-                    page.on("pageerror", lambda e: errors.append(str(e)))
-                    await page.goto(server.url, timeout=300_000, wait_until="commit")
-                    for ready in (
-                        "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
-                        "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
-                        "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
-                    ):
-                        await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
-                    await page.wait_for_timeout(3000)  # a few draws and a track point or two
-                    report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
-                    pose = await (await page.wait_for_selector("#pose")).content_frame()
-                    assert pose is not None
-                    await pose.wait_for_selector("canvas", timeout=120_000)
-                    report[name]["pose_frame"] = await pose.evaluate(JS_POSE_FRAME)
-                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
-                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
-                    await page.close()
-                await browser.close()
-        finally:
-            await server.stop()
+        async with dashboard(station, viser_port=free_port()) as server, async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            for name, (width, height) in VIEWPORTS.items():
+                page = await open_page(browser, errors, width, height)
+                await page.goto(server.url, timeout=300_000, wait_until="commit")
+                for ready in (
+                    "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
+                    "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
+                    "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
+                ):
+                    await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
+                await page.wait_for_timeout(3000)  # a few draws and a track point or two
+                report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
+                pose = await (await page.wait_for_selector("#pose")).content_frame()
+                assert pose is not None
+                await pose.wait_for_selector("canvas", timeout=120_000)
+                report[name]["pose_frame"] = await pose.evaluate(JS_POSE_FRAME)
+                await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
+                await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
+                await page.close()
+            await browser.close()
     assert errors == [], errors
     return report
