@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from gcs.core.estimators import registry
 from gcs.transport.address import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -14,6 +15,14 @@ SHARED = ROOT.parent / "shared"
 DATA = SHARED / "data"
 LOGS = DATA / "logs"
 ARTIFACTS = ROOT / "test-artifacts"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_estimators() -> None:
+    """Compile the estimators' kernels (or load them from numba's disk cache) once, before any
+    test: on a fresh clone that takes tens of seconds, which would otherwise land inside the first
+    live test's deadlines (a live station estimates only once its kernels are ready)."""
+    registry.warm()
 
 
 @pytest.fixture

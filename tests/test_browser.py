@@ -8,6 +8,7 @@ import asyncio
 import io
 import time
 
+import httpx
 from conftest import free_port
 from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process
 from PIL import Image
@@ -27,6 +28,7 @@ def test_dashboard_in_chromium(udp_port, artifacts_dir):
     assert report["console_errors"] == [], report["console_errors"]
     assert report["attitude_delivery"] >= 0.95, report
     assert report["slider_latency_s"] < 2.0, report
+    assert report["script_gain_shown_s"] < 10.0, report
     assert report["pose_view_colours"] > 20, report
     # the lag's sign is explained on the page without hovering, and the declination's source shown
     assert "lag +20 ms = estimator 20 ms behind onboard" in report["status_note"], report["status_note"]
@@ -56,6 +58,7 @@ async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
         report.update(await attitude_delivery(station, page))
         report["server_feed"] = [c.snapshot() for c in server.hub.clients.values()]
         report["slider_latency_s"] = await slider_latency(page)
+        report["script_gain_shown_s"] = await script_gain_shown(server, page)
         report["fps"] = await page.evaluate("gcsStats.fps")
         report["pose_view_colours"] = await pose_view_colours(page)
         await page.screenshot(path=str(artifacts_dir / "dashboard.png"))
@@ -103,6 +106,18 @@ async def slider_latency(page) -> float:
         f"Math.abs({JS_YAW_ERROR}) > 5 && (window.gcsSeen = performance.now())", polling=POLL_MS, timeout=10_000
     )
     return await page.evaluate("(window.gcsSeen - window.gcsMoved) / 1000")
+
+
+async def script_gain_shown(server, page) -> float:
+    """A gain a script changes (REST, with the token) reaches the page's gain box: the event
+    travels in the live stream as a JSON frame between the points (wire.js). Seconds to show it."""
+    box = "document.querySelector('[data-estimator=dcm][data-gain=kp_rp]').parentElement.querySelector('[type=number]')"
+    async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers) as api:
+        start = time.monotonic()
+        answer = await api.put("/api/estimators/dcm/gains/kp_rp", json={"value": 0.3125})
+        assert answer.status_code == 200, answer.text
+    await page.wait_for_function(f"{box}.value === '0.3125'", polling=POLL_MS, timeout=10_000)
+    return round(time.monotonic() - start, 3)
 
 
 JS_YAW_ERROR = (

@@ -10,6 +10,7 @@ import math
 from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
 from gcs.core.gains import PresetFile
+from gcs.runtime.fleet import Fleet
 from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
 from gcs.transport.address import free_port
@@ -59,15 +60,16 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
 
     port = free_port()
     config = StationConfig(f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args), presets=presets)
-    station = Station(config)
+    fleet = Fleet(config)
+    station = fleet.first
     sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
     print(
         f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
         flush=True,
     )
 
-    server = dashboard(station, args)
-    await station.start()
+    server = dashboard(fleet, args)
+    await fleet.start()
     sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
     await server.start()
     print(f"gcs demo: dashboard at {server.url}  (3-D view on port {server.viser_port})", flush=True)
@@ -80,7 +82,7 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
     finally:
         sim_task.cancel()
         await server.stop()
-        await station.stop()
+        await fleet.stop()
         await asyncio.gather(sim_task, return_exceptions=True)
 
 

@@ -15,19 +15,26 @@ from gcs.transport.pipes import probe_serial
 
 
 def add_link_arguments(
-    parser: argparse.ArgumentParser, connect_required: bool = True, *, streams: bool = True, record: str = "default"
+    parser: argparse.ArgumentParser,
+    connect_required: bool = True,
+    *,
+    streams: bool = True,
+    record: str = "default",
+    several: bool = False,
 ) -> None:
     """--connect and the link and forwarding options; with `streams`, the stream-rate, replay
     speed and ascii-line options (what the estimators need); `record`: "default" records unless
     --no-record (serve, protocol), "opt-in" only with --record (status, params: a quick look
-    leaves no session folder behind)."""
+    leaves no session folder behind); `several`: --connect repeatable (a fleet: serve, status)."""
     parser.add_argument(
         "--connect",
         required=connect_required,
+        action="append" if several else "store",
         metavar="URL",
         help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:0.0.0.0:5760, "
         "a serial device, or a .tlog to replay"
-        + ("; ascii:ADDRESS for text attitude lines (seed 000's firmware)" if streams else ""),
+        + ("; ascii:ADDRESS for text attitude lines (seed 000's firmware)" if streams else "")
+        + ("; repeatable: every vehicle heard on every link is served" if several else ""),
     )
     parser.add_argument("--baud", default="57600", help="serial baud rate, or 'auto' (default 57600)")
     parser.add_argument(
@@ -108,7 +115,8 @@ def station_config(args: argparse.Namespace):
     """The StationConfig the link options ask for; AddressError/ValueError for bad options,
     OSError (one line) for a serial port that cannot be opened now."""
 
-    addresses = [parse_address(address) for address in (args.connect, *args.out)]
+    connects = links_of(args)
+    addresses = [parse_address(address) for address in (*connects, *args.out)]
     if args.baud != "auto" and not args.baud.isdigit():
         raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
@@ -116,7 +124,7 @@ def station_config(args: argparse.Namespace):
         if address.kind == "serial" and address.path:
             probe_serial(address.path, 57600 if baud == "auto" else baud)
     config = StationConfig(
-        connect=args.connect,
+        connect=connects[0],
         baud=baud,
         outputs=args.out,
         heartbeat_timeout=args.heartbeat_timeout,
@@ -129,6 +137,12 @@ def station_config(args: argparse.Namespace):
         config.plan = StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate)
         config.ascii_format = AsciiFormat.parse(args.ascii_fields, args.ascii_unit)
     return config
+
+
+def links_of(args: argparse.Namespace) -> list[str]:
+    """Every --connect address, in order (one, or several where --connect repeats)."""
+    connect = args.connect
+    return list(connect) if isinstance(connect, list) else [connect]
 
 
 def station_config_or_report(args: argparse.Namespace, command: str):

@@ -10,10 +10,10 @@ import os
 import sys
 
 from gcs.commands.common import load_preset_file
-from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
 from gcs.core.estimation import pipeline_from
 from gcs.core.gains import GainError, PresetFile
-from gcs.runtime.station import Station
+from gcs.runtime.fleet import Fleet
 from gcs.server.dashboard import DashboardServer
 from gcs.server.live import LiveHub
 
@@ -69,7 +69,7 @@ def presets_or_report(args: argparse.Namespace, command: str) -> list[PresetFile
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
 
-    add_link_arguments(parser)
+    add_link_arguments(parser, several=True)
     add_server_arguments(parser)
 
 
@@ -88,13 +88,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def dashboard(station, args: argparse.Namespace):
-    """A DashboardServer for the parsed options (not started)."""
+def dashboard(fleet: Fleet, args: argparse.Namespace) -> DashboardServer:
+    """A DashboardServer for the parsed options (not started): every vehicle of the fleet, the
+    first one at the one-vehicle URLs."""
 
     return DashboardServer(
-        station,
+        fleet.first,
         args.host,
         args.port,
+        fleet=fleet,
         viser_port=args.viser_port,
         hub=LiveHub(seconds=args.history),
         allow_origins=tuple(args.allow_origin),
@@ -104,9 +106,9 @@ def dashboard(station, args: argparse.Namespace):
 
 async def _serve(config, args: argparse.Namespace) -> None:
 
-    station = Station(config)
-    server = dashboard(station, args)
-    await station.start()
+    fleet = Fleet(config, links_of(args))
+    server = dashboard(fleet, args)
+    await fleet.start()
     try:
         await server.start()
         print(
@@ -115,4 +117,4 @@ async def _serve(config, args: argparse.Namespace) -> None:
         await asyncio.Event().wait()
     finally:
         await server.stop()
-        await station.stop()
+        await fleet.stop()

@@ -7,15 +7,16 @@ import asyncio
 import dataclasses
 
 from gcs.commands.common import tidy
-from gcs.commands.options import add_link_arguments, station_config_or_report
+from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
 from gcs.core import strict_json
+from gcs.runtime.fleet import Fleet
 from gcs.runtime.snapshots import StationSnapshot
-from gcs.runtime.station import Station, StationConfig
+from gcs.runtime.station import StationConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
 
-    add_link_arguments(parser, record="opt-in")
+    add_link_arguments(parser, record="opt-in", several=True)
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to listen (default 10)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
@@ -25,23 +26,43 @@ def run(args: argparse.Namespace) -> int:
     config = station_config_or_report(args, "status")
     if config is None:
         return 2
-    snapshot = asyncio.run(_collect(config, args.duration))
-    if args.json:
-        print(strict_json.dumps(tidy(dataclasses.asdict(snapshot)), indent=2))
+    snapshots = asyncio.run(_collect(config, links_of(args), args.duration))
+    first = snapshots[0]
+    if args.json:  # the first vehicle's snapshot, as with one vehicle, and every vehicle's in "vehicles"
+        body = tidy(dataclasses.asdict(first))
+        body["vehicles"] = [tidy(dataclasses.asdict(s)) for s in snapshots]
+        print(strict_json.dumps(body, indent=2))
+    elif len(snapshots) == 1:
+        print(format_report(first))
     else:
-        print(format_report(snapshot))
-    return 0 if snapshot.vehicle.heartbeats else 1
+        print(format_vehicles(snapshots))
+    return 0 if any(s.vehicle.heartbeats for s in snapshots) else 1
 
 
-async def _collect(config: StationConfig, duration: float) -> StationSnapshot:
-    station = Station(config)
-    await station.start()
+async def _collect(config: StationConfig, connects: list[str], duration: float) -> list[StationSnapshot]:
+    """Every vehicle's snapshot after `duration` s (the first vehicle's place even if none is heard)."""
+    fleet = Fleet(config, connects)
+    await fleet.start()
     try:
         await asyncio.sleep(duration)
     finally:
-        snapshot = station.publish()
-        await station.stop()
-    return snapshot
+        snapshots = [entry.station.publish() for entry in fleet.vehicles()]
+        await fleet.stop()
+    return snapshots
+
+
+def format_vehicles(snapshots: list[StationSnapshot]) -> str:
+    """A line per vehicle, then each vehicle's full report."""
+    lines = [f"vehicles   {len(snapshots)}"]
+    for snap in snapshots:
+        v = snap.vehicle
+        lines.append(
+            f"  sysid {v.sysid}  {v.autopilot}  {v.vehicle_type}  on {snap.link.address}  {snap.link.state}  "
+            f"firmware {v.firmware or '?'}"
+        )
+    for snap in snapshots:
+        lines += ["", f"== vehicle sysid {snap.vehicle.sysid} ==", format_report(snap)]
+    return "\n".join(lines)
 
 
 def format_report(snap: StationSnapshot) -> str:

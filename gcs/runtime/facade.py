@@ -1,11 +1,12 @@
-"""What the server may use of a Station: the facade's protocol. The real `Station` implements it;
-the server's fast tests drive the routers with a small fake that implements it too."""
+"""What the server may use of a Station (and of a Fleet of them): the facades' protocols. The
+real `Station` and `Fleet` implement them; the server's fast tests drive the routers with a small
+fake station too."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import ParamSpec, Protocol, TypeVar
+from typing import Any, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -50,3 +51,25 @@ class StationFacade(Protocol):
     def start_log_download(self, log_id: int | None) -> bool: ...
     async def tuning(self) -> TuningSession: ...
     async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R: ...
+
+
+class VehicleFacade(Protocol):
+    """One vehicle as a fleet lists it (gcs.runtime.fleet.VehicleEntry)."""
+
+    @property
+    def sysid(self) -> int | None: ...
+    @property
+    def compid(self) -> int | None: ...
+    @property
+    def link(self) -> str: ...
+    @property
+    def station(self) -> StationFacade: ...
+
+
+class FleetFacade(Protocol):
+    """What the server may use of a Fleet: its vehicles, each a StationFacade."""
+
+    @property
+    def vehicle_added(self) -> Signal[[Any]]: ...
+    def vehicles(self) -> Sequence[VehicleFacade]: ...
+    def vehicle(self, sysid: int) -> StationFacade | None: ...

@@ -20,6 +20,7 @@ from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.finite import nonfinite_field
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.identity import is_vehicle_heartbeat
 from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.link_stats import LinkStats
@@ -160,9 +161,19 @@ class Link:
     def is_open(self) -> bool:
         return self._transport is not None
 
-    def send(self, msg: MAVLinkMessage) -> None:
-        """Send a message from the ground station, in the protocol version the vehicle speaks."""
-        self.send_raw(self._encoder.encode(msg))
+    def send(self, msg: MAVLinkMessage, mavlink1: bool | None = None) -> None:
+        """Send a message from the ground station, in the protocol version the vehicle speaks
+        (`mavlink1`: the version of one vehicle among several on this link, gcs.runtime.fleet)."""
+        encoder = self._encoder
+        if mavlink1 is None or mavlink1 == encoder.mavlink1:
+            self.send_raw(encoder.encode(msg))
+            return
+        encoder.mavlink1 = mavlink1
+        try:
+            packet = encoder.encode(msg)
+        finally:
+            encoder.mavlink1 = not mavlink1
+        self.send_raw(packet)
 
     def send_raw(self, packet: bytes) -> None:
         if self._transport is None or self.address.framing == "ascii":  # a text device reads no MAVLink
@@ -232,7 +243,7 @@ class Link:
             self._event("rejected", f"{msg_type}: {why} (signing required; counted, not used)")
 
     def _on_heartbeat(self, msg, sysid: int, compid: int, now: float) -> None:
-        if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID or msg.type == mavlink.MAV_TYPE_GCS:
+        if not is_vehicle_heartbeat(msg):
             return  # another ground station, a gimbal, a companion: not the vehicle
         if self.target_system is None:
             self.target_system, self.target_component = sysid, compid

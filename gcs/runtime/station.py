@@ -56,6 +56,7 @@ from gcs.runtime.streams import StreamPlan, StreamRequester
 from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
 from gcs.runtime.vehicle import VehicleState
+from gcs.runtime.vehicle_link import VehicleLink
 from gcs.sessions.protocol import load_protocol
 from gcs.sessions.workbench import warm_up
 
@@ -93,22 +94,35 @@ class StationError(Exception):
 
 
 class Station:
-    def __init__(self, config: StationConfig, bus: MessageBus | None = None) -> None:
+    """`link`: a vehicle's view of a link the fleet owns (gcs.runtime.fleet); without it the
+    station opens `config.connect` itself and serves the first vehicle heard there."""
+
+    def __init__(
+        self,
+        config: StationConfig,
+        bus: MessageBus | None = None,
+        *,
+        link: VehicleLink | None = None,
+        outputs: list[Output] | None = None,
+    ) -> None:
         self.config = config
-        self.bus = bus or MessageBus()
         self.events = EventLog()
         self.supervisor = Supervisor(self.events)
-        key = config.signing_key
-        signing = None if key is None else Signing(key, required=config.signing_required)
-        self.link = Link(
-            config.connect,
-            bus=self.bus,
-            baud=config.baud,
-            speed=config.speed,
-            heartbeat_timeout=config.heartbeat_timeout,
-            ascii_format=config.ascii_format,
-            signing=signing,
-        )
+        self._owns_link = link is None
+        if link is not None:
+            self.bus = link.bus
+            self.link: Link = link
+        else:
+            self.bus = bus or MessageBus()
+            self.link = Link(
+                config.connect,
+                bus=self.bus,
+                baud=config.baud,
+                speed=config.speed,
+                heartbeat_timeout=config.heartbeat_timeout,
+                ascii_format=config.ascii_format,
+                signing=signing_of(config),
+            )
         self.vehicle = VehicleState(self.link, events=self.events)
         self.streams = StreamRequester(self.link, config.plan)
         self.vehicle.rebooted.connect(self.streams.request_again)
@@ -118,7 +132,8 @@ class Station:
         )
         self.streams.rate_cap = self.radio.cap
         self.params = ParamClient(self.link, self.vehicle, self.events)
-        self.outputs = [Output(address, self.link) for address in config.outputs]
+        #: forwarding outputs: the station's own, or (with a fleet's link) the fleet's, shown here
+        self.outputs = outputs if outputs is not None else [Output(address, self.link) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
@@ -152,6 +167,11 @@ class Station:
     # ---- lifecycle ---------------------------------------------------------------------
     async def start(self) -> None:
         """Start every part under the supervisor (the recorder first, so it has the first byte)."""
+        self.launch()
+
+    def launch(self) -> None:
+        """`start` without waiting: every part is a task once this returns (the fleet starts a
+        vehicle's core this way, then hands it the heartbeat that revealed the vehicle)."""
         self._loop_thread = threading.get_ident()
         if self.recorder is not None:
             self.recorder.start()
@@ -161,8 +181,9 @@ class Station:
         run("params", self.params.run())
         if self.config.request_streams:  # not for a parameter-only command: ask the firmware version
             run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
-        for i, output in enumerate(self.outputs):
-            run(f"output {i + 1}", output.run())
+        if self._owns_link:
+            for i, output in enumerate(self.outputs):
+                run(f"output {i + 1}", output.run())
         if self.config.request_streams:
             run("streams", self.streams.run())
             run("radio", self.radio.run())
@@ -398,6 +419,12 @@ class Station:
         """Commands touch live state: only the event loop's thread may call them."""
         if self._loop_thread is not None and threading.get_ident() != self._loop_thread:
             raise RuntimeError("Station commands run on the event loop thread (use loop.call_soon_threadsafe)")
+
+
+def signing_of(config: StationConfig) -> Signing | None:
+    """The MAVLink 2 signing a link of this configuration uses (None: no key, no signing)."""
+    key = config.signing_key
+    return None if key is None else Signing(key, required=config.signing_required)
 
 
 def _lower_priority(increment: int) -> None:

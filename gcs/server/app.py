@@ -16,13 +16,14 @@ from fastapi.staticfiles import StaticFiles
 from gcs import __version__
 from gcs.core import strict_json
 from gcs.runtime.events import Client, Event
-from gcs.runtime.facade import StationFacade
+from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
 from gcs.server.guard import Refusal, RequestGuard
 from gcs.server.live import LiveHub
 from gcs.server.ratelimit import default_limits
 from gcs.server.routers import ROUTERS
+from gcs.server.vehicles import serve_vehicles
 
 
 def create_app(
@@ -33,11 +34,14 @@ def create_app(
     viser_port: int | None = None,
     bound_host: str = "127.0.0.1",
     allow_origins: tuple[str, ...] = (),
+    fleet: FleetFacade | None = None,
 ) -> FastAPI:
     """The app for one running station. `token`: required on every state-changing request.
     `bound_host` and `allow_origins` set which Host and Origin
     headers the guard accepts. The hub follows the station's live estimation and events (never a replay: replays
-    are computed in the worker and played by their own page)."""
+    are computed in the worker and played by their own page). With a `fleet` (whose first vehicle
+    is `station`), every /api and /ws route is also served per vehicle under
+    /api/vehicles/{sysid}/ (gcs.server.vehicles), each vehicle with its own hub."""
     assets = web_assets()
     hub = hub or LiveHub()
     app = FastAPI(
@@ -61,10 +65,11 @@ def create_app(
         allow_origins=allow_origins,
         on_refused=lambda r: record_refusal(station, r),
     )
-    station.points.connect(hub.on_points)
-    station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
-    for module in ROUTERS:
-        app.include_router(importlib.import_module(module).router)
+    follow(station, hub)
+    routers = [importlib.import_module(module).router for module in ROUTERS]
+    for each in routers:
+        app.include_router(each)
+    serve_vehicles(app, routers, fleet, hub, follow)
     app.add_api_route("/colors.js", colors_js, include_in_schema=False)
     app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
     app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")
@@ -101,6 +106,12 @@ def record_refusal(station: StationFacade, refusal: Refusal) -> None:
         host=refusal.host,
         path=refusal.path,
     )
+
+
+def follow(station: StationFacade, hub: LiveHub) -> None:
+    """The hub gets the station's live points and its gain changes."""
+    station.points.connect(hub.on_points)
+    station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
 
 
 def forward_gain_event(hub: LiveHub, event: Event) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import uvicorn
 
-from gcs.runtime.facade import StationFacade
+from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
@@ -43,8 +43,10 @@ class DashboardServer:
         send_buffer: int = 256 * 1024,
         allow_origins: tuple[str, ...] = (),
         token: str | None = None,
+        fleet: FleetFacade | None = None,
     ) -> None:
         self.station = station
+        self.fleet = fleet
         self.host = host
         self.port = port
         self.viser_port = viser_port
@@ -77,7 +79,12 @@ class DashboardServer:
         sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
         self.port = sock.getsockname()[1]
         app = create_app(
-            self.station, self.hub, token=self.token, bound_host=self.host, allow_origins=self.allow_origins
+            self.station,
+            self.hub,
+            token=self.token,
+            bound_host=self.host,
+            allow_origins=self.allow_origins,
+            fleet=self.fleet,
         )
         if self.use_viser:
             self._start_viser()

@@ -21,22 +21,43 @@ from fastapi import Depends, HTTPException, Request, status
 from starlette.requests import HTTPConnection
 
 from gcs.runtime.events import Client
-from gcs.runtime.facade import StationFacade
+from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.live import LiveHub
 
 TOKEN_HEADER = "X-GCS-Token"
 
 
 async def get_station(conn: HTTPConnection) -> StationFacade:
-    """The running Station (for HTTP routes and WebSockets alike)."""
-    station: StationFacade = conn.app.state.station
+    """The running Station (for HTTP routes and WebSockets alike): the vehicle a
+    /api/vehicles/{sysid}/ path names, else the first vehicle."""
+    sysid = conn.path_params.get("sysid")
+    station: StationFacade = conn.app.state.station if sysid is None else vehicle_station(conn, sysid)
     return station
 
 
 async def get_hub(conn: HTTPConnection) -> LiveHub:
-    """The live store and WebSocket fan-out of this app."""
-    hub: LiveHub = conn.app.state.hub
-    return hub
+    """The live store and WebSocket fan-out of this app (of the vehicle the path names)."""
+    sysid = conn.path_params.get("sysid")
+    if sysid is None:
+        hub: LiveHub = conn.app.state.hub
+        return hub
+    hubs: dict[int, LiveHub] = conn.app.state.hubs
+    return hubs[id(vehicle_station(conn, sysid))]
+
+
+def vehicle_station(conn: HTTPConnection, sysid: int) -> StationFacade:
+    """The core of vehicle `sysid` (404 if no such vehicle is heard)."""
+    fleet: FleetFacade | None = conn.app.state.fleet
+    station: StationFacade | None
+    if fleet is not None:
+        station = fleet.vehicle(sysid)
+    else:  # one station: its vehicle
+        station = conn.app.state.station
+        if station is not None and station.snapshot.vehicle.sysid != sysid:
+            station = None
+    if station is None or id(station) not in conn.app.state.hubs:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no vehicle with sysid {sysid} (GET /api/vehicles)")
+    return station
 
 
 def cookie_name(conn: HTTPConnection) -> str:

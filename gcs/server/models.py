@@ -161,3 +161,16 @@ class ProtocolRun(BaseModel):
 class ProtocolStatus(BaseModel):
     available: list[str]
     run: ProtocolRun | None
+
+
+class VehicleSummary(BaseModel):
+    """One vehicle the station serves (GET /api/vehicles)."""
+
+    sysid: int | None = Field(description="None: nothing heard yet (the first vehicle's place)")
+    compid: int | None
+    link: str = Field(description="the address it is heard on")
+    state: str = Field(description="waiting, connected or lost: its own heartbeats")
+    autopilot: str | None
+    vehicle_type: str | None
+    first: bool = Field(description="served at the one-vehicle URLs too (/api/status, /ws/live, ...)")
+    prefix: str | None = Field(description="its URLs: /api/vehicles/{sysid}/status, .../ws/live, ...")

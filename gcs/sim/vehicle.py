@@ -93,6 +93,9 @@ class SimVehicle:
             self.params["COMPASS_DEC"] = self.faults.declination
         if "EKF2_MAG_DECL" in self.params:  # PX4: degrees
             self.params["EKF2_MAG_DECL"] = math.degrees(self.faults.declination)
+        for name in ("SYSID_THISMAV", "MAV_SYS_ID"):  # the vehicle's own system id, as it reports it
+            if name in self.params:
+                self.params[name] = sysid
         param_seed, autopilot_seed, log_seed = np.random.SeedSequence(seed).spawn(3)
         self.autopilot = Autopilot(self.profile, self.script, self.faults, self.params, autopilot_seed, self.home)
         self.param_server = ParamServer(

@@ -36,6 +36,10 @@ TCP_WRITE_LIMIT = 1 << 20
 UDP_RECEIVE_BUFFER = 4 << 20
 #: Datagrams read per wake-up at most: a flood is drained without holding the event loop.
 UDP_READ_BATCH = 64
+
+#: Seconds after its last datagram a `udpin` peer is still sent to (a restarted sender's old port
+#: is forgotten after that).
+UDP_PEER_TIMEOUT = 10.0
 UDP_MAX_DATAGRAM = 65535
 #: Linux's SO_RXQ_OVFL (socket(7); Python has no constant for it): the drop count per datagram.
 SO_RXQ_OVFL = 40
@@ -78,7 +82,9 @@ class Transport(ABC):
 
 
 class UdpTransport(Transport):
-    """`udpin` binds and answers whoever sent last; `udpout` sends to a fixed peer.
+    """`udpin` binds and answers every peer heard in the last UDP_PEER_TIMEOUT s (several
+    vehicles or simulators sending to one port each get what the station sends, and each picks
+    what is addressed to it, as on a radio); `udpout` sends to a fixed peer.
 
     A UDP pipe never "closes" when the peer goes away: the link notices silence by the
     missing heartbeats and resumes as soon as packets return.
@@ -92,7 +98,8 @@ class UdpTransport(Transport):
 
     def __init__(self, address: Address) -> None:
         super().__init__(address)
-        self.peer: tuple | None = None
+        self.peer: tuple | None = None  # the last sender (udpin) or the fixed peer (udpout)
+        self.peers: dict[tuple, float] = {}  # udpin: every sender, with when it was last heard (loop time)
         self._sock: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._on_data: DataCallback | None = None
@@ -144,6 +151,7 @@ class UdpTransport(Transport):
                     self.kernel_drops = struct.unpack("=I", payload[:4])[0]
             if self.address.kind == "udpin":
                 self.peer = addr
+                self.peers[addr] = self._loop.time() if self._loop is not None else 0.0
             assert self._on_data is not None  # set by open() before the reader exists
             self._on_data(data)
 
@@ -151,10 +159,21 @@ class UdpTransport(Transport):
         if self._sock is None or self.peer is None:
             self.dropped_writes += 1
             return
-        try:
-            self._sock.sendto(data, self.peer)
-        except OSError:  # full send buffer, unreachable peer: dropped, never waited for
-            self.dropped_writes += 1
+        for peer in self._recent_peers():
+            try:
+                self._sock.sendto(data, peer)
+            except OSError:  # full send buffer, unreachable peer: dropped, never waited for
+                self.dropped_writes += 1
+
+    def _recent_peers(self) -> list[tuple]:
+        """udpin: the peers heard lately (the last sender always); udpout: the peer."""
+        assert self.peer is not None
+        if len(self.peers) < 2 or self._loop is None:
+            return [self.peer]
+        since = self._loop.time() - UDP_PEER_TIMEOUT
+        for gone in [p for p, heard in self.peers.items() if heard < since and p != self.peer]:
+            del self.peers[gone]
+        return list(self.peers)
 
     def close(self) -> None:
         if self._sock is not None:

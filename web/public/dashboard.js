@@ -10,7 +10,7 @@ let plots = null;
 async function api(method, path, body) {
   // The token travels as the HttpOnly cookie the start-up URL set: scripts never hold it.
   const headers = { "Content-Type": "application/json" };
-  const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+  const res = await fetch(vehicleUrl(path), { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
   const data = await res.json().catch(() => ({}));
   if (!res.ok) throw new Error(typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail || res.status));
   return data;
@@ -52,7 +52,7 @@ async function catchUp() {
 }
 
 function connect() {
-  const ws = (window.gcsWs = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/live`));
+  const ws = (window.gcsWs = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}${vehicleUrl("/ws/live")}`));
   ws.binaryType = "arraybuffer";  // points come as binary frames (wire.js), control messages as JSON text
   let queue = [];  // frames that arrive while the history loads, applied after it
   ws.onopen = async () => {

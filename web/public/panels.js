@@ -7,7 +7,7 @@
 async function call(method, path, body) {
   const headers = { "Content-Type": "application/json" };
   try {
-    const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+    const res = await fetch(vehicleUrl(path), { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
     const data = await res.json().catch(() => ({}));
     let message = "";
     if (!res.ok) {

@@ -1,0 +1,155 @@
+"""The fleet: every vehicle one ground station hears, on one link or several.
+
+It owns the links (one per `--connect`) and the forwarding outputs, tells vehicles from other
+components by their HEARTBEAT (gcs.mavlink.identity), and routes every message by (link, sysid)
+to that vehicle's core, a `Station` on a `VehicleLink`. The first core exists from the start,
+unbound, as a one-vehicle station's does (the dashboard, the recorder and `gcs status` have it
+before anything is heard) and takes the first vehicle heard; each further vehicle gets a new core
+at its first heartbeat. Messages from a system that is no vehicle (a GCS, a companion with its own
+sysid, a radio's RADIO_STATUS) go to every vehicle on the link they came on, as they did on a
+one-vehicle link. A sysid already served on one link and heard on another stays on the first.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from gcs.mavlink.identity import is_vehicle_heartbeat
+from gcs.runtime.bus import Message, MessageBus
+from gcs.runtime.forward import Output
+from gcs.runtime.link import Link
+from gcs.runtime.signal import Signal
+from gcs.runtime.station import Station, StationConfig, signing_of
+from gcs.runtime.supervisor import Supervisor
+from gcs.runtime.vehicle_link import VehicleLink
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleEntry:
+    """One vehicle as the fleet lists it."""
+
+    sysid: int | None  # None: the first core, before any vehicle is heard
+    compid: int | None
+    link: str  # the address it is heard on
+    station: Station
+
+
+class _LinkBus(MessageBus):
+    """A link's bus: its own subscribers, then the fleet's routing (synchronous, never waits)."""
+
+    def __init__(self, fleet: Fleet, index: int) -> None:
+        super().__init__()
+        self.fleet, self.index = fleet, index
+
+    def publish(self, item: Message) -> None:
+        super().publish(item)
+        self.fleet.route(self.index, item)
+
+
+class Fleet:
+    def __init__(self, config: StationConfig, connects: Sequence[str] = ()) -> None:
+        self.config = config
+        addresses = list(connects) or [config.connect]
+        self.links = [
+            Link(
+                address,
+                bus=_LinkBus(self, i),
+                baud=config.baud,
+                speed=config.speed,
+                heartbeat_timeout=config.heartbeat_timeout,
+                ascii_format=config.ascii_format,
+                signing=signing_of(config),
+                name="vehicle" if i == 0 else f"link {i + 1}",
+            )
+            for i, address in enumerate(addresses)
+        ]
+        #: `--out` forwards the first link (every packet on it, whichever vehicle sent it)
+        self.outputs = [Output(address, self.links[0]) for address in config.outputs]
+        first = Station(config, link=VehicleLink(self.links[0]), outputs=self.outputs)
+        self.supervisor = Supervisor(first.events)
+        self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]
+        self._unbound: Station | None = first
+        self._by_key: dict[tuple[int, int], Station] = {}  # (link index, sysid) -> the vehicle's core
+        self._on_link: list[list[Station]] = [[] for _ in self.links]  # bound cores per link
+        self._elsewhere: set[tuple[int, int]] = set()  # (link, sysid) served on another link
+        self._started = False
+        #: a vehicle heard for the first time (its core just started), on the event loop
+        self.vehicle_added: Signal[[VehicleEntry]] = Signal()
+
+    # ---- lifecycle ------------------------------------------------------------------------------
+    @property
+    def first(self) -> Station:
+        """The first vehicle's core (the one the one-vehicle URLs and commands use)."""
+        return self._entries[0].station
+
+    async def start(self) -> None:
+        self._started = True
+        self.first.launch()
+        for i, link in enumerate(self.links):
+            self.supervisor.start("link" if i == 0 else f"link {i + 1}", link.run())
+        for i, output in enumerate(self.outputs):
+            self.supervisor.start(f"output {i + 1}", output.run())
+
+    async def stop(self) -> None:
+        """The links first (nothing arrives while the cores finish), then every core."""
+        await self.supervisor.stop()
+        await asyncio.gather(*(entry.station.stop() for entry in self._entries))
+
+    # ---- vehicles -------------------------------------------------------------------------------
+    def vehicles(self) -> list[VehicleEntry]:
+        """Every vehicle in the order heard (the first core even before it is bound)."""
+        return list(self._entries)
+
+    def vehicle(self, sysid: int) -> Station | None:
+        return next((e.station for e in self._entries if e.sysid == sysid), None)
+
+    # ---- routing --------------------------------------------------------------------------------
+    def route(self, index: int, item: Message) -> None:
+        core = self._by_key.get((index, item.sysid))
+        if core is not None:
+            _view(core).deliver(item)
+            return
+        if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg) and (index, item.sysid) not in self._elsewhere:
+            self._adopt(index, item)
+            return
+        for core in self._on_link[index]:  # a GCS, a companion, a radio: as on a one-vehicle link
+            _view(core).deliver(item)
+        if self._unbound is not None:
+            _view(self._unbound).deliver(item)
+
+    def _adopt(self, index: int, item: Message) -> None:
+        """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
+        link = self.links[index]
+        served = self.vehicle(item.sysid)
+        if served is not None:
+            self._elsewhere.add((index, item.sysid))
+            served.events.record("vehicle", "fleet", event="also heard", sysid=item.sysid, link=str(link.address))
+            return
+        if self._unbound is not None:
+            core, self._unbound = self._unbound, None
+            _view(core).bind(link, item.sysid, item.compid)
+            self._entries[0] = VehicleEntry(item.sysid, item.compid, str(link.address), core)
+            entry = self._entries[0]
+        else:
+            view = VehicleLink(link)
+            view.bind(link, item.sysid, item.compid)
+            core = Station(dataclasses.replace(self.config, outputs=[]), link=view, outputs=[])
+            entry = VehicleEntry(item.sysid, item.compid, str(link.address), core)
+            self._entries.append(entry)
+            if self._started:
+                core.launch()
+        self._by_key[(index, item.sysid)] = core
+        self._on_link[index].append(core)
+        address = str(link.address)
+        core.events.record("vehicle", "fleet", event="heard", sysid=item.sysid, compid=item.compid, link=address)
+        _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
+        self.vehicle_added.emit(entry)
+
+
+def _view(core: Station) -> VehicleLink:
+    link = core.link
+    assert isinstance(link, VehicleLink)  # every core of a fleet runs on a vehicle's view
+    return link

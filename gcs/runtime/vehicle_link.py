@@ -1,0 +1,103 @@
+"""One vehicle's view of a link it may share with other vehicles (a MAVLink router, a mesh radio).
+
+A `VehicleLink` is what a vehicle's core (`Station`) takes for its link: its own bus, state
+(waiting → connected → lost, from this vehicle's heartbeats), counters and target (sysid, compid),
+while the bytes go through the real `Link` the vehicle was heard on. The fleet
+(gcs.runtime.fleet) delivers it the vehicle's messages; what it sends goes out on that link,
+addressed to the vehicle and in the MAVLink version the vehicle speaks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.runtime.bus import Message, MessageBus
+from gcs.runtime.link import Link
+from gcs.runtime.snapshots import LinkSnapshot
+
+
+class VehicleLink(Link):
+    """Created unbound (the first vehicle's core exists before anything is heard, as a one-vehicle
+    station's does) or bound; `bind` ties it to the link and vehicle it serves."""
+
+    #: the view sending now: the link's `packet_sent` is its alone (others see only untargeted
+    #: packets: the station's heartbeats, forwarded ones). Sends are synchronous, on the loop.
+    _sender: ClassVar[VehicleLink | None] = None
+
+    def __init__(self, link: Link) -> None:
+        super().__init__(link.address, bus=MessageBus(), heartbeat_timeout=link.heartbeat_timeout, name=link.name)
+        self.link: Link | None = None
+        self._shown = link
+        self._show(link)
+
+    def bind(self, link: Link, sysid: int, compid: int) -> None:
+        """Serve vehicle (sysid, compid) heard on `link`."""
+        self.link = link
+        self.target_system, self.target_component = sysid, compid
+        self._show(link)
+
+    def _show(self, link: Link) -> None:
+        """Report the link's address, framing counters, rejections and signing as this view's,
+        and what the station sends on it (its heartbeats reach every vehicle there)."""
+        self._shown.packet_sent.disconnect(self._on_link_sent)
+        self._shown = link
+        link.packet_sent.connect(self._on_link_sent)
+        self.address, self.name, self.baud = link.address, link.name, link.baud
+        self.stats.framing = link.stats.framing
+        self.stats.nonfinite = link.stats.nonfinite
+        self.signing = link.signing
+
+    # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
+    def deliver(self, item: Message) -> None:
+        self.stats.bytes_in += len(item.msg.get_msgbuf())
+        self.stats.count(item.type)
+        if item.type == "HEARTBEAT" and item.sysid == self.target_system:
+            self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)
+        self.bus.publish(item)
+
+    # ---- send path: through the link the vehicle was heard on ---------------------------------
+    def send(self, msg: MAVLinkMessage, mavlink1: bool | None = None) -> None:
+        if self.link is None:
+            return  # no vehicle yet: nothing to address
+        version = self._encoder.mavlink1 if self.vehicle_mavlink is not None else None
+        VehicleLink._sender = self
+        try:
+            self.link.send(msg, version if mavlink1 is None else mavlink1)
+        finally:
+            VehicleLink._sender = None
+
+    def send_raw(self, packet: bytes) -> None:
+        if self.link is None:
+            return
+        VehicleLink._sender = self
+        try:
+            self.link.send_raw(packet)
+        finally:
+            VehicleLink._sender = None
+
+    def _on_link_sent(self, packet: bytes) -> None:
+        if VehicleLink._sender not in (None, self):
+            return  # addressed to another vehicle on this link
+        self.stats.bytes_out += len(packet)
+        self.stats.packets_out += 1
+        self.packet_sent.emit(packet)
+
+    # ---- the rest of Link's surface ---------------------------------------------------------------
+    async def run(self) -> None:
+        """The state watchdog and rate sampling; the transport is the link's."""
+        await self._watchdog_loop()
+
+    @property
+    def is_open(self) -> bool:
+        return self.link is not None and self.link.is_open
+
+    def snapshot(self) -> LinkSnapshot:
+        own = super().snapshot()
+        if self.link is None:
+            return own
+        link = self.link.snapshot()
+        events = sorted([*link.events, *own.events], key=lambda e: e.wall_time)[-50:]
+        stats = dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops)
+        return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)

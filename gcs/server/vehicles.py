@@ -1,0 +1,97 @@
+"""Several vehicles on one server: GET /api/vehicles lists them, and every /api and /ws route is
+served again per vehicle under /api/vehicles/{sysid}/ (/api/status → /api/vehicles/2/status,
+/ws/live → /api/vehicles/2/ws/live), where `get_station` and `get_hub` (gcs.server.deps) pick
+that vehicle's core and live hub. The one-vehicle URLs keep serving the first vehicle."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from typing import Any
+
+from fastapi import APIRouter, FastAPI, Request
+from fastapi.routing import APIRoute, APIWebSocketRoute
+from starlette.routing import compile_path
+
+from gcs.runtime.facade import FleetFacade, StationFacade
+from gcs.server.live import LiveHub
+from gcs.server.models import VehicleSummary
+
+#: Where one vehicle's copy of the routes lives.
+VEHICLE_PREFIX = "/api/vehicles/{sysid:int}"
+
+router = APIRouter(tags=["vehicles"])
+
+
+@router.get("/api/vehicles", response_model=list[VehicleSummary])
+async def list_vehicles(request: Request) -> list[VehicleSummary]:
+    """Every vehicle the station hears, in the order heard (GCS and companion components are not
+    vehicles); each one's routes are under its `prefix`."""
+    fleet: FleetFacade | None = request.app.state.fleet
+    first: StationFacade = request.app.state.station
+    entries = [(e.station, e.link) for e in fleet.vehicles()] if fleet is not None else [(first, None)]
+    return [summary(station, link, station is first) for station, link in entries]
+
+
+def summary(station: StationFacade, link: str | None, first: bool) -> VehicleSummary:
+    snap = station.snapshot
+    v = snap.vehicle
+    return VehicleSummary(
+        sysid=v.sysid,
+        compid=v.compid,
+        link=link or snap.link.address,
+        state=snap.link.state,
+        autopilot=v.autopilot,
+        vehicle_type=v.vehicle_type,
+        first=first,
+        prefix=None if v.sysid is None else f"/api/vehicles/{v.sysid}",
+    )
+
+
+def serve_vehicles(
+    app: FastAPI,
+    routers: list[APIRouter],
+    fleet: FleetFacade | None,
+    hub: LiveHub,
+    follow: Callable[[StationFacade, LiveHub], None],
+) -> None:
+    """Add /api/vehicles and the per-vehicle copy of every /api and /ws route of `routers`
+    (before the page's static mount); each vehicle after the first gets its own hub,
+    `follow`ed, as it is heard."""
+    app.state.fleet = fleet
+    app.state.hubs = {id(app.state.station): hub}
+
+    def add(entry: Any) -> None:
+        if id(entry.station) not in app.state.hubs:
+            vehicle_hub = LiveHub(
+                seconds=hub.seconds,
+                max_rate=hub.capacity / hub.seconds,
+                frame_interval=hub.frame_interval,
+                client_max_frames=hub.client_max_frames,
+            )
+            app.state.hubs[id(entry.station)] = vehicle_hub
+            follow(entry.station, vehicle_hub)
+
+    if fleet is not None:
+        for entry in fleet.vehicles():
+            add(entry)
+        fleet.vehicle_added.connect(add)
+    app.include_router(router)
+    per_vehicle = APIRouter()
+    for each in routers:
+        for route in each.routes:
+            if isinstance(route, APIRoute | APIWebSocketRoute) and route.path.startswith(("/api/", "/ws/")):
+                per_vehicle.routes.append(vehicle_route(route))
+    app.include_router(per_vehicle)
+
+
+def vehicle_route(route: APIRoute | APIWebSocketRoute) -> APIRoute | APIWebSocketRoute:
+    """The same route under VEHICLE_PREFIX (left out of the OpenAPI schema: one copy documents it)."""
+    path = VEHICLE_PREFIX + route.path.removeprefix("/api")
+    twin = copy.copy(route)
+    twin.path = path
+    twin.path_regex, twin.path_format, twin.param_convertors = compile_path(path)
+    if isinstance(twin, APIRoute):
+        twin.include_in_schema = False
+        twin.unique_id = f"{twin.unique_id}_vehicle"
+    return twin

@@ -1,0 +1,257 @@
+"""Issue 13 item 1 acceptance: several vehicles on one station. Two simulators (sysid 1 apm25,
+sysid 2 pixhawk, each a `gcs sim` process) send to one UDP port and a third (sysid 3 px4) to a
+second; a ground station (sysid 255) and companion computers send heartbeats on the first link
+too. The station lists exactly the three vehicles (on the real uvicorn server and in
+`gcs status`), each with its own estimates, parameters, recording, and a gain change on one
+reaches no other."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+from conftest import free_port
+from live import stop_process, wait_for
+from test_estimation_live import errors_after
+
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.fleet import Fleet
+from gcs.runtime.station import StationConfig
+from gcs.server.dashboard import DashboardServer
+from gcs.sim import SimVehicle
+
+#: (sysid, profile, which link) of the simulated vehicles
+VEHICLES = ((1, "apm25", 0), (2, "pixhawk", 0), (3, "px4", 1))
+#: each vehicle's roll-rate gain (the tuning profile's detect parameter)
+ROLL_RATE_P = {1: "RATE_RLL_P", 2: "ATC_RAT_RLL_P", 3: "MC_ROLLRATE_P"}
+
+
+@contextlib.contextmanager
+def sim_processes(ports: list[int]):
+    procs = []
+    try:
+        for sysid, profile, link in VEHICLES:
+            command = [sys.executable, "-m", "gcs", "sim", "--profile", profile, "--script", "quad"]
+            command += ["--sysid", str(sysid), "--link", f"udpout:127.0.0.1:{ports[link]}"]
+            procs.append(subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        yield procs
+    finally:
+        for proc in procs:
+            stop_process(proc)
+
+
+async def not_vehicles(port: int, stop: asyncio.Event) -> None:
+    """Heartbeats that are no vehicle's, twice a second: another ground station (255/190), a
+    companion computer on vehicle 1 (1/191) and one with a system id of its own (42/191)."""
+    senders = [
+        (Encoder(255, 190), mavlink.MAV_TYPE_GCS),
+        (Encoder(1, 191), mavlink.MAV_TYPE_ONBOARD_CONTROLLER),
+        (Encoder(42, 191), mavlink.MAV_TYPE_ONBOARD_CONTROLLER),
+    ]
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        while not stop.is_set():
+            for encoder, kind in senders:
+                beat = mavlink.MAVLink_heartbeat_message(kind, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)
+                sock.sendto(encoder.encode(beat), ("127.0.0.1", port))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), 0.5)
+    finally:
+        sock.close()
+
+
+def truth_params(sysid: int, profile: str) -> dict[str, float]:
+    """The parameter table the simulator process serves (the same for every seed)."""
+    return SimVehicle(profile=profile, sysid=sysid).params.as_dict()
+
+
+def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
+    ports = [free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)]
+    config = StationConfig(connect=f"udpin:127.0.0.1:{ports[0]}", record_dir=str(tmp_path))
+
+    async def scenario():
+        fleet = Fleet(config, [f"udpin:127.0.0.1:{port}" for port in ports])
+        points: dict[int, list] = {sysid: [] for sysid, _, _ in VEHICLES}
+        server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
+        fleet.vehicle_added.connect(lambda e: e.station.points.connect(points[e.sysid].extend))
+        await fleet.start()
+        await server.start()
+        stop = asyncio.Event()
+        others = asyncio.create_task(not_vehicles(ports[0], stop))
+        base = f"http://127.0.0.1:{server.port}"
+        try:
+            with sim_processes(ports):
+                async with httpx.AsyncClient(base_url=base, headers=server.auth_headers, timeout=30) as api:
+                    await wait_for(lambda: len(fleet.vehicles()) == 3, 60, "three vehicles")
+                    await wait_for(
+                        lambda: all(p and p[-1].t > 16.0 for p in points.values()), 90, "16 s of each vehicle"
+                    )
+                    listed = (await api.get("/api/vehicles")).json()
+                    downloads = [e.station.params.download(timeout=90) for e in fleet.vehicles()]
+                    tables = dict(zip([e.sysid for e in fleet.vehicles()], await asyncio.gather(*downloads)))
+                    status2 = (await api.get("/api/vehicles/2/status")).json()
+                    first_status = (await api.get("/api/status")).json()
+                    missing = await api.get("/api/vehicles/42/status")
+                    history3 = (await api.get("/api/vehicles/3/history?seconds=5")).json()
+
+                    # a gain change on vehicle 2, through its URLs: an estimator gain and a vehicle parameter
+                    before = {e.sysid: e.station.estimator("dcm").gains.values.copy() for e in fleet.vehicles()}
+                    gain = next(iter(before[2]))
+                    gains2 = (await api.get("/api/vehicles/2/estimators/dcm")).json()["gains"]
+                    info = next(g for g in gains2 if g["name"] == gain)
+                    new_gain = info["min"] if info["value"] != info["min"] else info["max"]
+                    put = await api.put(f"/api/vehicles/2/estimators/dcm/gains/{gain}", json={"value": new_gain})
+                    after = {e.sysid: e.station.estimator("dcm").gains.values.copy() for e in fleet.vehicles()}
+                    tuned = await api.put("/api/vehicles/2/tuning/ATC_RAT_RLL_P", json={"value": 0.15})
+                    reread = {
+                        e.sysid: (await e.station.params.read(ROLL_RATE_P[e.sysid])).value for e in fleet.vehicles()
+                    }
+                    folders = {e.sysid: e.station.recording().session.folder for e in fleet.vehicles()}
+        finally:
+            stop.set()
+            await others
+            await server.stop()
+            await fleet.stop()
+        sysids = [e.sysid for e in fleet.vehicles()]
+        return dict(
+            sysids=sysids,
+            listed=listed,
+            points=points,
+            tables=tables,
+            status2=status2,
+            first_status=first_status,
+            missing=missing.status_code,
+            history3=history3,
+            gain=gain,
+            new_gain=new_gain,
+            put=put.status_code,
+            before=before,
+            after=after,
+            tuned=(tuned.status_code, tuned.json()),
+            reread=reread,
+            folders=folders,
+        )
+
+    r = asyncio.run(scenario())
+
+    # three vehicles, no GCS (255) and no companion (1/191, 42/191) among them
+    assert sorted(r["sysids"]) == [1, 2, 3]
+    assert sorted(v["sysid"] for v in r["listed"]) == [1, 2, 3]
+    by_sysid = {v["sysid"]: v for v in r["listed"]}
+    assert by_sysid[3]["link"] == f"udpin:127.0.0.1:{ports[1]}" and by_sysid[1]["link"] == by_sysid[2]["link"]
+    assert [by_sysid[n]["autopilot"] for n in (1, 2, 3)] == ["ArduPilot", "ArduPilot", "PX4"]
+    assert r["status2"]["vehicle"]["sysid"] == 2 and r["status2"]["vehicle"]["compid"] == 1
+    assert r["first_status"]["vehicle"]["sysid"] == r["sysids"][0]
+    assert r["missing"] == 404
+    assert {"dcm", "truth"} <= set(r["history3"]["points"])
+
+    # each its own estimates, within the live-simulator bounds (tests/test_estimation_live.py)
+    for sysid, points in r["points"].items():
+        for name, (roll, pitch, yaw) in errors_after(points, 10.0, 16.0).items():
+            assert roll < 3.0 and pitch < 3.0, f"vehicle {sysid} {name}: roll/pitch {roll:.2f}/{pitch:.2f} deg"
+            assert yaw < 10.0, f"vehicle {sysid} {name}: yaw {yaw:.2f} deg"
+
+    # each its own parameters, downloaded exactly (before the tuning write below)
+    for sysid, profile, _ in VEHICLES:
+        truth = truth_params(sysid, profile)
+        got = {name: p.value for name, p in r["tables"][sysid].items()}
+        assert got == truth, f"vehicle {sysid}: {len(set(got) ^ set(truth))} names differ"
+    assert r["tables"][2]["SYSID_THISMAV"].value == 2 and r["tables"][3]["MAV_SYS_ID"].value == 3
+
+    # the gain change on vehicle 2 touched no other vehicle
+    assert r["put"] == 200
+    assert r["after"][2][r["gain"]] == r["new_gain"] != r["before"][2][r["gain"]]
+    assert r["after"][1] == r["before"][1] and r["after"][3] == r["before"][3]
+    status, body = r["tuned"]
+    assert status == 200 and body["new"] == r["reread"][2] == pytest.approx(0.15, rel=1e-6)  # a float32
+    assert r["reread"][1] == truth_params(1, "apm25")["RATE_RLL_P"]
+    assert r["reread"][3] == truth_params(3, "px4")["MC_ROLLRATE_P"]
+
+    # each its own recording
+    folders = r["folders"]
+    assert len(set(folders.values())) == 3 and all(f.parent == tmp_path for f in folders.values())
+    for sysid, folder in folders.items():
+        meta = json.loads((folder / "meta.json").read_text())
+        assert meta["vehicle"]["label"].endswith(f"-{sysid}")
+
+
+def test_status_lists_every_vehicle() -> None:
+    ports = [free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)]
+    command = [sys.executable, "-m", "gcs", "status", "--duration", "8"]
+    for port in ports:
+        command += ["--connect", f"udpin:127.0.0.1:{port}"]
+    status = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with sim_processes(ports):
+            out, err = status.communicate(timeout=120)
+    finally:
+        if status.poll() is None:
+            stop_process(status)
+    assert status.returncode == 0, err
+    assert out.startswith("vehicles   3\n"), out
+    for sysid, _, link in VEHICLES:
+        assert f"== vehicle sysid {sysid} ==" in out
+        line = next(line for line in out.splitlines() if line.startswith(f"  sysid {sysid} "))
+        assert f"on udpin:127.0.0.1:{ports[link]}" in line and "connected" in line
+
+
+@pytest.mark.timeout(600)
+def test_dashboard_vehicle_selector() -> None:
+    """Real Chromium: the selector lists both vehicles on one port, and choosing the second
+    switches the page's REST and WebSocket URLs to /api/vehicles/2/... (its panel shows its own
+    firmware: ArduCopter 4.5.7, not the APM 2.5's 3.2.1)."""
+    from live import CHROMIUM, CHROMIUM_ARGS, POLL_MS
+    from playwright.async_api import async_playwright
+
+    port = free_port(socket.SOCK_DGRAM)
+
+    async def scenario() -> tuple[list[str], list[str], str]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}"))
+        server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
+        await fleet.start()
+        await server.start()
+        urls: list[str] = []
+        try:
+            with sim_processes([port, free_port(socket.SOCK_DGRAM)]):  # the third one talks to nobody
+                await wait_for(lambda: len(fleet.vehicles()) == 2, 60, "two vehicles")
+                async with async_playwright() as pw:
+                    browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                    page = await browser.new_page()
+                    page.on("request", lambda request: urls.append(request.url))
+                    page.on("websocket", lambda ws: urls.append(ws.url))
+                    await page.goto(server.url, timeout=120_000, wait_until="commit")
+                    select = "#vehicle-select"
+                    await page.wait_for_function(
+                        f"!document.querySelector('{select}').hidden "
+                        f"&& document.querySelector('{select}').options.length === 2",
+                        polling=POLL_MS,
+                        timeout=120_000,
+                    )
+                    options = await page.eval_on_selector_all(f"{select} option", "os => os.map(o => o.value)")
+                    await page.select_option(select, "2")
+                    await page.wait_for_function("window.gcsVehicle === '2'", polling=POLL_MS, timeout=60_000)
+                    await page.wait_for_function(
+                        "(document.querySelector('#vehicle-autopilot') || {}).textContent?.includes('4.5.7')",
+                        polling=POLL_MS,
+                        timeout=120_000,
+                    )
+                    await page.wait_for_function("window.gcsStats.messages > 0", polling=POLL_MS, timeout=60_000)
+                    shown = await page.text_content("#vehicle-autopilot") or ""
+                    await browser.close()
+        finally:
+            await server.stop()
+            await fleet.stop()
+        return options, urls, shown
+
+    options, urls, shown = asyncio.run(scenario())
+    assert sorted(options) == ["1", "2"]
+    assert any(u.endswith("/api/vehicles/2/status") for u in urls)
+    assert any(u.endswith("/api/vehicles/2/ws/live") for u in urls)
+    assert "3.2.1" not in shown
