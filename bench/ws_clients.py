@@ -34,7 +34,7 @@ async def client(url: str, seconds: float, until: list[float]) -> list[tuple[flo
                 continue  # hello, this client's counters
             for frame in wire.decode(message):
                 if isinstance(frame, wire.PointsFrame) and "onboard" in frame.points:
-                    got += [(t, now) for t in frame.points["onboard"][0].tolist()]
+                    got += [(t, now) for t in frame.points["onboard"][0]]
     return got
 
 

@@ -249,7 +249,7 @@ async def read_frames(ws, frames: list, report: dict) -> None:
             continue
         for f in wire.decode(message):
             if isinstance(f, wire.PointsFrame):
-                f = {"points": {source: [cols[0].tolist()] for source, cols in f.points.items()}}
+                f = {"points": {source: [list(cols[0])] for source, cols in f.points.items()}}
             frames.append((arrival, f))
 
 

@@ -37,7 +37,7 @@ def test_odd_lengths_stay_aligned_and_decode():
     assert list(decoded.points) == ["onboard", "kf"]
     for source, cols in points.items():
         for got, sent in zip(decoded.points[source], cols, strict=True):
-            assert got.tolist() == pytest.approx(sent, abs=1e-6)
+            assert got == pytest.approx(sent, abs=1e-6)
 
 
 def test_bad_frames_are_refused():
@@ -73,7 +73,7 @@ def test_a_client_gets_every_queued_frame_in_one_message_in_order():
     assert [type(f).__name__ for f in frames] == ["PointsFrame", "dict", "PointsFrame"]
     first, gain, second = frames
     assert gain == {"type": "gain", "estimator": "dcm", "gain": "kp_rp", "new": 0.3}
-    assert first.points["onboard"][0].tolist() == [1.0]
+    assert first.points["onboard"][0] == (1.0,)
     assert np.allclose([c[0] for c in first.points["onboard"][1:]], np.degrees([0.1, 0.2, 0.3]))
     assert second.seq == first.seq + 1 and set(second.points) == {"onboard", "dcm"}
-    assert second.points["onboard"][3].tolist() == pytest.approx([180.0])
+    assert second.points["onboard"][3] == pytest.approx((180.0,))

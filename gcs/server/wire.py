@@ -20,11 +20,10 @@ The page's decoder is web/public/wire.js; `decode` is the one for Python readers
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-
-import numpy as np
 
 from gcs.core import strict_json
 
@@ -48,8 +47,9 @@ def points_frame(seq: int, server_time: float, points: Mapping[str, Sequence[Seq
     for source, (t, roll, pitch, yaw) in points.items():
         name = source.encode()
         parts.append(_SERIES.pack(len(name), 0, len(t)) + _padded(name))
-        parts.append(np.round(np.asarray(t, dtype="<f8"), 6).tobytes())
-        parts.append(_padded(np.array((roll, pitch, yaw), dtype="<f4").tobytes()))
+        n = len(t)
+        parts.append(struct.pack(f"<{n}d", *[round(x, 6) for x in t]))
+        parts.append(_padded(struct.pack(f"<{3 * n}f", *roll, *pitch, *yaw)))
     size = _FRAME.size + sum(len(p) for p in parts)
     parts[0] = _FRAME.pack(size, POINTS, VERSION, len(points))
     return b"".join(parts)
@@ -63,17 +63,19 @@ def message_frame(message: Mapping[str, object]) -> bytes:
 
 @dataclass(frozen=True, slots=True)
 class PointsFrame:
-    """A decoded points frame: per source (t, roll, pitch, yaw) arrays (s, degrees)."""
+    """A decoded points frame: per source (t, roll, pitch, yaw) tuples (s, degrees)."""
 
     seq: int
     server_time: float
-    points: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    points: dict[str, tuple[tuple[float, ...], ...]]
 
 
 def decode(data: bytes) -> Iterator[PointsFrame | dict]:
     """The frames of one binary message, in order: points, or a control message's JSON object.
     Raises ValueError on a frame that does not fit the message, has an unknown version, or
-    carries a non-finite number (the server never sends one)."""
+    carries a non-finite number (the server never sends one). Plain tuples, not numpy arrays:
+    a frame holds a few samples per source, and a reader process keeping up with 20 clients
+    spends its time per call, not per number (bench.wire)."""
     view = memoryview(data)
     offset = 0
     while offset < len(data):
@@ -92,17 +94,17 @@ def decode(data: bytes) -> Iterator[PointsFrame | dict]:
 def _points(view: memoryview, offset: int, count: int) -> PointsFrame:
     seq, _, server_time = _POINTS.unpack_from(view, offset)
     offset += _POINTS.size
-    points = {}
+    points: dict[str, tuple[tuple[float, ...], ...]] = {}
     for _ in range(count):
         name_len, _, n = _SERIES.unpack_from(view, offset)
         offset += _SERIES.size
         name = bytes(view[offset : offset + name_len]).decode()
         offset += name_len + (-name_len % 8)
-        t = np.frombuffer(view, dtype="<f8", count=n, offset=offset)
+        t = struct.unpack_from(f"<{n}d", view, offset)
         offset += 8 * n
-        roll, pitch, yaw = rpy = np.frombuffer(view, dtype="<f4", count=3 * n, offset=offset).reshape(3, n)
+        rpy = struct.unpack_from(f"<{3 * n}f", view, offset)
         offset += 12 * n + (-12 * n % 8)
-        if not (np.isfinite(t).all() and np.isfinite(rpy).all()):
+        if not all(map(math.isfinite, t + rpy)):
             raise ValueError(f"non-finite number in series {name!r}")
-        points[name] = (t, roll, pitch, yaw)
+        points[name] = (t, rpy[:n], rpy[n : 2 * n], rpy[2 * n :])
     return PointsFrame(seq, server_time, points)
