@@ -31,8 +31,9 @@ GHOST_OPACITY = 0.35
 #: breakpoint (Mantine's xs, 36em: the dashboard's 3-D view on a phone) viser's panel is a bottom
 #: sheet over the scene, open at start; and with software WebGL (a laptop without GPU drivers,
 #: headless Chromium) a notice covers the top of the view until closed. The page has the gains and
-#: the controls, so in the dashboard's frame both go: the view shows the scene and nothing over it.
-#: tests/test_layout.py measures what is left inside the frame.
+#: the controls, so both go wherever this style is mounted: always in a phone-sized frame, on a
+#: wider one while the panel is open (its minimized title bar and the notice stay in the top
+#: corners, clear of the vehicle). tests/test_layout.py measures what is left inside the frame.
 EMBEDDED_STYLE = """<style>
 .mantine-Notifications-root { display: none !important; }
 @media (max-width: 36em) { .mantine-Paper-root[style*="position: fixed"] { display: none !important; } }
