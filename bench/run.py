@@ -21,6 +21,7 @@ BENCHMARKS = {
     "serve_cpu": "bench.serve_cpu",
     "page_fps": "bench.page_fps",
     "wire": "bench.wire",
+    "fleet_routing": "bench.fleet_routing",
 }
 
 

@@ -8,8 +8,10 @@ time advances at the scaled rate too), paced every 5 ms.
   traffic: 5 clients polling `GET /api/status` once a second and 5 `/ws/live` WebSocket clients
   (bench.ws_clients), both in their own processes.
 - baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
-- baseline `MAVProxy` (if `mavproxy.py` is on PATH): `mavproxy.py --master udpin:... --daemon`
-  with its default logging.
+- baseline `MAVProxy` (`mavproxy.py` from $GCS_BENCH_MAVPROXY, else PATH; not a dependency of
+  gcs: `python -m venv /tmp/mavproxy-venv && /tmp/mavproxy-venv/bin/pip install MAVProxy`):
+  `mavproxy.py --master udpin:... --daemon --non-interactive` with its default logging (mav.tlog);
+  what it received is counted from the raw log it writes (mav.tlog.raw).
 CPU: psutil user+system time of the receiving process over MEASURE_S s after WARMUP_S, per
 1000 msg/s sent. Knee: the highest rate of RATES at which the receiver counted every packet sent.
 """
@@ -198,23 +200,32 @@ def bare(rate: int, seconds: float, measure: bool) -> dict:
     return {**result, "sent": sent, "received": received}
 
 
-def mavproxy(rate: int, seconds: float) -> dict | None:
-    exe = shutil.which("mavproxy.py") or shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
-    if exe is None:
-        return None
+def mavproxy_exe() -> str | None:
+    return os.environ.get("GCS_BENCH_MAVPROXY") or shutil.which("mavproxy.py")
+
+
+def mavproxy(rate: int, seconds: float, measure: bool = True) -> dict:
+    from pymavlink.dialects.v20 import common
+
+    exe = mavproxy_exe()
+    assert exe is not None
     port = free_port()
     with tempfile.TemporaryDirectory() as tmp:
         proc = subprocess.Popen(
             [exe, f"--master=udpin:127.0.0.1:{port}", "--daemon", "--non-interactive", f"--state-basedir={tmp}"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, cwd=tmp,
         )  # fmt: skip
         time.sleep(5.0)
         sender = run_sender(port, rate, seconds)
-        result = measure_cpu(psutil.Process(proc.pid), sender, seconds)
-        sender.communicate()
+        result = measure_cpu(psutil.Process(proc.pid), sender, seconds) if measure else {}
+        sent = int(sender.communicate()[0])
+        time.sleep(1.0)
         proc.terminate()
         proc.wait(30)
-    return result
+        raw = os.path.join(tmp, "mav.tlog.raw")
+        with open(raw, "rb") as f:
+            received = len(common.MAVLink(None).parse_buffer(f.read()) or ())
+    return {**result, "sent": sent, "received": received}
 
 
 def main() -> list[dict]:
@@ -232,12 +243,18 @@ def main() -> list[dict]:
             "load_avg_1m": round(os.getloadavg()[0], 2),
         }
     ]
-    mp = mavproxy(CPU_RATE, seconds)
-    rows.append(
-        {"benchmark": "MAVProxy CPU per 1000 msg/s", "baseline": "MAVProxy --daemon, default logging"}
-        | ({"ours_core_pct": round(100 * mp["cpu"] / per_k, 1)} if mp else {"note": "mavproxy.py not installed"})
-    )
-    for name, run in (("serve", serve), ("pymavlink", bare)):
+    runs = [("serve", serve), ("pymavlink", bare)]
+    if mavproxy_exe():
+        mp = mavproxy(CPU_RATE, seconds)
+        runs.append(("MAVProxy", mavproxy))
+        row = {
+            "baseline_core_pct": round(100 * mp["cpu"] / per_k, 1),
+            "ratio_ours_to_it": round(ours["cpu"] / mp["cpu"], 2),
+        }
+    else:
+        row = {"note": "mavproxy.py not found (GCS_BENCH_MAVPROXY or PATH)"}
+    rows.append({"benchmark": "MAVProxy CPU per 1000 msg/s", "baseline": "MAVProxy --daemon, default logging"} | row)
+    for name, run in runs:
         knee = 0
         for rate in RATES:
             r = run(rate, 6.0, False)

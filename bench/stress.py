@@ -23,6 +23,7 @@ through the estimator classes (`gcs estimate` gives the same numbers, more slowl
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from collections.abc import Callable
@@ -165,20 +166,55 @@ def print_trials(rows: list[dict[str, float | str]], metric: str = "heading") ->
         print(f"  {r['rate_hz']} {r['case']:<22} {r['trial']:<36} {r['estimator']:<4} {metric} {float(r[metric]):6.2f}")
 
 
+def case_metric(case: str) -> str:
+    """The figure a case is scored by: heading for the magnets (and none), total for the rest."""
+    return "heading" if case.startswith(("magnet", "none", "floor")) else "total"
+
+
+def worst_ratios(rows: list[dict[str, float | str]]) -> dict[tuple[float, str, str], tuple[float, str]]:
+    """(rate, case, estimator) → (the worst ratio to VQF's figure on the same trial, that trial):
+    the issue's "no trial or stress case worse than 2× VQF"."""
+    vqf = {
+        (r["rate_hz"], r["case"], r["trial"]): float(r[case_metric(str(r["case"]))])
+        for r in rows
+        if r["estimator"] == "vqf"
+    }
+    out: dict[tuple[float, str, str], tuple[float, str]] = {}
+    for r in rows:
+        if r["estimator"] == "vqf":
+            continue
+        key = (float(r["rate_hz"]), str(r["case"]), str(r["estimator"]))
+        ratio = float(r[case_metric(str(r["case"]))]) / vqf[(r["rate_hz"], r["case"], r["trial"])]
+        if key not in out or ratio > out[key][0]:
+            out[key] = (ratio, str(r["trial"])[:2])
+    return out
+
+
 def print_stress(rows: list[dict[str, float | str]]) -> None:
-    """Heading RMS (total RMS for the bias step and shocks) per case: the mean and the worst trial."""
+    """Heading RMS (total RMS for the bias step and shocks) per case: the mean and the worst trial,
+    then each estimator's worst ratio to VQF on one trial."""
     print("\nStress cases on BROAD (deg, RMS after the switch; shocks: from 10 s after the last):")
+    ratios = worst_ratios(rows)
     for rate in dict.fromkeys(r["rate_hz"] for r in rows):
         names = list(dict.fromkeys(str(r["estimator"]) for r in rows if r["rate_hz"] == rate))
         print(f"\n{rate} Hz, mean / worst of the trials")
         print(f"{'case':<28}" + "".join(f"{n:>14}" for n in names))
         for case in dict.fromkeys(r["case"] for r in rows):
-            metric = "heading" if str(case).startswith(("magnet", "none", "floor")) else "total"
+            metric = case_metric(str(case))
             cells = []
             for n in names:
                 v = [float(r[metric]) for r in rows if (r["case"], r["estimator"], r["rate_hz"]) == (case, n, rate)]
                 cells.append(f"{np.mean(v):6.2f} /{max(v):6.2f}")
             print(f"{str(case) + ' ' + metric:<28}" + "".join(f"{c:>14}" for c in cells))
+        print(f"\n{rate} Hz, worst ratio to VQF on one trial (trial)")
+        print(f"{'case':<28}" + "".join(f"{n:>14}" for n in names if n != "vqf"))
+        for case in dict.fromkeys(r["case"] for r in rows):
+            cells = [
+                f"{ratios[(float(rate), str(case), n)][0]:6.2f} ({ratios[(float(rate), str(case), n)][1]})"
+                for n in names
+                if n != "vqf"
+            ]
+            print(f"{str(case):<28}" + "".join(f"{c:>14}" for c in cells))
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, float | str]]:
@@ -188,6 +224,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float | str]]:
     parser.add_argument("--trials", default="")
     parser.add_argument("--every", default="6", help="decimations, e.g. 1,6")
     parser.add_argument("--verbose", action="store_true", help="every trial's figure too")
+    parser.add_argument("--json", help="write every row as JSON to this file")
     args = parser.parse_args(argv if argv is not None else [])
     estimators = tuple(n for n in args.estimators.split(",") if n)
     rows = [
@@ -199,6 +236,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, float | str]]:
     if args.verbose:
         print_trials(rows)
     print_stress(rows)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
     return rows
 
 

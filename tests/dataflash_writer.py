@@ -16,8 +16,8 @@ def _old_record(name: str, ms: int, r) -> tuple[str, tuple[object, ...]] | None:
         return ("IMU", "IMU2")[instance], (ms, r.GyrX, r.GyrY, r.GyrZ, r.AccX, r.AccY, r.AccZ)
     if name == "MAG" and instance < 2:
         return ("MAG", "MAG2")[instance], (ms, r.MagX, r.MagY, r.MagZ, r.OfsX, r.OfsY, r.OfsZ, 0, 0, 0)
-    if name == "GPS":
-        gps = (r.Status, ms, r.GWk, r.NSats, x100(r.HDop), e7(r.Lat), e7(r.Lng), 0, x100(r.Alt))
+    if name == "GPS":  # TimeMS: the receiver's GPS time of week; T: the boot time
+        gps = (r.Status, r.GMS, r.GWk, r.NSats, x100(r.HDop), e7(r.Lat), e7(r.Lng), 0, x100(r.Alt))
         return "GPS", (*gps, x100(r.Spd), x100(r.GCrs), r.VZ, ms)
     if name == "ATT":
         angles = (x100(r.DesRoll), x100(r.Roll), x100(r.DesPitch), x100(r.Pitch), yaw_cdeg(r.DesYaw))
@@ -39,8 +39,8 @@ def _new_record(name: str, ms: int, r) -> tuple[str, tuple[object, ...]] | None:
     if name == "MAG":
         return "MAG", (us, instance, *v[1:4])
     if name == "GPS":
-        status, _, week, nsats, hdop, lat, lng, _, alt, spd, gcrs, vz, _ = v
-        return "GPS", (us, 0, status, 0, week, nsats, hdop, lat, lng, alt, spd / 100, gcrs / 100, vz, 0.0)
+        status, week_ms, week, nsats, hdop, lat, lng, _, alt, spd, gcrs, vz, _ = v
+        return "GPS", (us, 0, status, week_ms, week, nsats, hdop, lat, lng, alt, spd / 100, gcrs / 100, vz, 0.0)
     if name == "ATT":
         return "ATT", (us, *(a / 100 for a in v[1:]))
     return kind, (us, *v[1:])

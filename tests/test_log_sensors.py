@@ -23,6 +23,7 @@ from gcs.core.estimators import registry
 from gcs.core.samples import GpsSample, ImuSample
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.ulog import GPS_TOPICS, MAG_TOPICS, UlogFile
+from gcs.sim.dataflash import DataflashWriter
 
 HOP = LOGS / "arducopter-sitl-hop.BIN"
 #: Magnetic declination at the SITL home (Canberra), as tests/test_dcm.py uses for this flight.
@@ -69,6 +70,44 @@ def test_timems_and_timeus_logs_give_the_same_estimates(hop_logs, tmp_path, name
     original = estimate(HOP, name, tmp_path / "original.csv")
     assert np.abs(original[:, 0] - old[:, 0]).max() <= 0.5e-3 + 1e-9
     assert math.sqrt(np.mean(angle_deg(original, old) ** 2)) < 0.05  # measured 0.005-0.012°
+
+
+def test_timems_gps_is_stamped_with_boot_time_not_gps_time_of_week(hop_logs):
+    """ArduCopter 3.2's GPS record carries the receiver's time of week in TimeMS (here the SITL's
+    own, about 4.5 days into the week) and the boot time in T: the GPS samples must fall where
+    the TimeUS log has them, inside the IMU's time span, or GPS aiding never meets the IMU."""
+    folder, _ = hop_logs
+    old, new = (list(DataflashLog(str(folder / name))) for name in ("old.bin", "new.bin"))
+    old_gps, new_gps = ([s.t for s in log if isinstance(s, GpsSample)] for log in (old, new))
+    imu_t = [s.t for s in old if isinstance(s, ImuSample)]
+    assert len(old_gps) == len(new_gps) > 100
+    np.testing.assert_allclose(old_gps, new_gps, atol=1e-9)
+    assert imu_t[0] <= old_gps[0] and old_gps[-1] <= imu_t[-1] + 1.0
+    week_ms = [r.TimeMS for r in _records(folder / "old.bin", "GPS")]
+    assert min(week_ms) > 1000 * (imu_t[-1] + 1.0)  # the records' TimeMS is not the boot time
+
+
+def test_gps_without_boot_time_takes_the_time_of_the_record_before_it(tmp_path):
+    """ArduCopter 3.1's GPS record has no boot time at all (TimeMS is GPS time of week): it is
+    stamped with the record before it, the loop that logged it."""
+    writer = DataflashWriter()
+    writer.define("IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ")
+    writer.define("GPS", "BIHBcLLeeEe", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs")
+    for ms in range(0, 2000, 10):
+        writer.add("IMU", ms, 0.0, 0.0, 0.0, 0.0, 0.0, -9.8)
+        if ms % 200 == 100:
+            writer.add("GPS", 3, 130_040_000 + ms, 1769, 10, 90, -353_632_610, 1_491_652_299, 0, 58_400, 200, 9_000)
+    path = tmp_path / "ac31.bin"
+    path.write_bytes(writer.bytes())
+    gps = [s for s in DataflashLog(str(path)) if isinstance(s, GpsSample)]
+    assert [round(s.t, 3) for s in gps] == [round(0.1 + 0.2 * k, 3) for k in range(10)]
+    assert gps[0].vel_ned[1] == pytest.approx(2.0)  # 2 m/s east
+
+
+def _records(path, kind):
+    log = DFReader_binary(str(path))
+    while (r := log.recv_match(type=kind)) is not None:
+        yield r
 
 
 def test_imu_option_selects_the_instance_in_both_formats(hop_logs, tmp_path, capsys):

@@ -107,6 +107,10 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
                     gains2 = (await api.get("/api/vehicles/2/estimators/dcm")).json()["gains"]
                     info = next(g for g in gains2 if g["name"] == gain)
                     new_gain = info["min"] if info["value"] != info["min"] else info["max"]
+                    async with httpx.AsyncClient(base_url=base, timeout=30) as anonymous:  # no token
+                        refused = await anonymous.put(
+                            f"/api/vehicles/2/estimators/dcm/gains/{gain}", json={"value": new_gain}
+                        )
                     put = await api.put(f"/api/vehicles/2/estimators/dcm/gains/{gain}", json={"value": new_gain})
                     after = {e.sysid: e.station.estimator("dcm").gains.values.copy() for e in fleet.vehicles()}
                     tuned = await api.put("/api/vehicles/2/tuning/ATC_RAT_RLL_P", json={"value": 0.15})
@@ -132,6 +136,7 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
             gain=gain,
             new_gain=new_gain,
             put=put.status_code,
+            refused=refused.status_code,
             before=before,
             after=after,
             tuned=(tuned.status_code, tuned.json()),
@@ -166,7 +171,7 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
     assert r["tables"][2]["SYSID_THISMAV"].value == 2 and r["tables"][3]["MAV_SYS_ID"].value == 3
 
     # the gain change on vehicle 2 touched no other vehicle
-    assert r["put"] == 200
+    assert r["refused"] == 401 and r["put"] == 200  # a vehicle's URL takes the token as the plain one does
     assert r["after"][2][r["gain"]] == r["new_gain"] != r["before"][2][r["gain"]]
     assert r["after"][1] == r["before"][1] and r["after"][3] == r["before"][3]
     status, body = r["tuned"]
@@ -255,3 +260,51 @@ def test_dashboard_vehicle_selector() -> None:
     assert any(u.endswith("/api/vehicles/2/status") for u in urls)
     assert any(u.endswith("/api/vehicles/2/ws/live") for u in urls)
     assert "3.2.1" not in shown
+
+
+def test_demo_refuses_two_vehicles_with_one_sysid() -> None:
+    command = [sys.executable, "-m", "gcs", "demo", "--vehicles", "apm25:1,pixhawk:1"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().endswith("'apm25:1,pixhawk:1': each vehicle needs a system id of its own")
+
+
+def test_routing_by_link_and_sysid() -> None:
+    """The fleet's routing on real packets fed to its link's receive path: vehicles from
+    heartbeats only, each vehicle's data on its own bus, a radio's RADIO_STATUS to every vehicle,
+    sensor data of a vehicle not yet heard to no other vehicle."""
+
+    def packets(sysid: int, compid: int, *msgs) -> bytes:
+        encoder = Encoder(sysid, compid)
+        return b"".join(encoder.encode(m) for m in msgs)
+
+    def beat(kind: int, autopilot: int = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
+        return mavlink.MAVLink_heartbeat_message(kind, autopilot, 0, 0, 4, 3)
+
+    def imu(k: int):
+        return mavlink.MAVLink_raw_imu_message(k * 20_000, 10, -20, -1000, 1, 2, 3, 200, -50, 400)
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect="udpin:127.0.0.1:0", estimate=False))
+        buses = {}
+        fleet.vehicle_added.connect(lambda e: buses.setdefault(e.sysid, e.station.bus.subscribe("t")))
+        feed = fleet.links[0]._on_data
+        feed(packets(1, 1, beat(mavlink.MAV_TYPE_QUADROTOR), imu(1)))
+        feed(packets(2, 1, imu(1)))  # vehicle 2's data before its first heartbeat
+        feed(packets(255, 190, beat(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID)))
+        feed(packets(1, 191, beat(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID)))
+        feed(packets(2, 1, beat(mavlink.MAV_TYPE_FIXED_WING), imu(2)))
+        feed(packets(51, 68, mavlink.MAVLink_radio_status_message(200, 190, 50, 20, 25, 0, 0)))
+        got = {sysid: [(m.type, m.sysid, m.compid) for m in sub.drain()] for sysid, sub in buses.items()}
+        return [(e.sysid, e.compid) for e in fleet.vehicles()], got
+
+    vehicles, got = asyncio.run(scenario())
+    assert vehicles == [(1, 1), (2, 1)]
+    assert got[1] == [
+        ("HEARTBEAT", 1, 1),
+        ("RAW_IMU", 1, 1),
+        ("HEARTBEAT", 255, 190),
+        ("HEARTBEAT", 1, 191),
+        ("RADIO_STATUS", 51, 68),
+    ]
+    assert got[2] == [("HEARTBEAT", 2, 1), ("RAW_IMU", 2, 1), ("RADIO_STATUS", 51, 68)]

@@ -158,14 +158,15 @@ def test_old_dataflash_records_timems_and_instance_by_type():
         Record("IMU2", TimeMS=1_500, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8), mag
     )
     assert s.t == 1.5 and s.source == "IMU[1]" and s.mag is mag.field
-    g = dataflash.gps_from_dataflash(
-        Record("GPS", TimeMS=2_000, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=90.0, VZ=0.5, Status=3)
-    )
+    fix = {"Lat": -35.0, "Lng": 149.0, "Alt": 584.0, "Spd": 2.0, "GCrs": 90.0, "VZ": 0.5, "Status": 3}
+    # 3.2's GPS: TimeMS is the GPS time of week, T the boot time (ms)
+    g = dataflash.gps_from_dataflash(Record("GPS", TimeMS=130_040_903, Week=1769, T=2_000, **fix))
     assert g.t == 2.0 and g.fix_type == 3 and g.course == pytest.approx(math.pi / 2)
     np.testing.assert_allclose(g.vel_ned, [0.0, 2.0, 0.5], atol=1e-12)
     att = dataflash.attitude_from_dataflash(Record("ATT", TimeMS=2_500, Roll=-7.18, Pitch=2.58, Yaw=337.1), "onboard")
     assert att.t == 2.5 and att.yaw == pytest.approx(math.radians(337.1 - 360))
     assert dataflash.record_time_us(Record("ATT", Roll=0.0)) is None  # ArduCopter 3.1's ATT has no time
+    assert dataflash.record_time_us(Record("GPS", TimeMS=130_040_903, Week=1769, **fix)) is None  # 3.1's GPS
 
 
 @pytest.mark.parametrize("modern", [True, False])

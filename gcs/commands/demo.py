@@ -9,6 +9,7 @@ import math
 
 from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
+from gcs.commands.sim import PROFILES
 from gcs.core.gains import PresetFile
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.station import Station, StationConfig
@@ -19,7 +20,7 @@ from gcs.transport.address import free_port
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--profile",
-        choices=("apm25", "pixhawk", "px4"),
+        choices=PROFILES,
         default="pixhawk",
         help="which autopilot the simulator behaves as (default pixhawk)",
     )
@@ -28,6 +29,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("bench", "circuit", "quad"),
         default="quad",
         help="the simulated motion (default quad: a flight with coordinated turns)",
+    )
+    parser.add_argument(
+        "--vehicles",
+        type=vehicle_list,
+        default=None,
+        metavar="PROFILE:SYSID,...",
+        help="several simulated vehicles on the one link, e.g. apm25:1,pixhawk:2 (default: one --profile, sysid 1)",
     )
     parser.add_argument("--seed", type=int, default=0, help="simulator random seed")
     parser.add_argument(
@@ -43,6 +51,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     add_record_arguments(parser)
     add_server_arguments(parser)
+
+
+def vehicle_list(text: str) -> list[tuple[str, int]]:
+    """`apm25:1,pixhawk:2` → [("apm25", 1), ("pixhawk", 2)]; argparse reports a bad one."""
+    vehicles = []
+    for item in text.split(","):
+        profile, _, sysid = item.strip().partition(":")
+        if profile not in PROFILES or not sysid.isdigit() or not 1 <= int(sysid) <= 254:
+            raise argparse.ArgumentTypeError(f"{item!r}: give PROFILE:SYSID, PROFILE one of {', '.join(PROFILES)}")
+        vehicles.append((profile, int(sysid)))
+    if len({sysid for _, sysid in vehicles}) < len(vehicles):
+        raise argparse.ArgumentTypeError(f"{text!r}: each vehicle needs a system id of its own")
+    return vehicles
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,16 +82,14 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
     port = free_port()
     config = StationConfig(f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args), presets=presets)
     fleet = Fleet(config)
-    station = fleet.first
-    sim = SimVehicle(profile=args.profile, script=args.script, seed=args.seed)
-    print(
-        f"gcs demo: simulated {args.profile} vehicle ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop",
-        flush=True,
-    )
+    vehicles = args.vehicles or [(args.profile, 1)]
+    sims = [SimVehicle(profile=p, script=args.script, seed=args.seed + i, sysid=n) for i, (p, n) in enumerate(vehicles)]
+    names = ", ".join(f"{p} (sysid {n})" for p, n in vehicles)
+    print(f"gcs demo: simulated {names} ({args.script}) on udp 127.0.0.1:{port}; Ctrl-C to stop", flush=True)
 
     server = dashboard(fleet, args)
     await fleet.start()
-    sim_task = asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}"))
+    sim_tasks = [asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}")) for sim in sims]
     await server.start()
     print(f"gcs demo: dashboard at {server.url}  (3-D view on port {server.viser_port})", flush=True)
     loop = asyncio.get_running_loop()
@@ -78,12 +97,15 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
     try:
         while loop.time() < stop_at:
             await asyncio.sleep(1.0)
-            print(_status_line(station), flush=True)
+            for entry in fleet.vehicles():
+                prefix = f"sysid {entry.sysid}: " if len(sims) > 1 else ""
+                print(prefix + _status_line(entry.station), flush=True)
     finally:
-        sim_task.cancel()
+        for task in sim_tasks:
+            task.cancel()
         await server.stop()
         await fleet.stop()
-        await asyncio.gather(sim_task, return_exceptions=True)
+        await asyncio.gather(*sim_tasks, return_exceptions=True)
 
 
 def _status_line(station: Station) -> str:

@@ -23,7 +23,8 @@ from typing import TypedDict
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.rotation import euler_quat, quat_to_euler, wrap_pi, wrap_pi_array
+from gcs.core.lag import RunningLag
+from gcs.core.rotation import euler_quat, quat_to_euler, wrap_pi
 from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
@@ -190,7 +191,7 @@ class _Stats:
         }
 
 
-#: References the lag search uses at most (30 s of 50 Hz ATTITUDE is 1500; more add nothing).
+#: References the lag keeps over its history at most (30 s of 50 Hz ATTITUDE is 1500; more add nothing).
 LAG_POINTS = 500
 
 
@@ -208,16 +209,12 @@ class Comparison:
         lag_max: float = 0.5,
         lag_step: float = 0.01,
         min_imu_rate: float = 50.0,
-        lag_period: float = 5.0,
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate
-        self.lag_period = lag_period
-        self._lag: tuple[float, float | None] | None = None  # (newest onboard t when searched, lag)
+        self.running_lag = RunningLag(lag_max, lag_step, history, history / LAG_POINTS)
         self.estimates: deque[tuple[float, Quat]] = deque()
         self.pending: deque[AttitudeSample] = deque()
-        self.onboard: deque[tuple[float, float, float]] = deque()  # (t, roll, pitch) for the lag search
-        self.est_euler: deque[tuple[float, float, float]] = deque()
         self.stats: dict[str, _Stats] = {}
         self.dropped = 0
         self._window_t: deque[float] = deque()  # estimate times of the last `window` s: the IMU rate
@@ -229,19 +226,18 @@ class Comparison:
         if self.estimates and t < self.estimates[-1][0]:  # vehicle clock went back: a new session
             self.estimates.clear()
             self.pending.clear()
-            self.onboard.clear()
-            self.est_euler.clear()
+            self.running_lag.reset()
             self._window_t.clear()
         if self.estimates and t == self.estimates[-1][0]:
             return
         w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
         self.estimates.append((t, (float(w), float(x), float(y), float(z))))
-        if not self.est_euler or t >= self.est_euler[-1][0] + self.lag_step:  # the lag search's resolution
+        lag = self.running_lag
+        if not lag.estimates or t >= lag.estimates[-1][0] + self.lag_step:  # the lag's resolution
             roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
-            self.est_euler.append((t, roll, pitch))
-        for buf in (self.estimates, self.est_euler):
-            while buf[0][0] < t - self.history:
-                buf.popleft()
+            lag.add_estimate(t, roll, pitch)
+        while self.estimates[0][0] < t - self.history:
+            self.estimates.popleft()
         recent = self._window_t
         recent.append(t)
         while recent[0] < t - self.window:
@@ -280,9 +276,7 @@ class Comparison:
             stats = self.stats[ref.source] = _Stats(self.window)
         stats.add(ref.t, err)
         if ref.source == "onboard":
-            self.onboard.append((ref.t, ref.roll, ref.pitch))
-            while self.onboard[0][0] < ref.t - self.history:
-                self.onboard.popleft()
+            self.running_lag.add_reference(ref.t, ref.roll, ref.pitch)
 
     def imu_rate(self) -> float:
         """Estimator output (= raw IMU) rate over the last `window` seconds, Hz."""
@@ -294,36 +288,9 @@ class Comparison:
     def lag(self) -> float | None:
         """How late the estimator is behind ATTITUDE, s: the shift L for which the estimator at t + L
         best matches ATTITUDE at t (roll and pitch). Positive: the estimator is behind (late);
-        negative: ahead. None without overlap.
-
-        Searched again once every `lag_period` s of vehicle time (a lag moves slowly, and the search
-        is the costliest part of a snapshot), on at most LAG_POINTS evenly spread references."""
-        if len(self.onboard) < 10 or len(self.est_euler) < 2:
-            return None
-        newest = self.onboard[-1][0]
-        if self._lag is None or not self._lag[0] <= newest < self._lag[0] + self.lag_period:
-            self._lag = (newest, self._search_lag())
-        return self._lag[1]
-
-    def _search_lag(self) -> float | None:
-        est = np.array(self.est_euler)
-        ref = np.array(self.onboard)
-        ref = ref[:: max(1, len(ref) // LAG_POINTS)]
-        steps = int(round(self.lag_max / self.lag_step))
-        best, best_cost = None, math.inf
-        for k in range(-steps, steps + 1):
-            lag = k * self.lag_step
-            ts = ref[:, 0] + lag
-            inside = (ts >= est[0, 0]) & (ts <= est[-1, 0])
-            if inside.sum() < 10:
-                continue
-            dr = np.interp(ts[inside], est[:, 0], est[:, 1]) - ref[inside, 1]
-            dp = np.interp(ts[inside], est[:, 0], est[:, 2]) - ref[inside, 2]
-            dr = wrap_pi_array(dr)
-            cost = float(np.mean(dr * dr + dp * dp))
-            if cost < best_cost:
-                best, best_cost = lag, cost
-        return best
+        negative: ahead. None without overlap. Kept as references arrive (gcs.core.lag): reading
+        it costs an argmin."""
+        return self.running_lag.lag()
 
     def reliability(self) -> tuple[bool, str]:
         rate = self.imu_rate()

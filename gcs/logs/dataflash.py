@@ -78,10 +78,17 @@ def record_instance(record: DataflashRecord) -> int:
 
 def record_time_us(record: DataflashRecord) -> int | None:
     """The record's time since boot in µs: TimeUS (µs), or TimeMS (ms) in ArduCopter 3.1-3.2
-    logs; None for a record type without either (ArduCopter 3.1's ATT)."""
+    logs; None for a record type without either (ArduCopter 3.1's ATT).
+
+    The 3.1-3.2 GPS record is the exception: its TimeMS is the receiver's GPS time of week (what
+    `Week` counts weeks of), not boot time; 3.2 adds the boot time as `T` (ms), 3.1 has none
+    (None: the reader stamps it at the record before it, the loop it was logged in)."""
     time_us = getattr(record, "TimeUS", None)
     if time_us is not None:
         return int(time_us)
+    if record.get_type() in GPS_TYPES:
+        boot_ms = getattr(record, "T", None)
+        return None if boot_ms is None else ms_to_usec(int(boot_ms))
     time_ms = getattr(record, "TimeMS", None)
     return None if time_ms is None else ms_to_usec(int(time_ms))
 
@@ -115,15 +122,16 @@ def mag_from_dataflash(record: DataflashRecord) -> MagSample | None:
     return MagSample(_time_s(record), field, f"MAG[{record_instance(record)}]")
 
 
-def gps_from_dataflash(record: DataflashRecord) -> GpsSample:
-    """GPS / GPS2 record: TimeUS µs or TimeMS ms, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg,
-    VZ m/s (down; 0 where the format lacks it, as GPS_RAW_INT), Status (AP_GPS fix status, whose
-    values are MAVLink's GPS_FIX_TYPE)."""
+def gps_from_dataflash(record: DataflashRecord, t: float | None = None) -> GpsSample:
+    """GPS / GPS2 record: TimeUS µs, or T ms in 3.2 (see record_time_us; `t` s where the record
+    has no boot time), Lat/Lng degrees, Alt m, Spd m/s, GCrs deg, VZ m/s (down; 0 where the
+    format lacks it, as GPS_RAW_INT), Status (AP_GPS fix status, whose values are MAVLink's
+    GPS_FIX_TYPE)."""
     speed = float(record.Spd)
     course = math.radians(record.GCrs)
     vel_ned = np.array([speed * math.cos(course), speed * math.sin(course), float(getattr(record, "VZ", 0.0))])
     return GpsSample(
-        _time_s(record),
+        _time_s(record) if t is None else t,
         float(record.Lat),
         float(record.Lng),
         float(record.Alt),
@@ -213,6 +221,7 @@ class DataflashLog(LogFile):
         mag: MagSample | None = None
         imu_instances: set[int] = set()
         untimed: set[str] = set()
+        last_us: int | None = None  # the latest record time: a 3.1 GPS record's stamp
         while True:
             try:
                 with notices.collected():
@@ -235,9 +244,12 @@ class DataflashLog(LogFile):
                 continue
             instance = record_instance(record)
             time_us = record_time_us(record)
+            if time_us is None and kind in GPS_TYPES and last_us is not None:
+                time_us = last_us  # ArduCopter 3.1: logged in the loop of the record before it
             if time_us is None:
                 untimed.add(kind)
                 continue
+            last_us = time_us
             if kind in IMU_TYPES:
                 imu_instances.add(instance)
                 if instance == self.imu:
@@ -250,7 +262,7 @@ class DataflashLog(LogFile):
                 mag = mag_from_dataflash(record)
             elif kind in GPS_TYPES:
                 self._seen(kind, time_us)
-                gps = gps_from_dataflash(record)
+                gps = gps_from_dataflash(record, usec_to_s(time_us))
                 yield gps
                 if not self.declination.gps_fix:
                     change = self.declination.fix(gps.fix_type, gps.lat, gps.lon, gps.alt, gps_year(record))

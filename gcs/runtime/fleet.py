@@ -7,7 +7,9 @@ unbound, as a one-vehicle station's does (the dashboard, the recorder and `gcs s
 before anything is heard) and takes the first vehicle heard; each further vehicle gets a new core
 at its first heartbeat. Messages from a system that is no vehicle (a GCS, a companion with its own
 sysid, a radio's RADIO_STATUS) go to every vehicle on the link they came on, as they did on a
-one-vehicle link. A sysid already served on one link and heard on another stays on the first.
+one-vehicle link, except sensor data (some vehicle's not yet heard, never another's); until the
+first vehicle is heard, its core gets everything (a link of attitude lines has no heartbeat).
+A sysid already served on one link and heard on another stays on the first.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from gcs.mavlink.identity import is_vehicle_heartbeat
+from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
@@ -45,7 +48,8 @@ class _LinkBus(MessageBus):
         self.fleet, self.index = fleet, index
 
     def publish(self, item: Message) -> None:
-        super().publish(item)
+        if self._all or self._by_type:  # the link's own subscribers (none unless a tool adds one)
+            super().publish(item)
         self.fleet.route(self.index, item)
 
 
@@ -72,8 +76,8 @@ class Fleet:
         self.supervisor = Supervisor(first.events)
         self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]
         self._unbound: Station | None = first
-        self._by_key: dict[tuple[int, int], Station] = {}  # (link index, sysid) -> the vehicle's core
-        self._on_link: list[list[Station]] = [[] for _ in self.links]  # bound cores per link
+        self._by_key: dict[tuple[int, int], VehicleLink] = {}  # (link index, sysid) -> the vehicle's view
+        self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._elsewhere: set[tuple[int, int]] = set()  # (link, sysid) served on another link
         self._started = False
         #: a vehicle heard for the first time (its core just started), on the event loop
@@ -108,15 +112,19 @@ class Fleet:
 
     # ---- routing --------------------------------------------------------------------------------
     def route(self, index: int, item: Message) -> None:
-        core = self._by_key.get((index, item.sysid))
-        if core is not None:
-            _view(core).deliver(item)
+        key = (index, item.sysid)
+        view = self._by_key.get(key)
+        if view is not None:
+            view.deliver(item)
             return
-        if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg) and (index, item.sysid) not in self._elsewhere:
+        if key in self._elsewhere:
+            return  # a vehicle served on another link
+        if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg):
             self._adopt(index, item)
             return
-        for core in self._on_link[index]:  # a GCS, a companion, a radio: as on a one-vehicle link
-            _view(core).deliver(item)
+        if item.type not in INPUT_TYPES:  # a GCS, a companion, a radio: as on a one-vehicle link
+            for view in self._on_link[index]:  # (sensor data is some vehicle's: never another's)
+                view.deliver(item)
         if self._unbound is not None:
             _view(self._unbound).deliver(item)
 
@@ -131,22 +139,24 @@ class Fleet:
         if self._unbound is not None:
             core, self._unbound = self._unbound, None
             _view(core).bind(link, item.sysid, item.compid)
+            core.follow_system(item.sysid)
             self._entries[0] = VehicleEntry(item.sysid, item.compid, str(link.address), core)
             entry = self._entries[0]
         else:
             view = VehicleLink(link)
             view.bind(link, item.sysid, item.compid)
             core = Station(dataclasses.replace(self.config, outputs=[]), link=view, outputs=[])
+            core.follow_system(item.sysid)
             entry = VehicleEntry(item.sysid, item.compid, str(link.address), core)
             self._entries.append(entry)
             if self._started:
                 core.launch()
-        self._by_key[(index, item.sysid)] = core
-        self._on_link[index].append(core)
+        self._by_key[(index, item.sysid)] = _view(core)
+        self._on_link[index].append(_view(core))
         address = str(link.address)
         core.events.record("vehicle", "fleet", event="heard", sysid=item.sysid, compid=item.compid, link=address)
-        _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
         self.vehicle_added.emit(entry)
+        _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
 
 
 def _view(core: Station) -> VehicleLink:

@@ -28,6 +28,8 @@ import numpy as np
 from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
+from gcs.core.estimators.kernels import Compiled
+from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 from gcs.runtime.signal import Signal
@@ -273,6 +275,42 @@ def session_table(pipeline: EstimationPipeline) -> list[dict[str, object]]:
             s = stats["session"]
             rows.append({"estimator": name, "reference": ref, "n": s["n"], "rms_deg": s["rms"], "max_deg": s["max"]})
     return rows
+
+
+def compiled(estimators: list[str]) -> bool:
+    """Whether every estimator named has compiled kernels (whole_table can run it)."""
+    return all(issubclass(registry.get(name), Compiled) for name in estimators)
+
+
+def whole_table(
+    source: ReplaySource,
+    estimators: list[str],
+    gains: dict[str, dict[str, float]],
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[list[dict[str, object]], int]:
+    """`session_table` of a replay to the end, from whole-run arrays (gcs.core.estimators.whole)
+    instead of the per-sample pipeline: each estimator in one compiled loop, every reference
+    scored against every output the estimator produced, as the pipeline's Comparison scores them
+    (tests/test_whole_run.py). For `gcs replay --fast`, where nothing watches the frames go by.
+    Also returns the IMU samples fed (the pipeline's `imu_samples`); progress(done, total) counts
+    estimators."""
+    table = source.table
+    t_all = table.imu[:, 0]
+    rows: list[dict[str, object]] = []
+    fed = 0
+    for done, name in enumerate(estimators, start=1):
+        preset, recorded = source.estimator_config(name)
+        estimator = registry.create(name, preset, **{**recorded, **gains.get(name, {})})
+        run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name)
+        fed = int(run.fed.sum())
+        for ref, data in sorted(source.references.items()):
+            err = errors_at(t_all[run.fed], run.q[run.fed], data)[:, 1:]
+            if len(err):
+                rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
+                rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
+        if progress:
+            progress(done, len(estimators))
+    return rows, fed
 
 
 #: Replays kept encoded in the worker (a 10-minute session at 50 Hz is a few MB).

@@ -207,6 +207,12 @@ class Station:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
         await self.supervisor.task("link")
 
+    def follow_system(self, sysid: int) -> None:
+        """Estimate from this system's data only (a fleet's core: its vehicle's), not from the
+        first system that sends IMU data."""
+        if self.estimation is not None:
+            self.estimation.inputs.sampler.system = sysid
+
     # ---- snapshots ---------------------------------------------------------------------
     @property
     def snapshot(self) -> StationSnapshot:

@@ -11,26 +11,15 @@ from __future__ import annotations
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 import numpy.typing as npt
 
 from gcs.core.estimation import EstimationInput, GainChange
+from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 Floats = npt.NDArray[np.float64]
-
-
-class Kind(IntEnum):
-    """What input i is, and which optional fields it has."""
-
-    IMU = 0
-    IMU_MAG = 1
-    GPS = 2
-    GPS_VEL = 3
-    ATTITUDE = 4
-    GAIN = 5
 
 
 #: Columns per row of each table.
@@ -170,13 +159,15 @@ class InputTable:
                 yield AttitudeSample(t, roll, pitch, yaw, names[self.attitude_source[att_row]])
                 att_row += 1
             else:
-                estimator = int(self.gain_estimator[gain_row])
-                yield GainChange(
-                    None if estimator < 0 else names[estimator],
-                    names[self.gain_name[gain_row]],
-                    float(self.gain_value[gain_row]),
-                )
+                yield self.gain_change(gain_row)
                 gain_row += 1
+
+    def gain_change(self, k: int) -> GainChange:
+        """The k-th gain change input."""
+        estimator = int(self.gain_estimator[k])
+        return GainChange(
+            None if estimator < 0 else self.names[estimator], self.names[self.gain_name[k]], float(self.gain_value[k])
+        )
 
     def references(self) -> dict[str, Floats]:
         """Reference attitudes {source: N×4 array of t, roll, pitch, yaw}, in input order."""

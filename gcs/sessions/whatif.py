@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.core.comparison import errors_against
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
-from gcs.core.rotation import quat_to_euler
+from gcs.core.estimators.kernels import Compiled
+from gcs.core.estimators.whole import errors_at, euler_of, run_whole
 from gcs.core.samples import ImuSample
 from gcs.sessions.sources import ReplaySource
 
@@ -35,25 +35,31 @@ class EstimatorRun:
 
 
 def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> EstimatorRun:
-    """Run estimator `name` alone over the source's inputs, with `pinned` gains held fixed (the
-    loop of gcs.core.estimation.run_estimator); errors are computed on whole arrays afterwards."""
+    """Run estimator `name` alone over the source's inputs, with `pinned` gains held fixed, as one
+    compiled loop over the input columns (gcs.core.estimators.whole: the results of
+    gcs.core.estimation.run_estimator's per-sample loop); errors on whole arrays afterwards."""
     preset, gains = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**gains, **pinned})
-    t, euler = [], []
-    for item, valid in core_run_estimator(estimator, source.inputs(), name, pinned):
-        if valid and isinstance(item, ImuSample):
-            t.append(item.t)
-            euler.append(quat_to_euler(estimator.quaternion.tolist()))  # floats: same angles, faster
-    series = np.column_stack([t, np.array(euler).reshape(-1, 3)]) if t else np.empty((0, 4))
+    table = source.table
+    if isinstance(estimator, Compiled):
+        run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name, pinned)
+        t, q = table.imu[run.valid, 0], run.q[run.valid]
+    else:  # an estimator without kernels (a readable reference): one call per sample
+        times, quats = [], []
+        for item, valid in core_run_estimator(estimator, source.inputs(), name, pinned):
+            if valid and isinstance(item, ImuSample):
+                times.append(item.t)
+                quats.append(estimator.quaternion)
+        t, q = np.array(times), np.array(quats).reshape(-1, 4)
     errors = {}
     for ref, data in source.references.items():
-        err = errors_against(series, data)[:, 1:]
+        err = errors_at(t, q, data)[:, 1:]
         if len(err):
             errors[ref] = {
                 "rms": np.sqrt(np.mean(err**2, axis=0)).tolist(),
                 "max": np.max(np.abs(err), axis=0).tolist(),
             }
-    return EstimatorRun(dict(estimator.gains.values), series[:, 0], series[:, 1:], errors)
+    return EstimatorRun(dict(estimator.gains.values), t, euler_of(q), errors)
 
 
 @dataclass

@@ -103,6 +103,10 @@ NEW_FORMATS = {
 ATTITUDE_LOG_HZ = 50.0
 MAG_LOG_HZ = 10.0
 GPS_FIX_3D = 3
+#: The simulated receiver's GPS time of week at boot (ms), and a week in ms: a 3.2 GPS record's
+#: TimeMS is this clock, not the boot time.
+GPS_WEEK_MS_AT_BOOT = 130_040_903
+GPS_WEEK_MS = 604_800_000
 #: Loop instants are k / loop_hz in floating point: a record due at that instant is taken there.
 TIME_SLACK = 1e-6
 #: A log stops growing here (a full card): 64 MiB, over an hour of 400 Hz logging.
@@ -194,10 +198,11 @@ class FlightLog:
     def gps(self, t: float, fix: GpsFix) -> None:
         """One receiver fix (3D, 12 satellites, HDOP 0.9, as the GPS_RAW_INT the sim sends)."""
         course = math.degrees(fix.course) % 360.0
-        if self.time_ms:
+        if self.time_ms:  # TimeMS is the receiver's GPS time of week (week 0: no date), T the boot time
             ms = round(t * 1e3)
+            week_ms = (GPS_WEEK_MS_AT_BOOT + ms) % GPS_WEEK_MS
             self._add_untimed(
-                "GPS", GPS_FIX_3D, ms, 0, 12, x100(0.9), e7(fix.lat), e7(fix.lon), x100(fix.alt - self.home.alt),
+                "GPS", GPS_FIX_3D, week_ms, 0, 12, x100(0.9), e7(fix.lat), e7(fix.lon), x100(fix.alt - self.home.alt),
                 x100(fix.alt), x100(fix.ground_speed), x100(course), fix.vel_ned[2], ms,
             )  # fmt: skip
         else:

@@ -82,9 +82,9 @@ def _rotate_renormalize(s: State, wx: float, wy: float, wz: float) -> float:
 
 
 @kernel
-def step(s: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
-    """DcmEstimator.update_imu. Returns the time policy's code (kernels.STEP ...); on a
-    re-initialisation code the caller initialises from the sample."""
+def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
+    """DcmEstimator.update_imu (hist: unused, the shared signature). Returns the time policy's code
+    (kernels.STEP ...); on a re-initialisation code the caller initialises from the sample."""
     gx, gy, gz = gyro[0], gyro[1], gyro[2]
     fx, fy, fz = accel[0], accel[1], accel[2]
     accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -187,12 +187,14 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     """`dcm` with its per-sample update compiled; same gains, presets, outputs and health as
     DcmEstimator (the reference)."""
 
+    KERNELS = k.Kernels(k.DCM)
+    STEP = staticmethod(step)
+
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[ROWS : ROWS + 9 : 4] = 1.0  # R = I, q = (1, 0, 0, 0) until the first sample
         super().__init__(preset, **gains)
         self._mag_view = k.MagView(self.s)
-        self._no_mag = np.zeros(3)
 
     # the reference's attributes the base class and callers use, kept in the state
 
@@ -210,17 +212,8 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         self.gps.update(sample)
         k.load_gps(self.s, self.gps)
 
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, gyro, accel, mag = self.s, sample.gyro, sample.accel, sample.mag
-        code = step(
-            s,
-            self.gain_vector(),
-            sample.t,
-            k.floats(gyro),
-            k.floats(accel),
-            self._no_mag if mag is None else k.floats(mag),
-            mag is not None,
-        )
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        s = self.s
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -232,7 +225,7 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
         s[ROWS : ROWS + 9] = np.asarray(R, dtype=float).reshape(-1)
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
-        self._reset_correction(vec3(float(v) for v in gyro))
+        self._reset_correction(vec3(float(v) for v in sample.gyro))
         s[k.VALID] = 1.0
         return True
 
@@ -247,10 +240,6 @@ class DcmCompiled(k.Compiled, DcmEstimator):
     @property
     def matrix(self) -> npt.NDArray[np.float64]:
         return self.s[ROWS : ROWS + 9].reshape(3, 3).copy()
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s

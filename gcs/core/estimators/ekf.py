@@ -19,7 +19,15 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from gcs.core.estimators.base import COMMON_GAINS, SHOCK_GAINS, AttitudeEstimator, HealthValue, Shock, initial_attitude
+from gcs.core.estimators.base import (
+    COMMON_GAINS,
+    PICK_GAINS,
+    SHOCK_GAINS,
+    AttitudeEstimator,
+    HealthValue,
+    Shock,
+    initial_attitude,
+)
 from gcs.core.estimators.magnetic import MAG_GAINS, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
@@ -84,6 +92,7 @@ class EkfEstimator(AttitudeEstimator):
             Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
             Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
         )
+        + PICK_GAINS
         + MAG_GAINS
         + SHOCK_GAINS
         + COMMON_GAINS
@@ -101,6 +110,7 @@ class EkfEstimator(AttitudeEstimator):
         self.q: Quat = (1.0, 0.0, 0.0, 0.0)
         self.v: Vec3 = (0.0, 0.0, 0.0)
         self.b: Vec3 = (0.0, 0.0, 0.0)
+        self._gyro_prev: list[float] | None = None  # the last sample's gyro, for picked samples
         self.P = np.zeros((9, 9))
         self._F = np.eye(9)  # only F[_TH, _B] and F[_V, _TH] change (see _predict)
         self._FP = np.empty((9, 9))
@@ -194,6 +204,7 @@ class EkfEstimator(AttitudeEstimator):
         R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), self.gains["declination"])
         self.q = tuple(matrix_to_quat(R).tolist())
         self.v = (0.0, 0.0, 0.0)
+        self._gyro_prev = None
         self._v_hist.clear()
         self._v_offset = (0.0, 0.0, 0.0)
         self._gps_t = -math.inf
@@ -211,12 +222,27 @@ class EkfEstimator(AttitudeEstimator):
     def _predict(self, gyro: list[float], accel: list[float], dt: float, t: float, shock: bool) -> None:
         """Strapdown q and v over dt (the sample's accel at the step's end attitude); propagate P.
         Through a shock the accelerometer measures the impact: the specific force is taken as
-        gravity alone (v held) and its noise inflated as for the impact."""
+        gravity alone (v held) and its noise inflated as for the impact.
+
+        The turn over dt: a log's every sample is the mean rate over the interval before it
+        (w dt); a slower stream (dt > pick_dt: RAW_IMU at 25-50 Hz) picks samples, each the rate
+        at its instant, so the rate is taken as linear between the last two, whose exact turn
+        to second order is the trapezoid plus the coning term (w0 × w1) dt²/12 (Savage 1998)."""
         g = self.gains.values
         bx, by, bz = self.b
-        self.q = q = quat_unit(
-            quat_mul(self.q, quat_exp((gyro[0] - bx) * dt, (gyro[1] - by) * dt, (gyro[2] - bz) * dt))
-        )
+        w1 = (gyro[0] - bx, gyro[1] - by, gyro[2] - bz)
+        prev, self._gyro_prev = self._gyro_prev, gyro
+        if prev is None or dt <= g["pick_dt"]:
+            turn = (w1[0] * dt, w1[1] * dt, w1[2] * dt)
+        else:
+            w0 = (prev[0] - bx, prev[1] - by, prev[2] - bz)
+            h, c = 0.5 * dt, dt * dt / 12.0
+            turn = (
+                (w0[0] + w1[0]) * h + (w0[1] * w1[2] - w0[2] * w1[1]) * c,
+                (w0[1] + w1[1]) * h + (w0[2] * w1[0] - w0[0] * w1[2]) * c,
+                (w0[2] + w1[2]) * h + (w0[0] * w1[1] - w0[1] * w1[0]) * c,
+            )
+        self.q = q = quat_unit(quat_mul(self.q, quat_exp(*turn)))
         R = quat_rows(q)
         fx, fy, fz = (0.0, 0.0, -G0) if shock else rows_times(R, accel)
         vx, vy, vz = self.v

@@ -28,7 +28,7 @@ GYRO_NOISE, HEADING_NOISE, BIAS_WALK, ACC_NOISE = (
 ACC_GATE, VEL_NOISE, GPS_NOISE, GPS_DELAY = _G["acc_gate"], _G["vel_noise"], _G["gps_noise"], _G["gps_delay"]
 GPS_TIMEOUT, MAG_NOISE, REST_GYRO, REST_ACC_G = _G["gps_timeout"], _G["mag_noise"], _G["rest_gyro"], _G["rest_acc"]
 REST_TIME, REST_NOISE, REST_ACC_NOISE, MAX_GAP = _G["rest_time"], _G["rest_noise"], _G["rest_acc_noise"], _G["max_gap"]
-SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
+SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
 _MAG = (
     "mag_norm_tol",
     "mag_dip_tol",
@@ -49,7 +49,8 @@ ACC_INFLATION, VEL_INNOV, GPS_NIS, GPS_AIDED, MAG_NIS, MAG_INNOV_DEG, MAG_REJECT
     B + 18, B + 27
 )
 P = B + 27  # 9×9
-SIZE = P + 81
+GYRO_PREV_SET, GYRO_PREV = P + 81, P + 82  # flag, 3: the last sample's gyro (picked samples)
+SIZE = P + 85
 #: the stats that are counts or flags (ints in the reference's health)
 _INT_STATS = ("gps_aided", "mag_rejected", "at_rest", "dropped")
 _STATS = (
@@ -188,8 +189,18 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     shock = k.shock_update(s, t, a_norm, spin, g[GYRO_LIMIT], g[SHOCK_ACC], g[SHOCK_HOLD])
     # -- _predict
     bx, by, bz = s[BIAS], s[BIAS + 1], s[BIAS + 2]
+    w0, w1, w2 = g0 - bx, g1 - by, g2 - bz
+    if s[GYRO_PREV_SET] == 0.0 or dt <= g[PICK_DT]:
+        t0, t1, t2 = w0 * dt, w1 * dt, w2 * dt
+    else:  # picked samples: trapezoid + coning between the last two rates
+        p0, p1, p2 = s[GYRO_PREV] - bx, s[GYRO_PREV + 1] - by, s[GYRO_PREV + 2] - bz
+        h, c = 0.5 * dt, dt * dt / 12.0
+        t0 = (p0 + w0) * h + (p1 * w2 - p2 * w1) * c
+        t1 = (p1 + w1) * h + (p2 * w0 - p0 * w2) * c
+        t2 = (p2 + w2) * h + (p0 * w1 - p1 * w0) * c
+    s[GYRO_PREV_SET], s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2] = 1.0, g0, g1, g2
     q = (s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3])
-    q = k.quat_unit(k.quat_mul(q, k.quat_exp((g0 - bx) * dt, (g1 - by) * dt, (g2 - bz) * dt)))
+    q = k.quat_unit(k.quat_mul(q, k.quat_exp(t0, t1, t2)))
     s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = q
     R = k.quat_rows(q)
     if shock:
@@ -358,16 +369,28 @@ def gps_step(s: State, hist: State, g: State, t: float, vn: float, ve: float) ->
     s[GPS_T_FUSED] = t
 
 
+@kernel
+def gps_input(
+    s: State, hist: State, g: State, t: float, fix_type: float, vel: State, has_vel: bool, speed: float, course: float
+) -> None:
+    """EkfEstimator.update_gps: its checks, then gps_step (speed and course: unused, the shared signature)."""
+    if fix_type < 3 or not has_vel or s[INITIALISED] == 0.0 or t <= s[GPS_T_FUSED]:
+        return
+    gps_step(s, hist, g, t, vel[0], vel[1])
+
+
 class EkfCompiled(k.Compiled, EkfEstimator):
     """`ekf` with its IMU and GPS steps compiled; same gains, presets, outputs and health as
     EkfEstimator (the reference)."""
+
+    KERNELS = k.Kernels(k.EKF, INITIALISED, HIST_N)
+    STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[GPS_T_FUSED] = self.s[REST_SINCE] = -math.inf
         self.hist = np.zeros((1024, 4))
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def initialised(self) -> bool:
@@ -394,18 +417,8 @@ class EkfCompiled(k.Compiled, EkfEstimator):
     def b(self, value: tuple[float, float, float]) -> None:
         self.s[BIAS : BIAS + 3] = value
 
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
-
-    def update_imu(self, sample: ImuSample) -> bool:
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
         s, mag = self.s, sample.mag
-        if s[HIST_N] >= len(self.hist) - 1:  # room for one more velocity: double the buffer
-            self._grow()
-        code = step(
-            s, self.hist, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -426,6 +439,7 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), g["declination"])
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
         s[V : V + 3] = 0.0
+        s[GYRO_PREV_SET] = 0.0
         s[V_OFFSET : V_OFFSET + 3] = 0.0
         s[HIST_HEAD] = s[HIST_N] = 0.0
         s[GPS_T_FUSED] = -math.inf
@@ -448,11 +462,11 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         self.s[HIST_HEAD] = 0.0
 
     def update_gps(self, sample: GpsSample) -> None:
-        s = self.s
-        if sample.fix_type < 3 or sample.vel_ned is None or not s[INITIALISED] or sample.t <= s[GPS_T_FUSED]:
-            return
-        vel = np.asarray(sample.vel_ned, float).tolist()
-        gps_step(s, self.hist, self.gain_vector(), sample.t, vel[0], vel[1])
+        vel = self._no_mag if sample.vel_ned is None else k.floats(sample.vel_ned)
+        gps_input(
+            self.s, self.hist, self.gain_vector(), sample.t, sample.fix_type, vel, sample.vel_ned is not None,
+            sample.ground_speed, sample.course,
+        )  # fmt: skip
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s

@@ -1,29 +1,45 @@
 """numba for the estimators' per-sample kernels, compiled once and cached to disk.
 
-numba caches compiled code beside the source (`__pycache__`); an installed package may be
-read-only (a pipx or system install), so the cache then goes under the user's cache directory
-(NUMBA_CACHE_DIR, unless the user set it). This must happen before numba is imported.
+numba checks a cached kernel only against the file of the function it compiled, not against what
+that function calls or reads (rotation formulas, a gain's position in the state), so a cache
+could outlive a change to `kernels.py` or a reference estimator. The cache therefore lives in a
+folder named after a hash of every source under `gcs.core`: changed code gets a fresh cache.
+The folder sits beside the package when it is writable and under the user's cache directory when
+it is not (a pipx or system install); a NUMBA_CACHE_DIR the user set is the base instead.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
+import numba
 
-def _cache_dir() -> None:
+CORE = Path(__file__).resolve().parents[1]
+
+
+def source_hash(root: Path = CORE) -> str:
+    """The first 16 hex digits of a SHA-256 over every .py file under root, in path order."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def cache_base() -> Path:
+    """Where cached kernels go before the source hash is appended."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return
-    here = Path(__file__).parent
-    if os.access(here, os.W_OK) and (not (here / "__pycache__").exists() or os.access(here / "__pycache__", os.W_OK)):
-        return
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    os.environ["NUMBA_CACHE_DIR"] = str(Path(base) / "gcs" / "numba")
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    pycache = Path(__file__).parent / "__pycache__"
+    writable = pycache if pycache.exists() else pycache.parent
+    if os.access(writable, os.W_OK):
+        return pycache / "numba"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gcs" / "numba"
 
 
-_cache_dir()
-
-import numba  # noqa: E402 - after NUMBA_CACHE_DIR is settled
+numba.config.CACHE_DIR = str(cache_base() / source_hash())  # type: ignore[attr-defined]
 
 #: Compiled in nopython mode, cached on disk; no fastmath: the results must equal the reference's.
 kernel = numba.njit(cache=True, nogil=True)

@@ -10,11 +10,14 @@ from BASE. Booleans are 0.0/1.0, "None" is a 0.0 flag slot (or NaN for a time).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
 
+from gcs.core import rotation
 from gcs.core.estimators.base import GpsAcceleration
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.magnetic import (
@@ -26,7 +29,8 @@ from gcs.core.estimators.magnetic import (
     MAG_WARMUP,
 )
 from gcs.core.gains import Gain, GainSet
-from gcs.core.rotation import Quat, Rows, Vec3
+from gcs.core.rotation import Vec3
+from gcs.core.samples import ImuSample
 
 State = npt.NDArray[np.float64]
 
@@ -41,11 +45,13 @@ OFFC_SET, OFFC = 19, 20  # flag, 3
 OFF_N, OFF_TIME, OFF_TURN, TRUSTED, DISTURBED, YAW_ERROR, LEARNED, RELEARNED, AGE, DECL = range(23, 33)
 # -- Shock --------------------------------------------------------------------------------------
 SHOCK_UNTIL, SHOCK_ACTIVE, SHOCK_SATURATED, SHOCK_COUNT = range(33, 37)
-# -- GpsAcceleration (written by the Python object after each fix; read per sample) -------------
+# -- GpsAcceleration (written by the Python object after each fix, or by gps_update; read per
+# sample); GPS_VEL is the last fix's velocity, meaningful while GPS_T is not NaN --------------
 GPS_T, GPS_A, GPS_SPEED, GPS_COURSE, GPS_TIMEOUT = 37, 38, 41, 42, 43
 # -- the attitude quaternion (w, x, y, z), sensor → NED, written by every step -----------------
 Q = 44
-BASE = 48
+GPS_VEL = 48
+BASE = 51
 
 
 def new_state(size: int) -> State:
@@ -75,6 +81,8 @@ def reset_shock(s: State) -> None:
 def load_gps(s: State, gps: GpsAcceleration) -> None:
     """Copy the GPS acceleration's state (after a fix) for the kernels."""
     s[GPS_T] = math.nan if gps.t is None else gps.t
+    if gps.vel is not None:
+        s[GPS_VEL : GPS_VEL + 3] = gps.vel
     s[GPS_A : GPS_A + 3] = gps.accel
     s[GPS_SPEED] = gps.ground_speed
     s[GPS_COURSE] = gps.course
@@ -121,11 +129,32 @@ class StateCount:
         est.s[self.slot] = value
 
 
+@dataclass(frozen=True)
+class Kernels:
+    """How the whole-run loop (whole.py) drives an estimator: which of its step kernels (STEPS),
+    the state slot that says the attitude is valid, and the one that counts `hist`'s rows in use
+    (-1: no history to grow)."""
+
+    step: int
+    valid_slot: int = VALID
+    hist_n_slot: int = -1
+
+
+#: Kernels.step codes. whole.py calls the step kernels by code rather than taking them as
+#: arguments: numba does not reuse its disk cache for a function that takes functions.
+DCM, KF, EKF = range(3)
+
+
 class Compiled:
     """What every compiled estimator adds to its reference class (listed first among its bases):
-    the kernel state `s`, the time policy's figures kept in it, and the gains as a vector."""
+    the kernel state `s` (and `hist`, a velocity history only `ekf` uses), the time policy's
+    figures kept in it, and the gains as a vector."""
 
+    KERNELS: ClassVar[Kernels]
+    #: the estimator's step kernel: step(s, hist, g, t, gyro, accel, mag, has_mag) -> code
+    STEP: ClassVar[Callable[..., int]]
     s: State
+    hist: State
     t = StateTime()
     reinit_count = StateCount(REINIT_COUNT)
     duplicates = StateCount(DUPLICATES)
@@ -136,6 +165,9 @@ class Compiled:
         """Called first in the subclass's __init__: the reference's __init__ writes into it."""
         self.s = new_state(size)
         self.s[Q] = 1.0
+        self._quat_view = self.s[Q : Q + 4]
+        self.hist = np.zeros((1, 4))
+        self._no_mag = np.zeros(3)
         self._g = np.zeros(0)
         self._g_version = -1
 
@@ -147,6 +179,32 @@ class Compiled:
             self._g = np.array([values[g.name] for g in self.GAINS])
             self._g_version = gains.version
         return self._g
+
+    def update_imu(self, sample: ImuSample) -> bool:
+        """The reference's update_imu: the step kernel, then Python only when it asks."""
+        n = self.KERNELS.hist_n_slot
+        if n >= 0 and self.s[n] >= len(self.hist) - 1:  # room for one more row: grow
+            self._grow()
+        mag = sample.mag
+        code = self.STEP(
+            self.s, self.hist, self.gain_vector(), sample.t, floats(sample.gyro), floats(sample.accel),
+            self._no_mag if mag is None else floats(mag), mag is not None,
+        )  # fmt: skip
+        return True if code == STEP else self._after_step(code, sample)
+
+    @property
+    def quaternion(self) -> State:
+        """The attitude (w, x, y, z), a copy."""
+        return self._quat_view.copy()
+
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        """What update_imu does after the kernel's step returned code: whether the attitude is
+        valid, after re-initialising from the sample when the code asks for it."""
+        raise NotImplementedError
+
+    def _grow(self) -> None:
+        """Make room in `hist` for one more row (only estimators with a history have to)."""
+        raise NotImplementedError
 
 
 class MagView:
@@ -220,6 +278,44 @@ def shock_update(
     active = bool(t <= s[SHOCK_UNTIL])
     s[SHOCK_ACTIVE] = 1.0 if active else 0.0
     return active
+
+
+@kernel
+def gps_update(s: State, t: float, fix_type: float, vel: State, has_vel: bool, speed: float, course: float) -> None:
+    """GpsAcceleration.update on the state (the whole-run path; the per-sample path keeps the
+    Python object and copies it with load_gps)."""
+    gt = s[GPS_T]
+    if not math.isnan(gt) and t <= gt:
+        if t < gt:  # clock went back: start over
+            _gps_reset(s)
+        return
+    if not has_vel or fix_type < 3:
+        _gps_reset(s)
+        return
+    if not math.isnan(gt) and t - gt <= s[GPS_TIMEOUT]:
+        for i in range(3):
+            s[GPS_A + i] = (vel[i] - s[GPS_VEL + i]) / (t - gt)
+    else:
+        s[GPS_A], s[GPS_A + 1], s[GPS_A + 2] = 0.0, 0.0, 0.0
+    s[GPS_T] = t
+    s[GPS_VEL], s[GPS_VEL + 1], s[GPS_VEL + 2] = vel[0], vel[1], vel[2]
+    s[GPS_SPEED], s[GPS_COURSE] = speed, course
+
+
+@kernel
+def gps_input(
+    s: State, hist: State, g: State, t: float, fix_type: float, vel: State, has_vel: bool, speed: float, course: float
+) -> None:
+    """`dcm` and `kf`'s GPS input in the shared signature (ekf_compiled.gps_input's): the acceleration."""
+    gps_update(s, t, fix_type, vel, has_vel, speed, course)
+
+
+@kernel
+def _gps_reset(s: State) -> None:
+    """GpsAcceleration.reset."""
+    s[GPS_T] = math.nan
+    s[GPS_A], s[GPS_A + 1], s[GPS_A + 2] = 0.0, 0.0, 0.0
+    s[GPS_SPEED], s[GPS_COURSE] = 0.0, math.nan
 
 
 @kernel
@@ -365,53 +461,10 @@ def rows_to_quat(s: State, rows: int) -> None:
     s[Q], s[Q + 1], s[Q + 2], s[Q + 3] = sign * w / n, sign * x / n, sign * y / n, sign * z / n
 
 
-@kernel
-def quat_exp(x: float, y: float, z: float) -> Quat:
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-12:
-        return 1.0, 0.5 * x, 0.5 * y, 0.5 * z
-    s = math.sin(0.5 * angle) / angle
-    return math.cos(0.5 * angle), x * s, y * s, z * s
-
-
-@kernel
-def quat_mul(p: Quat, q: Quat) -> Quat:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
-
-
-@kernel
-def quat_unit(q: Quat) -> Quat:
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    return w / n, x / n, y / n, z / n
-
-
-@kernel
-def quat_rows(q: Quat) -> Rows:
-    w, x, y, z = q
-    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))  # fmt: skip
-
-
-@kernel
-def euler_quat(roll: float, pitch: float, yaw: float) -> Quat:
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
-
-
-@kernel
-def quat_to_euler(q: Quat) -> Vec3:
-    w, x, y, z = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
+# rotation.py's plain-float formulas, compiled from the same source (one copy of each formula)
+quat_exp = kernel(rotation.quat_exp)
+quat_mul = kernel(rotation.quat_mul)
+quat_unit = kernel(rotation.quat_unit)
+quat_rows = kernel(rotation.quat_rows)
+euler_quat = kernel(rotation.euler_quat)
+quat_to_euler = kernel(rotation.quat_to_euler)

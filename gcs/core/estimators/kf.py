@@ -12,6 +12,7 @@ from filterpy.kalman import KalmanFilter
 from gcs.core.estimators.base import (
     COMMON_GAINS,
     GPS_GAINS,
+    PICK_GAINS,
     SHOCK_GAINS,
     AttitudeEstimator,
     GpsAcceleration,
@@ -137,6 +138,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             Gain("mag_dt", 0.02, 0.0, 1.0, "s", "step the yaw noise is given per: faster steps get it × mag_dt/Δt"),
         )
         + MAG_GAINS
+        + PICK_GAINS
         + SHOCK_GAINS
         + GPS_GAINS
         + COMMON_GAINS
@@ -267,13 +269,17 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             # the mean: the attitude turned by the trapezoid of two gyro samples, exactly
             # with the rate varying linearly between them, plus the second-order coning term
             # (ω₀ × ω₁)·dt²/12 (Bortz), which matters at telemetry rates in fast rotation
+            # (picked samples, dt > pick_dt); a log's interval means turn by the sample alone
             (a0, a1, a2), (b0, b1, b2) = self.gyro_prev, gyro
             c = dt * dt / 12.0
-            turn = quat_exp(
-                0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
-                0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
-                0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
-            )
+            if dt <= g["pick_dt"]:
+                turn = quat_exp(b0 * dt, b1 * dt, b2 * dt)
+            else:
+                turn = quat_exp(
+                    0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
+                    0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
+                    0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
+                )
             q = quat_unit(quat_mul(euler_quat(x0[0], x0[1], x0[2]), turn))
             ang = quat_to_euler(q)
             rates = euler_rates(ang[0], ang[1], gyro, cmin)

@@ -42,7 +42,7 @@ K_Q, DT_REF, EXACT, COS_MIN, GIMBAL_R = (
 ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
-GPS_GAIN, GPS_SPEED_MIN, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"]
+GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
 _MAG = (
     "mag_norm_tol",
@@ -169,9 +169,9 @@ def _update(s: State, rows: npt.NDArray[np.int64], z: State, r: State) -> State:
 
 
 @kernel
-def step(s: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
-    """KalmanAttitudeFilter.update_imu. Returns the time policy's code (kernels.STEP ...); on a
-    re-initialisation code the caller initialises from the sample."""
+def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, mag: State, has_mag: bool) -> int:
+    """KalmanAttitudeFilter.update_imu (hist: unused, the shared signature). Returns the time
+    policy's code (kernels.STEP ...); on a re-initialisation code the caller initialises from the sample."""
     fx, fy, fz = accel[0], accel[1], accel[2]
     accel_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
     s[k.ACCEL_NORM] = accel_norm
@@ -188,11 +188,14 @@ def step(s: State, g: State, t: float, gyro: State, accel: State, mag: State, ha
     if exact:
         a0, a1, a2 = s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2]
         c = dt * dt / 12.0
-        turn = k.quat_exp(
-            0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
-            0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
-            0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
-        )
+        if dt <= g[PICK_DT]:
+            turn = k.quat_exp(b0 * dt, b1 * dt, b2 * dt)
+        else:
+            turn = k.quat_exp(
+                0.5 * (a0 + b0) * dt + c * (a1 * b2 - a2 * b1),
+                0.5 * (a1 + b1) * dt + c * (a2 * b0 - a0 * b2),
+                0.5 * (a2 + b2) * dt + c * (a0 * b1 - a1 * b0),
+            )
         q = k.quat_unit(k.quat_mul(k.euler_quat(x0, x1, x2), turn))
         ang = k.quat_to_euler(q)
         rates = _euler_rates(ang[0], ang[1], b0, b1, b2, cmin)
@@ -322,10 +325,12 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     """`kf` with its per-sample update compiled; same gains, presets, outputs and health as
     KalmanAttitudeFilter (the reference, on filterpy)."""
 
+    KERNELS = k.Kernels(k.KF)
+    STEP = staticmethod(step)
+
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         super().__init__(preset, **gains)
-        self._no_mag = np.zeros(3)
 
     @property
     def valid(self) -> bool:
@@ -339,12 +344,8 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         self.gps.update(sample)
         k.load_gps(self.s, self.gps)
 
-    def update_imu(self, sample: ImuSample) -> bool:
-        s, mag = self.s, sample.mag
-        code = step(
-            s, self.gain_vector(), sample.t, k.floats(sample.gyro), k.floats(sample.accel),
-            self._no_mag if mag is None else k.floats(mag), mag is not None,
-        )  # fmt: skip
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        s = self.s
         if code == k.STEP:
             return True
         if code == k.DUPLICATE:
@@ -377,10 +378,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     def euler(self) -> tuple[float, float, float]:
         x = self.s[X : X + 3].tolist()
         return x[0], x[1], x[2]
-
-    @property
-    def quaternion(self) -> npt.NDArray[np.float64]:
-        return self.s[k.Q : k.Q + 4].copy()
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s
