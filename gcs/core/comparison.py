@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.core.lag import RunningLag
-from gcs.core.rotation import euler_quat, quat_to_euler, wrap_pi
+from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
 from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
@@ -42,21 +42,7 @@ def attitude_error(q0: Quat, q1: Quat, u: float, roll: float, pitch: float, yaw:
     the shorter arc, as Z-Y-X angles, minus the reference (rad), each difference wrapped to ±180°;
     degrees (roll, pitch, yaw). Slerp is wrap-safe where interpolating angles is not (roll near
     ±180° upside down, yaw through ±180°). Plain floats: the same numbers live and whole-run."""
-    w0, x0, y0, z0 = q0
-    w1, x1, y1, z1 = q1
-    d = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
-    if d < 0.0:
-        w1, x1, y1, z1, d = -w1, -x1, -y1, -z1, -d
-    if d > 0.9995:  # nearly equal: normalised linear interpolation is exact to rounding
-        a, b = 1.0 - u, u
-    else:
-        theta = math.acos(min(d, 1.0))
-        s = math.sin(theta)
-        a, b = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
-    w, x, y, z = a * w0 + b * w1, a * x0 + b * x1, a * y0 + b * y1, a * z0 + b * z1
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    est_roll, est_pitch, est_yaw = quat_to_euler((w, x, y, z))
+    est_roll, est_pitch, est_yaw = quat_to_euler(quat_slerp(q0, q1, u))
     return (
         math.degrees(wrap_pi(est_roll - roll)),
         math.degrees(wrap_pi(est_pitch - pitch)),

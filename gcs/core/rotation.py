@@ -164,14 +164,20 @@ def wrap_pi_array(angles: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return wrapped
 
 
-def quat_slerp(q0: npt.NDArray[np.float64], q1: npt.NDArray[np.float64], u: float) -> npt.NDArray[np.float64]:
-    """Spherical interpolation from q0 (u = 0) to q1 (u = 1) along the shorter arc."""
-    d = float(np.dot(q0, q1))
+def quat_slerp(q0: VectorLike, q1: VectorLike, u: float) -> Quat:
+    """Spherical interpolation from unit q0 (u = 0) to unit q1 (u = 1) along the shorter arc,
+    normalised. Plain floats, so that kernels.py compiles this same formula for whole runs."""
+    w0, x0, y0, z0 = q0
+    w1, x1, y1, z1 = q1
+    d = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
     if d < 0.0:
-        q1, d = -q1, -d
+        w1, x1, y1, z1, d = -w1, -x1, -y1, -z1, -d
     if d > 0.9995:  # nearly equal: normalised linear interpolation is exact to rounding
-        q = q0 + u * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(d)
-    s = math.sin(theta)
-    return (math.sin((1.0 - u) * theta) / s) * q0 + (math.sin(u * theta) / s) * q1
+        a, b = 1.0 - u, u
+    else:
+        theta = math.acos(min(d, 1.0))
+        s = math.sin(theta)
+        a, b = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
+    w, x, y, z = a * w0 + b * w1, a * x0 + b * x1, a * y0 + b * y1, a * z0 + b * z1
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n

@@ -5,13 +5,15 @@ that function calls or reads (rotation formulas, a gain's position in the state)
 could outlive a change to `kernels.py` or a reference estimator. The cache therefore lives in a
 folder named after a hash of every source under `gcs.core`: changed code gets a fresh cache.
 The folder sits beside the package when it is writable and under the user's cache directory when
-it is not (a pipx or system install); a NUMBA_CACHE_DIR the user set is the base instead.
+it is not (a pipx or system install); under a NUMBA_CACHE_DIR the user set, its `gcs` folder.
+Folders of older sources are removed.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 from pathlib import Path
 
 import numba
@@ -31,7 +33,7 @@ def source_hash(root: Path = CORE) -> str:
 def cache_base() -> Path:
     """Where cached kernels go before the source hash is appended."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return Path(os.environ["NUMBA_CACHE_DIR"])
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "gcs"
     pycache = Path(__file__).parent / "__pycache__"
     writable = pycache if pycache.exists() else pycache.parent
     if os.access(writable, os.W_OK):
@@ -39,7 +41,19 @@ def cache_base() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gcs" / "numba"
 
 
-numba.config.CACHE_DIR = str(cache_base() / source_hash())  # type: ignore[attr-defined]
+def cache_dir() -> Path:
+    """This source's cache folder; the folders of other sources under the same base go."""
+    base, name = cache_base(), source_hash()
+    try:
+        for old in base.iterdir() if base.is_dir() else ():
+            if old.name != name:
+                shutil.rmtree(old, ignore_errors=True)
+    except OSError:
+        pass  # another process is pruning too: a stale folder costs only disk
+    return base / name
+
+
+numba.config.CACHE_DIR = str(cache_dir())  # type: ignore[attr-defined]
 
 #: Compiled in nopython mode, cached on disk; no fastmath: the results must equal the reference's.
 kernel = numba.njit(cache=True, nogil=True)

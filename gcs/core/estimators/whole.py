@@ -207,20 +207,9 @@ def _attitude_errors(t: Floats, q: Floats, ref: Floats, lo: npt.NDArray[np.int64
             i = j = last
         span = t[j] - t[i]
         u = (rt - t[i]) / span if span > 0 else 0.0
-        w0, x0, y0, z0 = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
-        w1, x1, y1, z1 = q[j, 0], q[j, 1], q[j, 2], q[j, 3]
-        d = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
-        if d < 0.0:
-            w1, x1, y1, z1, d = -w1, -x1, -y1, -z1, -d
-        if d > 0.9995:
-            a, b = 1.0 - u, u
-        else:
-            theta = math.acos(min(d, 1.0))
-            sn = math.sin(theta)
-            a, b = math.sin((1.0 - u) * theta) / sn, math.sin(u * theta) / sn
-        w, x, y, z = a * w0 + b * w1, a * x0 + b * x1, a * y0 + b * y1, a * z0 + b * z1
-        nq = math.sqrt(w * w + x * x + y * y + z * z)
-        roll, pitch, yaw = k.quat_to_euler((w / nq, x / nq, y / nq, z / nq))
+        q0 = (q[i, 0], q[i, 1], q[i, 2], q[i, 3])
+        q1 = (q[j, 0], q[j, 1], q[j, 2], q[j, 3])
+        roll, pitch, yaw = k.quat_to_euler(k.quat_slerp(q0, q1, u))
         out[m, 0] = rt
         out[m, 1] = math.degrees(k.wrap_pi(roll - ref[m, 1]))
         out[m, 2] = math.degrees(k.wrap_pi(pitch - ref[m, 2]))
