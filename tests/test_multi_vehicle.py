@@ -212,8 +212,8 @@ def test_dashboard_vehicle_selector() -> None:
     """Real Chromium: the selector lists both vehicles on one port, and choosing the second
     switches the page's REST and WebSocket URLs to /api/vehicles/2/... (its panel shows its own
     firmware: ArduCopter 4.5.7, not the APM 2.5's 3.2.1)."""
+    from live import CHROMIUM, CHROMIUM_ARGS, POLL_MS
     from playwright.async_api import async_playwright
-    from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
 
     port = free_port(socket.SOCK_DGRAM)
 
