@@ -20,6 +20,7 @@ BENCHMARKS = {
     "estimators": "bench.estimators",
     "serve_cpu": "bench.serve_cpu",
     "page_fps": "bench.page_fps",
+    "wire": "bench.wire",
     "fleet_routing": "bench.fleet_routing",
 }
 

@@ -15,6 +15,8 @@ import time
 
 import websockets
 
+from gcs.server import wire
+
 
 async def client(url: str, seconds: float, until: list[float]) -> list[tuple[float, float]]:
     """Read for `seconds`, or until holding an onboard sample at or past `until[0]` once the
@@ -24,14 +26,15 @@ async def client(url: str, seconds: float, until: list[float]) -> list[tuple[flo
         end = time.monotonic() + seconds
         while time.monotonic() < end and not (until and got and got[-1][0] >= until[0]):
             try:
-                text = await asyncio.wait_for(ws.recv(), 0.5)
+                message = await asyncio.wait_for(ws.recv(), 0.5)
             except TimeoutError:
                 continue
             now = time.monotonic()
-            msg = json.loads(text)
-            for frame in msg["frames"] if msg["type"] == "batch" else [msg]:
-                if frame["type"] == "points" and "onboard" in frame["points"]:
-                    got += [(t, now) for t in frame["points"]["onboard"][0]]
+            if isinstance(message, str):
+                continue  # hello, this client's counters
+            for frame in wire.decode(message):
+                if isinstance(frame, wire.PointsFrame) and "onboard" in frame.points:
+                    got += [(t, now) for t in frame.points["onboard"][0]]
     return got
 
 

@@ -1,15 +1,63 @@
-"""Helpers for tests that run the real simulator against the real link over real sockets."""
+"""Helpers for tests (and bench.page_fps) that run the real simulator against the real link over
+real sockets, and the dashboard in real Chromium."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import subprocess
 import sys
 import time
 
 from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",  # software WebGL for the 3-D view
+    "--disable-gpu-compositing",  # compositing in software without the GPU process: rAF at 60 Hz, not 2-30
+    # Page tiles and the plots' 2-D canvases drawn by Skia on the CPU, not through SwiftShader's GL
+    # emulation in the GPU process (which Playwright turns on, and which then took most of a core
+    # on a loaded 2-core machine, starving the page and the station); only WebGL uses SwiftShader.
+    "--disable-gpu-rasterization",
+    "--disable-accelerated-2d-canvas",
+    "--no-sandbox",
+    "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1",  # not even DNS lookups leave the machine
+]
+# Page-side waits poll on a timer, not on animation frames (Playwright's default): what they wait
+# for is data, which must not depend on how fast the page manages to draw.
+POLL_MS = 20
+
+
+async def launch_chromium(playwright):
+    """Debian's Chromium (never a downloaded one). A missing browser fails the test (CI must have
+    it), it never skips it."""
+    if not os.path.exists(CHROMIUM):
+        raise AssertionError(f"{CHROMIUM} missing: run bash .ci/setup")
+    return await playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+
+
+async def open_page(browser, errors: list[str], width: int = 1366, height: int = 768):
+    """A page of that size whose console errors and uncaught exceptions land in `errors`."""
+    page = await browser.new_page(viewport={"width": width, "height": height})
+    page.on("console", lambda m: m.type == "error" and errors.append(m.text))
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    return page
+
+
+@contextlib.asynccontextmanager
+async def dashboard(station: Station, **kwargs):
+    """The station's DashboardServer on a free port (kwargs: viser, viser_port, hub, ...)."""
+    from gcs.server.dashboard import DashboardServer
+
+    server = DashboardServer(station, port=0, **kwargs)
+    await server.start()
+    try:
+        yield server
+    finally:
+        await server.stop()
 
 
 @contextlib.asynccontextmanager
@@ -64,15 +112,11 @@ async def served_api(station: Station):
     """The station's dashboard server on a free port and an authorised HTTP client to it."""
     import httpx
 
-    from gcs.server.dashboard import DashboardServer
-
-    server = DashboardServer(station, port=0, viser=False)
-    await server.start()
-    try:
-        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers) as api:
-            yield api
-    finally:
-        await server.stop()
+    async with (
+        dashboard(station, viser=False) as server,
+        httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers) as api,
+    ):
+        yield api
 
 
 async def wait_for(predicate, timeout: float, what: str, poll: float = 0.05) -> None:

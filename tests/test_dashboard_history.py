@@ -7,16 +7,12 @@ plots, and the page says so. Real simulator process (real time), station, uvicor
 from __future__ import annotations
 
 import asyncio
-import os
 import time
 
 import numpy as np
 import pytest
-from live import running_station, sim_process, wait_for
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
-
-from gcs.server.dashboard import DashboardServer
 
 SPEED = 1.0  # real time: at 2x the station (on the test's own loop) starved the page on a loaded machine
 SESSION_S = 60.0
@@ -57,12 +53,6 @@ def server_count(hub, source: str, t0: float, t1: float) -> int:
     return int(np.count_nonzero((t >= t0) & (t <= t1)))
 
 
-@pytest.fixture(autouse=True)
-def _chromium_installed() -> None:
-    if not os.path.exists(CHROMIUM):
-        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
-
-
 @pytest.mark.timeout(900)  # about 90 s on a quiet machine; minutes at load 14 on two cores
 def test_history_never_lost(udp_port, artifacts_dir):
     report = asyncio.run(asyncio.wait_for(scenario(udp_port, artifacts_dir), 840))
@@ -82,99 +72,90 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
     errors: list[str] = []
     address = f"udpout:127.0.0.1:{udp_port}"
     async with running_station(f"udpin:127.0.0.1:{udp_port}") as station:
-        server = DashboardServer(station, port=0, viser=False)
-        await server.start()
-        hub = server.hub
-        try:
-            async with async_playwright() as pw:
-                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                page = await browser.new_page(viewport={"width": 1366, "height": 768})
-                page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                async with sim_process(address, profile="pixhawk", script="quad", speed=SPEED):
-                    await wait_for(lambda: (hub.newest() or 0) > SESSION_S, 120, "a minute of session")
-                    firsts = {k: float(r.ordered()[0][0]) for k, r in hub.store.items()}
-                    step("goto")
-                    await page.goto(server.url, timeout=300_000, wait_until="commit")
-                    step("committed")
-                    await wait_loads(page, 2)
-                    step("loads")
-                    await page.wait_for_function("gcsStats.messages > 20", polling=POLL_MS, timeout=120_000)
-                    step("history loaded")
-                    series = await page.evaluate(JS_SERIES)
-                    report["opened_at_s"] = round(min(s["rawFrom"] for s in series.values() if s["n"]), 1)
-                    report["points_at_open"] = {k: s["n"] for k, s in series.items()}
-                    # Every source from the session's first sample on, no hole larger than a plot column
-                    # (10 min / ~1000 px = 0.6 s) anywhere; every error trace too.
-                    assert set(firsts) >= {"onboard", "ahrs2", "truth", "dcm", "kf", "ekf"}, firsts
-                    for name, first in firsts.items():
-                        s = series[name]
-                        assert s["n"] and s["first"] <= first + 1.0, (name, first, s)
+        async with dashboard(station, viser=False) as server, async_playwright() as pw:
+            hub = server.hub
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            async with sim_process(address, profile="pixhawk", script="quad", speed=SPEED):
+                await wait_for(lambda: (hub.newest() or 0) > SESSION_S, 120, "a minute of session")
+                firsts = {k: float(r.ordered()[0][0]) for k, r in hub.store.items()}
+                step("goto")
+                await page.goto(server.url, timeout=300_000, wait_until="commit")
+                step("committed")
+                await wait_loads(page, 2)
+                step("loads")
+                await page.wait_for_function("gcsStats.messages > 20", polling=POLL_MS, timeout=120_000)
+                step("history loaded")
+                series = await page.evaluate(JS_SERIES)
+                report["opened_at_s"] = round(min(s["rawFrom"] for s in series.values() if s["n"]), 1)
+                report["points_at_open"] = {k: s["n"] for k, s in series.items()}
+                # Every source from the session's first sample on, no hole larger than a plot column
+                # (10 min / ~1000 px = 0.6 s) anywhere; every error trace too.
+                assert set(firsts) >= {"onboard", "ahrs2", "truth", "dcm", "kf", "ekf"}, firsts
+                for name, first in firsts.items():
+                    s = series[name]
+                    assert s["n"] and s["first"] <= first + 1.0, (name, first, s)
+                    assert s["gap"] < 1.5, (name, s)
+                for name, s in series.items():
+                    if "|" in name:
+                        est, ref = name.split("|")
+                        assert s["n"] and s["first"] <= max(firsts[est], firsts[ref]) + 1.5, (name, s)
                         assert s["gap"] < 1.5, (name, s)
-                    for name, s in series.items():
-                        if "|" in name:
-                            est, ref = name.split("|")
-                            assert s["n"] and s["first"] <= max(firsts[est], firsts[ref]) + 1.5, (name, s)
-                            assert s["gap"] < 1.5, (name, s)
 
-                    # The window's own samples are all there: page and server agree one by one.
-                    raw0 = max(s["rawFrom"] for s in series.values() if s["n"])
-                    raw1 = min(s["last"] for k, s in series.items() if "|" not in k) - 0.5
-                    assert raw1 - raw0 > 20, (raw0, raw1)
-                    before = await page.evaluate(js_counts(firsts["onboard"] - 1, raw1))
-                    raw_before = await page.evaluate(js_counts(raw0, raw1))
-                    for name in firsts:
-                        assert raw_before[name] == server_count(hub, name, raw0, raw1), name
-                    report["raw_points_per_series"] = raw_before
+                # The window's own samples are all there: page and server agree one by one.
+                raw0 = max(s["rawFrom"] for s in series.values() if s["n"])
+                raw1 = min(s["last"] for k, s in series.items() if "|" not in k) - 0.5
+                assert raw1 - raw0 > 20, (raw0, raw1)
+                before = await page.evaluate(js_counts(firsts["onboard"] - 1, raw1))
+                raw_before = await page.evaluate(js_counts(raw0, raw1))
+                for name in firsts:
+                    assert raw_before[name] == server_count(hub, name, raw0, raw1), name
+                report["raw_points_per_series"] = raw_before
 
-                    step("switch")
-                    # 30 s → 10 min → 30 s: nothing lost, the raw samples identical.
-                    for value in ("600", "30"):
-                        n = await history_loads(page)
-                        await page.select_option("#window", value)
-                        await wait_loads(page, n + 1)
-                    after = await page.evaluate(js_counts(firsts["onboard"] - 1, raw1))
-                    raw_after = await page.evaluate(js_counts(raw0, raw1))
-                    report["points_before_after_switch"] = {k: (before[k], after[k]) for k in before}
-                    for name in firsts:  # every sample of every source, exactly
-                        assert raw_after[name] == raw_before[name], (name, raw_before, raw_after)
-                    for name in raw_before:  # error traces: within 2 % (seen: 1500 of 1515, cause not found)
-                        assert raw_after[name] >= 0.98 * raw_before[name], (name, raw_before, raw_after)
-                    for name, count in before.items():
-                        assert count > 0 and after[name] >= 0.9 * count, (name, count, after[name])
-
-                    step("reconnect")
-                    # The WebSocket drops for a while: the page fills the gap from the server.
+                step("switch")
+                # 30 s → 10 min → 30 s: nothing lost, the raw samples identical.
+                for value in ("600", "30"):
                     n = await history_loads(page)
-                    gap0 = await page.evaluate("gcsPlots.sources.onboard.last()")
-                    await page.evaluate("gcsWs.onclose = () => setTimeout(connect, 2000); gcsWs.close()")
+                    await page.select_option("#window", value)
                     await wait_loads(page, n + 1)
-                    gap1 = hub.newest() - 0.5
-                    await page.wait_for_function(
-                        f"gcsPlots.sources.onboard.last() > {gap1}", polling=POLL_MS, timeout=120_000
-                    )
-                    got = await page.evaluate(js_counts(gap0 - 2, gap1))
-                    report["reconnect_gap_s"] = round(gap1 - gap0, 1)
-                    for name in firsts:
-                        assert got[name] == server_count(hub, name, gap0 - 2, gap1), (name, got[name])
-                    assert await page.text_content("#plot-notes") == ""
+                after = await page.evaluate(js_counts(firsts["onboard"] - 1, raw1))
+                raw_after = await page.evaluate(js_counts(raw0, raw1))
+                report["points_before_after_switch"] = {k: (before[k], after[k]) for k in before}
+                for name in firsts:  # every sample of every source, exactly
+                    assert raw_after[name] == raw_before[name], (name, raw_before, raw_after)
+                for name in raw_before:  # error traces: within 2 % (seen: 1500 of 1515, cause not found)
+                    assert raw_after[name] >= 0.98 * raw_before[name], (name, raw_before, raw_after)
+                for name, count in before.items():
+                    assert count > 0 and after[name] >= 0.9 * count, (name, count, after[name])
 
-                step("reboot")
-                # A real reboot: the vehicle's clock starts again. The plots restart and say so.
-                async with sim_process(address, profile="pixhawk", script="quad", speed=SPEED):
-                    await page.wait_for_function(
-                        "document.querySelector('#plot-notes').textContent.includes('vehicle rebooted')",
-                        polling=POLL_MS,
-                        timeout=180_000,
-                    )
-                    await page.wait_for_function(
-                        "gcsPlots.sources.onboard.t.length > 50", polling=POLL_MS, timeout=120_000
-                    )
-                    assert await page.evaluate("gcsPlots.sources.onboard.t[0]") < 30
-                    report["reboot_note"] = await page.text_content("#plot-notes")
-                await page.screenshot(path=str(artifacts_dir / "dashboard-history.png"))
-                await browser.close()
-        finally:
-            await server.stop()
+                step("reconnect")
+                # The WebSocket drops for a while: the page fills the gap from the server.
+                n = await history_loads(page)
+                gap0 = await page.evaluate("gcsPlots.sources.onboard.last()")
+                await page.evaluate("gcsWs.onclose = () => setTimeout(connect, 2000); gcsWs.close()")
+                await wait_loads(page, n + 1)
+                gap1 = hub.newest() - 0.5
+                await page.wait_for_function(
+                    f"gcsPlots.sources.onboard.last() > {gap1}", polling=POLL_MS, timeout=120_000
+                )
+                got = await page.evaluate(js_counts(gap0 - 2, gap1))
+                report["reconnect_gap_s"] = round(gap1 - gap0, 1)
+                for name in firsts:
+                    assert got[name] == server_count(hub, name, gap0 - 2, gap1), (name, got[name])
+                assert await page.text_content("#plot-notes") == ""
+
+            step("reboot")
+            # A real reboot: the vehicle's clock starts again. The plots restart and say so.
+            async with sim_process(address, profile="pixhawk", script="quad", speed=SPEED):
+                await page.wait_for_function(
+                    "document.querySelector('#plot-notes').textContent.includes('vehicle rebooted')",
+                    polling=POLL_MS,
+                    timeout=180_000,
+                )
+                await page.wait_for_function("gcsPlots.sources.onboard.t.length > 50", polling=POLL_MS, timeout=120_000)
+                assert await page.evaluate("gcsPlots.sources.onboard.t[0]") < 30
+                report["reboot_note"] = await page.text_content("#plot-notes")
+            await page.screenshot(path=str(artifacts_dir / "dashboard-history.png"))
+            await browser.close()
     assert errors == [], errors
     return report

@@ -10,9 +10,8 @@ import os
 
 import pyarrow.parquet as pq
 import pytest
-from live import running_sim, running_station, sim_process, wait_for
+from live import CHROMIUM, CHROMIUM_ARGS, running_sim, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.server.dashboard import DashboardServer
 

@@ -30,6 +30,7 @@ from pymavlink.dialects.v20 import all as dialect
 from pymavlink.generator.mavcrc import x25crc
 
 from gcs.core.strict_json import loads as strict_loads
+from gcs.server import wire
 from gcs.transport.address import free_port
 
 SEED = 11
@@ -238,11 +239,17 @@ async def wait_estimating(api: httpx.AsyncClient) -> set[str]:
 
 
 async def read_frames(ws, frames: list, report: dict) -> None:
-    async for text in ws:
-        message = strict_loads(text)  # raises on NaN/Infinity: the task's exception fails the test
+    """Every frame as {"points": {source: [t...]}} or the control message; a NaN or an infinity
+    (a JSON token or a float in a binary frame) raises: the task's exception fails the test."""
+    async for message in ws:
         report["ws_frames"] += 1
         arrival = time.monotonic()
-        for f in message["frames"] if message.get("type") == "batch" else [message]:
+        if isinstance(message, str):
+            frames.append((arrival, strict_loads(message)))
+            continue
+        for f in wire.decode(message):
+            if isinstance(f, wire.PointsFrame):
+                f = {"points": {source: [list(cols[0])] for source, cols in f.points.items()}}
             frames.append((arrival, f))
 
 

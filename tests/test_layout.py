@@ -1,20 +1,18 @@
 """One responsive layout, on a 1366×768 laptop and a 390×844 phone, with live data in every panel:
 no horizontal scroll, no element overlapping another (bounding boxes of every block of the page),
-the 3-D view at least a quarter of the laptop's viewport; screenshots of both into
-test-artifacts/ (layout-laptop.png, layout-phone.png)."""
+the 3-D view at least a quarter of the laptop's viewport, and inside the 3-D view's frame (viser's
+own page) nothing drawn over the scene on the phone (viser's bottom sheet and its software-WebGL
+notice hidden) nor over the vehicle on the laptop (the minimized panel and the notice sit in the top
+corners); screenshots of both into test-artifacts/ (layout-laptop.png, layout-phone.png)."""
 
 from __future__ import annotations
 
 import asyncio
-import os
 
 import pytest
 from conftest import free_port
-from live import running_station, sim_process
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
-
-from gcs.server.dashboard import DashboardServer
 
 VIEWPORTS = {"laptop": (1366, 768), "phone": (390, 844)}
 # The page's blocks: none may overlap another, none may reach past the viewport's width. A wide
@@ -54,10 +52,31 @@ JS_LAYOUT = """(selectors) => {
 }"""
 
 
-@pytest.fixture(autouse=True)
-def _chromium_installed() -> None:
-    if not os.path.exists(CHROMIUM):
-        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
+# Inside viser's frame: every element that paints something (text, a background, an icon) and is
+# positioned over the 3-D canvas; `over_vehicle`: those reaching into the middle third of the
+# view each way, where the vehicle is drawn.
+JS_POSE_FRAME = """() => {
+  const canvas = [...document.querySelectorAll("canvas")].sort((a, b) => b.width * b.height - a.width * a.height)[0];
+  if (!canvas) return null;
+  const c = canvas.getBoundingClientRect();
+  const mid = { x0: c.left + c.width / 3, x1: c.right - c.width / 3,
+                y0: c.top + c.height / 3, y1: c.bottom - c.height / 3 };
+  const paints = (el, cs) => ["SVG", "svg", "IMG", "BUTTON", "INPUT"].includes(el.tagName)
+    || !/rgba\\(0, 0, 0, 0\\)|transparent/.test(cs.backgroundColor)
+    || [...el.childNodes].some((n) => n.nodeType === 3 && n.textContent.trim());
+  const overlays = [];
+  for (const el of document.querySelectorAll("body *")) {
+    const shown = el.checkVisibility({ opacityProperty: true, visibilityProperty: true });
+    if (el === canvas || el.contains(canvas) || !shown) continue;
+    const cs = getComputedStyle(el), r = el.getBoundingClientRect();
+    if (r.width < 2 || r.height < 2 || !paints(el, cs)) continue;
+    if (r.right <= c.left || r.left >= c.right || r.bottom <= c.top || r.top >= c.bottom) continue;
+    const hit = r.right > mid.x0 && r.left < mid.x1 && r.bottom > mid.y0 && r.top < mid.y1;
+    const box = [r.left, r.top, r.width, r.height].map(Math.round);
+    overlays.push({ tag: el.tagName, text: (el.innerText || "").slice(0, 40), box, hit });
+  }
+  return { canvas: [c.width, c.height].map(Math.round), overlays, over_vehicle: overlays.filter((o) => o.hit) };
+}"""
 
 
 @pytest.mark.timeout(900)  # under a minute on a quiet machine
@@ -70,6 +89,9 @@ def test_layout_laptop_and_phone(udp_port, artifacts_dir):
         assert r["beyond"] == [], (name, r["beyond"])
         assert r["boxes"] >= len(BLOCKS) + 5, (name, r)  # six charts and every panel were measured
     assert report["laptop"]["pose_fraction"] >= 0.25, report["laptop"]
+    for name, r in report.items():
+        assert r["pose_frame"]["over_vehicle"] == [], (name, r["pose_frame"])
+    assert report["phone"]["pose_frame"]["overlays"] == [], report["phone"]["pose_frame"]
 
 
 async def scenario(udp_port: int, artifacts_dir) -> dict:
@@ -79,29 +101,26 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
         sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
     ):
-        server = DashboardServer(station, port=0, viser_port=free_port())
-        await server.start()
-        try:
-            async with async_playwright() as pw:
-                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                for name, (width, height) in VIEWPORTS.items():
-                    page = await browser.new_page(viewport={"width": width, "height": height})
-                    page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-                    page.on("pageerror", lambda e: errors.append(str(e)))
-                    await page.goto(server.url, timeout=300_000, wait_until="commit")
-                    for ready in (
-                        "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
-                        "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
-                        "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
-                    ):
-                        await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
-                    await page.wait_for_timeout(3000)  # a few draws and a track point or two
-                    report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
-                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
-                    await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
-                    await page.close()
-                await browser.close()
-        finally:
-            await server.stop()
+        async with dashboard(station, viser_port=free_port()) as server, async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            for name, (width, height) in VIEWPORTS.items():
+                page = await open_page(browser, errors, width, height)
+                await page.goto(server.url, timeout=300_000, wait_until="commit")
+                for ready in (
+                    "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
+                    "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
+                    "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
+                ):
+                    await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
+                await page.wait_for_timeout(3000)  # a few draws and a track point or two
+                report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
+                pose = await (await page.wait_for_selector("#pose")).content_frame()
+                assert pose is not None
+                await pose.wait_for_selector("canvas", timeout=120_000)
+                report[name]["pose_frame"] = await pose.evaluate(JS_POSE_FRAME)
+                await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
+                await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
+                await page.close()
+            await browser.close()
     assert errors == [], errors
     return report

@@ -8,7 +8,6 @@ the flight does not make the link go lost."""
 from __future__ import annotations
 
 import asyncio
-import os
 import shutil
 import time
 from collections import Counter
@@ -16,27 +15,20 @@ from pathlib import Path
 
 import httpx
 import pytest
-from live import running_station, sim_process, wait_for
+from live import dashboard, launch_chromium, open_page, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.runtime.snapshots import StationSnapshot
-from gcs.server.dashboard import DashboardServer
 from gcs.sim.recording import write_tlog
 
 #: Share of the live samples the live viewer must keep while another viewer replays.
 KEPT = 0.95
-#: Largest departure of the link's mean IMU rate from the requested rate while a replay or what-if runs.
+#: Largest departure of the link's IMU rate from the requested rate while a replay runs (at every
+#: 5-s sample) or a what-if runs (its mean).
 RATE_TOLERANCE = 0.10
-#: Lowest 5-s IMU rate allowed (share of requested): a starved link shows 0 and then goes lost. On
-#: a 2-core machine at load 14 windows of 0.7 were seen with no replay at all (printed per run).
+#: Lowest 5-s IMU rate allowed during a what-if (share of requested): a starved link shows 0 and
+#: then goes lost. On a 2-core machine at load 14 windows of 0.7 were seen with no what-if at all.
 FLOOR = 0.6
-
-
-@pytest.fixture(autouse=True)
-def _chromium_installed() -> None:
-    if not os.path.exists(CHROMIUM):
-        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
 
 
 @pytest.fixture(scope="module")
@@ -114,23 +106,18 @@ async def replay_beside_live(udp_port: int, flights: Path, artifacts_dir: Path, 
     shutil.copy(flight(flights, "short.tlog", 30), root / "short.tlog")  # a symlink out of the folder is refused
     errors: list[str] = []
     async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station:
-        server = DashboardServer(station, port=0, viser=False)
-        await server.start()
-        emitted: Counter[str] = Counter()
-        station.points.connect(lambda points: emitted.update(p.source for p in points))
-        watch, baseline = LinkWatch(station), LinkWatch(station)
-        try:
+        async with dashboard(station, viser=False) as server:
+            emitted: Counter[str] = Counter()
+            station.points.connect(lambda points: emitted.update(p.source for p in points))
+            watch, baseline = LinkWatch(station), LinkWatch(station)
             async with (
                 sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
                 async_playwright() as pw,
             ):
                 await wait_for(lambda: link_imu_steady(station), 90, "the IMU stream at its requested rate")
-                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                live = await browser.new_page(viewport={"width": 1366, "height": 768})
-                viewer = await browser.new_page(viewport={"width": 1366, "height": 768})
-                for page in (live, viewer):
-                    page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-                    page.on("pageerror", lambda e: errors.append(str(e)))
+                browser = await launch_chromium(pw)
+                live = await open_page(browser, errors)
+                viewer = await open_page(browser, errors)
                 before_live_page = Counter(emitted)
                 await live.goto(server.url)
                 await live.wait_for_function("(gcsStats.received.onboard || 0) > 100", timeout=60_000)
@@ -174,8 +161,6 @@ async def replay_beside_live(udp_port: int, flights: Path, artifacts_dir: Path, 
                 assert await viewer.locator("#replay-table tr[data-reference=onboard]").count() == 3
                 assert await viewer.locator("#charts canvas").count() >= 6
                 await browser.close()
-        finally:
-            await server.stop()
     low, high, requested = watch.rates()
     mean = sum(a for a, _ in watch.ratios) / len(watch.ratios)
     print(f"live samples kept {kept}, hub dropped {dropped} for the live page")
@@ -185,9 +170,10 @@ async def replay_beside_live(udp_port: int, flights: Path, artifacts_dir: Path, 
     print(f"station loop's worst lateness during it: {1000 * lag.worst:.0f} ms")
     print(f"IMU rate before it (live page only) {baseline.rates()[0]:.1f}..{baseline.rates()[1]:.1f} Hz")
     assert min(kept.values()) >= KEPT, kept
-    # Never starved: every packet arrives (the mean holds) and no window collapses.
-    assert low >= FLOOR * requested, (low, requested)
-    assert abs(mean - requested) <= RATE_TOLERANCE * requested, (mean, requested)
+    # The link's IMU rate within 10 % of requested throughout: at every published sample (once a
+    # second, over the link's 5-s window), while the worker computes the replay and while it plays.
+    outside = [round(a, 1) for a, r in watch.ratios if abs(a - r) > RATE_TOLERANCE * r]
+    assert not outside, (outside, requested, rates)
     assert set(watch.states) == {"connected"}, watch.states
     assert errors == [], errors
 
@@ -202,10 +188,8 @@ async def whatif_during_flight(udp_port: int, flights: Path, tmp_path: Path) -> 
     root.mkdir()
     shutil.copy(flight(flights, "long.tlog", 600), root / "long.tlog")
     async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station:
-        server = DashboardServer(station, port=0, viser=False)
-        await server.start()
-        watch = LinkWatch(station)
-        try:
+        async with dashboard(station, viser=False) as server:
+            watch = LinkWatch(station)
             async with (
                 sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
                 httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers) as api,
@@ -225,8 +209,6 @@ async def whatif_during_flight(udp_port: int, flights: Path, tmp_path: Path) -> 
                 elapsed = time.monotonic() - started
                 watch.on = False
                 lag.stop()
-        finally:
-            await server.stop()
     low, high, requested = watch.rates()
     print(f"what-if over 600 s in {elapsed:.1f} s; IMU rate {low:.1f}..{high:.1f} Hz of {requested:.0f}")
     print(f"link states during it: {sorted(set(watch.states))}; loop's worst lateness {1000 * lag.worst:.0f} ms")

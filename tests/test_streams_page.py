@@ -8,9 +8,8 @@ import asyncio
 import subprocess
 import sys
 
-from live import running_station, stop_process, wait_for
+from live import CHROMIUM, CHROMIUM_ARGS, running_station, stop_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.server.dashboard import DashboardServer
 

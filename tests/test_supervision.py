@@ -8,9 +8,8 @@ import json
 import time
 
 import httpx
-from live import running_station, sim_process, wait_for
+from live import CHROMIUM, CHROMIUM_ARGS, POLL_MS, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
 
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout

@@ -6,21 +6,12 @@ table shows the same RMS as /api/estimates to the displayed precision."""
 from __future__ import annotations
 
 import asyncio
-import os
 
 import pytest
-from live import running_station, sim_process, wait_for
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS, POLL_MS
 
 from gcs.mavlink.dialect import mavlink
-from gcs.server.dashboard import DashboardServer
-
-
-@pytest.fixture(autouse=True)
-def _chromium_installed() -> None:
-    if not os.path.exists(CHROMIUM):
-        pytest.fail(f"{CHROMIUM} missing: run bash .ci/setup")
 
 
 @pytest.mark.timeout(900)  # under a minute on a quiet machine
@@ -44,82 +35,71 @@ async def shows(page, selector: str, text: str, timeout: float = 120_000) -> Non
 async def scenario(udp_port: int, artifacts_dir) -> None:
     errors: list[str] = []
     async with running_station(f"udpin:127.0.0.1:{udp_port}") as station:
-        server = DashboardServer(station, port=0, viser=False)
-        await server.start()
-        try:
-            async with async_playwright() as pw:
-                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                page = await browser.new_page(viewport={"width": 1366, "height": 768})
-                page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                async with sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"):
-                    await wait_for(lambda: station.link.target_system is not None, 120, "the vehicle's heartbeat")
-                    await page.goto(server.url, timeout=300_000, wait_until="commit")
-                    # what the simulator sends: ArduCopter STABILIZE (custom_mode 0), disarmed, 12.40 V, 80 %
-                    await page.wait_for_function(
-                        text_has("#vehicle-mode", "STABILIZE"), polling=POLL_MS, timeout=300_000
-                    )
-                    await page.wait_for_function(
-                        text_has("#vehicle-battery", "12.40 V"), polling=POLL_MS, timeout=120_000
-                    )
-                    assert "80 %" in await page.text_content("#vehicle-battery")
-                    assert await page.text_content("#vehicle-armed") == "disarmed"
-                    await page.wait_for_function(
-                        text_has("#vehicle-GPS", "12 satellites"), polling=POLL_MS, timeout=120_000
-                    )
-                    assert "3D FIX" in await page.text_content(
-                        "#vehicle-GPS"
-                    ) and "HDOP 0.90" in await page.text_content("#vehicle-GPS")
-                    await page.wait_for_function(text_has("#vehicle-EKF", "ATTITUDE"), polling=POLL_MS, timeout=120_000)
-
-                    # Arm it, as a ground station does: the simulator says "Arming motors".
-                    station.link.send(
-                        mavlink.MAVLink_command_long_message(
-                            station.link.target_system,
-                            station.link.target_component,
-                            mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
-                            0,
-                            1,
-                            0,
-                            0,
-                            0,
-                            0,
-                            0,
-                            0,
-                        )
-                    )
-                    await page.wait_for_function(
-                        text_has("#autopilot-messages", "Arming motors"), polling=POLL_MS, timeout=120_000
-                    )
-                    await page.wait_for_function(text_has("#vehicle-armed", "ARMED"), polling=POLL_MS, timeout=120_000)
-                    assert "INFO" in await page.text_content("#autopilot-messages li")
-                    recorded = [e for e in station.events.recent if e.kind == "statustext"]
-                    assert recorded and recorded[-1].data["text"] == "Arming motors", recorded
-                    await page.wait_for_function(
-                        "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
-                        polling=POLL_MS,
-                        timeout=120_000,
-                    )
-                    await page.locator("#vehicle").screenshot(path=str(artifacts_dir / "vehicle-panel.png"))
-                # The vehicle has stopped: the numbers hold still; the page's table equals the API's.
-                await asyncio.sleep(3.0)  # one station snapshot and one page poll after the last sample
-                await page.wait_for_timeout(2500)
-                table = await page.evaluate(
-                    """() => Object.fromEntries([...document.querySelectorAll('#numbers-table tr[data-estimator]')]
-                        .map((r) => [`${r.dataset.estimator}|${r.dataset.reference}`,
-                                     [r.querySelector('.rms-window').textContent,
-                                      r.querySelector('.rms-session').textContent]]))"""
+        async with dashboard(station, viser=False) as server, async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            async with sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"):
+                await wait_for(lambda: station.link.target_system is not None, 120, "the vehicle's heartbeat")
+                await page.goto(server.url, timeout=300_000, wait_until="commit")
+                # what the simulator sends: ArduCopter STABILIZE (custom_mode 0), disarmed, 12.40 V, 80 %
+                await page.wait_for_function(text_has("#vehicle-mode", "STABILIZE"), polling=POLL_MS, timeout=300_000)
+                await page.wait_for_function(text_has("#vehicle-battery", "12.40 V"), polling=POLL_MS, timeout=120_000)
+                assert "80 %" in await page.text_content("#vehicle-battery")
+                assert await page.text_content("#vehicle-armed") == "disarmed"
+                await page.wait_for_function(
+                    text_has("#vehicle-GPS", "12 satellites"), polling=POLL_MS, timeout=120_000
                 )
-                api = await page.evaluate("fetch('/api/estimates').then((r) => r.json())")
-                for est in ("dcm", "kf", "ekf"):
-                    for ref in ("onboard", "truth"):
-                        stats = api["sources"][est]["errors"][ref]
-                        expect = [" / ".join(shown(x) for x in stats[k]) for k in ("window_rms_deg", "session_rms_deg")]
-                        assert table[f"{est}|{ref}"] == expect, (est, ref, table[f"{est}|{ref}"], expect)
-                now = await page.text_content("#now-table")
-                assert "onboard" in now and "ekf" in now
-                await page.locator("#plots").screenshot(path=str(artifacts_dir / "numbers.png"))
-                await browser.close()
-        finally:
-            await server.stop()
+                assert "3D FIX" in await page.text_content("#vehicle-GPS") and "HDOP 0.90" in await page.text_content(
+                    "#vehicle-GPS"
+                )
+                await page.wait_for_function(text_has("#vehicle-EKF", "ATTITUDE"), polling=POLL_MS, timeout=120_000)
+
+                # Arm it, as a ground station does: the simulator says "Arming motors".
+                station.link.send(
+                    mavlink.MAVLink_command_long_message(
+                        station.link.target_system,
+                        station.link.target_component,
+                        mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+                        0,
+                        1,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                        0,
+                    )
+                )
+                await page.wait_for_function(
+                    text_has("#autopilot-messages", "Arming motors"), polling=POLL_MS, timeout=120_000
+                )
+                await page.wait_for_function(text_has("#vehicle-armed", "ARMED"), polling=POLL_MS, timeout=120_000)
+                assert "INFO" in await page.text_content("#autopilot-messages li")
+                recorded = [e for e in station.events.recent if e.kind == "statustext"]
+                assert recorded and recorded[-1].data["text"] == "Arming motors", recorded
+                await page.wait_for_function(
+                    "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
+                    polling=POLL_MS,
+                    timeout=120_000,
+                )
+                await page.locator("#vehicle").screenshot(path=str(artifacts_dir / "vehicle-panel.png"))
+            # The vehicle has stopped: the numbers hold still; the page's table equals the API's.
+            await asyncio.sleep(3.0)  # one station snapshot and one page poll after the last sample
+            await page.wait_for_timeout(2500)
+            table = await page.evaluate(
+                """() => Object.fromEntries([...document.querySelectorAll('#numbers-table tr[data-estimator]')]
+                    .map((r) => [`${r.dataset.estimator}|${r.dataset.reference}`,
+                                 [r.querySelector('.rms-window').textContent,
+                                  r.querySelector('.rms-session').textContent]]))"""
+            )
+            api = await page.evaluate("fetch('/api/estimates').then((r) => r.json())")
+            for est in ("dcm", "kf", "ekf"):
+                for ref in ("onboard", "truth"):
+                    stats = api["sources"][est]["errors"][ref]
+                    expect = [" / ".join(shown(x) for x in stats[k]) for k in ("window_rms_deg", "session_rms_deg")]
+                    assert table[f"{est}|{ref}"] == expect, (est, ref, table[f"{est}|{ref}"], expect)
+            now = await page.text_content("#now-table")
+            assert "onboard" in now and "ekf" in now
+            await page.locator("#plots").screenshot(path=str(artifacts_dir / "numbers.png"))
+            await browser.close()
     assert errors == [], errors

@@ -10,10 +10,9 @@ import os
 import httpx
 import pytest
 from conftest import free_port
-from live import running_station, sim_process
+from live import CHROMIUM, CHROMIUM_ARGS, running_station, sim_process
 from playwright.async_api import Error as PlaywrightError
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.server.dashboard import DashboardServer
 

@@ -15,9 +15,8 @@ import threading
 
 import pytest
 from fastapi.routing import APIRoute
-from live import running_station, sim_process, wait_for
+from live import CHROMIUM, CHROMIUM_ARGS, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
-from test_browser import CHROMIUM, CHROMIUM_ARGS
 
 from gcs.server.dashboard import DashboardServer
 from gcs.server.deps import TOKEN_HEADER

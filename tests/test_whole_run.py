@@ -8,6 +8,8 @@ the per-sample errors."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -176,3 +178,20 @@ def test_what_if_of_an_estimator_without_kernels(name, sources, monkeypatch):
     assert np.max(np.abs(slow.euler - fast.euler)) <= TOL
     for ref, errors in fast.errors.items():
         assert np.allclose(slow.errors[ref]["rms"], errors["rms"], rtol=0, atol=TOL)
+
+
+def test_the_workers_warm_up_compiles_the_whole_run_loop():
+    """The station's worker warms up at server start: afterwards the whole-run loop and the error
+    kernels hold compiled code, so the first what-if does not compile (tens of seconds cold)."""
+    probe = (
+        "from gcs.sessions.workbench import warm_up; from gcs.core.estimators import whole; "
+        "print(len(whole.run_inputs.signatures), len(whole._attitude_errors.signatures), "
+        "len(whole.euler_of.signatures))"
+    )
+
+    def compiled(code: str) -> list[int]:
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        return [int(n) for n in run.stdout.split()]
+
+    assert compiled(probe) == [0, 0, 0]
+    assert all(n >= 1 for n in compiled(probe.replace("whole; ", "whole; warm_up(); "))), "not compiled"

@@ -5,10 +5,11 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
 * the **store**: per source a preallocated ring of the last `seconds × max_rate` samples, so a page
   opened now fills its window at once (`GET /api/history`: every sample, or min/max per plot column
   for a long window, with the estimator errors computed as the page does) and memory never grows;
-* the **pending frame**: flushed at most every `frame_interval` (10 ms), encoded to JSON once and
-  offered to each client's own bounded queue (`ClientFeed`, `client_max_frames`), sent by the client's
-  own task. A client that stops reading loses its oldest frames, counted for it alone; the others and
-  the link never wait, and nothing is decimated for a client that keeps up.
+* the **pending frame**: flushed at most every `frame_interval` (10 ms), encoded once (binary float
+  arrays, `gcs.server.wire`) and offered to each client's own bounded queue (`ClientFeed`,
+  `client_max_frames`), sent by the client's own task. A client that stops reading loses its
+  oldest frames, counted for it alone; the others and the link never wait, and nothing is
+  decimated for a client that keeps up.
 Why 10 ms: docs/benchmarks.md; data flow: docs/design.md
 """
 
@@ -22,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint
 from gcs.runtime.dropqueue import DropOldestQueue
+from gcs.server import wire
 
 DEG = 180.0 / math.pi
 #: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.vehicle).
@@ -86,14 +87,14 @@ class ClientSnapshot:
 
 @dataclass
 class ClientFeed:
-    """One WebSocket client's bounded queue of encoded frames and its counters."""
+    """One WebSocket client's bounded queue of encoded frames (`gcs.server.wire`) and its counters."""
 
     id: int
     address: str
     max_frames: int
 
     def __post_init__(self) -> None:
-        self.frames: DropOldestQueue[tuple[str, int]] = DropOldestQueue(self.max_frames)
+        self.frames: DropOldestQueue[tuple[bytes, int]] = DropOldestQueue(self.max_frames)
         self.queued_points = 0
         self.sent_points = 0
         self.sent_messages = 0
@@ -104,24 +105,21 @@ class ClientFeed:
     def dropped_frames(self) -> int:
         return self.frames.dropped
 
-    def offer(self, text: str, points: int) -> None:
+    def offer(self, frame: bytes, points: int) -> None:
         """Queue a frame without waiting; when full, the oldest one is dropped and counted."""
-        lost = self.frames.put((text, points))
+        lost = self.frames.put((frame, points))
         self.queued_points += points
         if lost is not None:
             self.queued_points -= lost[1]
             self.dropped_points += lost[1]
 
-    async def next_message(self) -> tuple[str, int]:
-        """Everything queued as one text message: a frame alone, or a "batch" of frames."""
+    async def next_message(self) -> tuple[bytes, int]:
+        """Everything queued as one binary message: its frames back to back."""
         await self.frames.wait()
         frames = self.frames.drain()
         points = sum(n for _, n in frames)
         self.queued_points -= points
-        text = (
-            frames[0][0] if len(frames) == 1 else '{"type":"batch","frames":[' + ",".join(f for f, _ in frames) + "]}"
-        )
-        return text, points
+        return b"".join(f for f, _ in frames), points
 
     def sent(self, points: int) -> None:
         self.sent_points += points
@@ -181,10 +179,10 @@ class LiveHub:
             cols = self._pending.get(p.source)
             if cols is None:
                 cols = self._pending[p.source] = [[], [], [], []]
-            cols[0].append(round(p.t, 6))
-            cols[1].append(round(roll, 3))
-            cols[2].append(round(pitch, 3))
-            cols[3].append(round(yaw, 3))
+            cols[0].append(p.t)
+            cols[1].append(roll)
+            cols[2].append(pitch)
+            cols[3].append(yaw)
         self._pending_n += len(points)
         if self._flush_handle is None:
             loop = asyncio.get_running_loop()
@@ -196,24 +194,21 @@ class LiveHub:
         if self._flush_handle is not None:
             self._flush_handle.cancel()
         self._flush()
-        text = strict_json.dumps(message)
+        frame = wire.message_frame(message)
         for client in self.clients.values():
-            client.offer(text, 0)
+            client.offer(frame, 0)
 
     def _flush(self) -> None:
         self._flush_handle = None
         if not self._pending_n:
             return
         self._last_flush = time.monotonic()
-        text = strict_json.dumps(
-            {"type": "points", "seq": next(self._seq), "server_time": self._last_flush, "points": self._pending},
-            separators=(",", ":"),
-        )
+        frame = wire.points_frame(next(self._seq), self._last_flush, self._pending)
         n = self._pending_n
         self._pending, self._pending_n = {}, 0
         self.frames_out += 1
         for client in self.clients.values():
-            client.offer(text, n)
+            client.offer(frame, n)
 
     # ---- clients -------------------------------------------------------------------------
     def connect(self, address: str) -> ClientFeed:

@@ -4,9 +4,10 @@
 which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
 The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
 ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs at
-about 30 Hz on the event loop (viser handles are thread-safe). The panel, minimized at start so it
-does not cover the scene: every estimator's gains as read-only text in their own units, following the
-gain events (viser has no authentication: changes are made on the page).
+about 30 Hz on the event loop (viser handles are thread-safe) and moves only what visibly turned.
+The panel, minimized at start so it does not cover the scene (hidden in a phone's frame): every
+estimator's gains as read-only text in their own units, following the gain events (viser has no
+authentication: changes are made on the page).
 """
 
 from __future__ import annotations
@@ -25,6 +26,20 @@ from gcs.server.colors import COLORS, OTHER
 GHOST_OPACITY = 0.35
 
 
+#: Style for viser's own page, sent as raw HTML (`gui.add_html`, which its client renders
+#: unsanitized, so a <style> applies to the whole frame). In a frame narrower than viser's mobile
+#: breakpoint (Mantine's xs, 36em: the dashboard's 3-D view on a phone) viser's panel is a bottom
+#: sheet over the scene, open at start; and with software WebGL (a laptop without GPU drivers,
+#: headless Chromium) a notice covers the top of the view until closed. The page has the gains and
+#: the controls, so both go wherever this style is mounted: always in a phone-sized frame, on a
+#: wider one while the panel is open (its minimized title bar and the notice stay in the top
+#: corners, clear of the vehicle). tests/test_layout.py measures what is left inside the frame.
+EMBEDDED_STYLE = """<style>
+.mantine-Notifications-root { display: none !important; }
+@media (max-width: 36em) { .mantine-Paper-root[style*="position: fixed"] { display: none !important; } }
+</style>"""
+
+
 class LocalViserServer(viser.ViserServer):
     """viser, kept on this network: its share button asks viser's relay for a public URL to the
     view, and any client may send that request (viser has no authentication). At the field there
@@ -33,10 +48,11 @@ class LocalViserServer(viser.ViserServer):
 
     def __init__(self, host: str, port: int) -> None:
         super().__init__(host=host, port=port, verbose=False, label="gcs pose")
-        self.gui.configure_theme(show_share_button=False)
+        self.gui.configure_theme(show_share_button=False, show_logo=False)
         # The page's gain panel is the control: viser's panel starts minimized to its title bar, so
-        # it never covers the vehicle (at 600 px and wider; viser shows a bottom sheet below 576 px).
+        # it never covers the vehicle (at 600 px and wider); narrower, it is hidden (EMBEDDED_STYLE).
         self.gui.main_panel.minimize()
+        self.gui.add_html(EMBEDDED_STYLE, order=-1.0)
 
     def request_share_url(self, verbose: bool = True) -> str | None:
         return None
@@ -49,7 +65,11 @@ def display_wxyz(q) -> tuple[float, float, float, float]:
 
 def add_ground(server: viser.ViserServer, width: float = 4.0, height: float = 4.0, y: float = 0.0) -> None:
     """The grid (width along north, height along west, centred at y west; re-added as a fleet
-    grows) and north."""
+    grows), north and the lights."""
+    # No shadow maps: with software WebGL (no GPU driver; headless Chromium) every frame of the
+    # view is paid in CPU the plots and the station need (bench.page_fps). The image-based
+    # lighting stays: without it the colours that tell the estimators apart turn near black.
+    server.scene.configure_default_lights(cast_shadow=False)
     server.scene.add_grid("/grid", width=width, height=height, cell_size=0.25, position=(0.0, y, -0.6))
     server.scene.add_frame("/ground/nwu", axes_length=0.4, axes_radius=0.01)
     server.scene.add_label("/ground/north", "N", position=(2.1, 0.0, 0.0))
@@ -77,9 +97,20 @@ def add_vehicle(
     return frame
 
 
+def turned(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Angle (rad) of the rotation between two unit quaternions (w, x, y, z)."""
+    return 2.0 * math.acos(min(1.0, abs(sum(p * q for p, q in zip(a, b, strict=True)))))
+
+
 class PoseView:
     """The onboard vehicle and a ghost per estimator, updated from the pipeline's latest output;
-    under the frame `root` (a fleet's vehicle, gcs.server.fleet_scene)."""
+    under the frame `root` (a fleet's vehicle, gcs.server.fleet_scene). A body is moved only once
+    it turned by more than `MIN_TURN` since it was last drawn: every change keeps viser's client
+    rendering for the next 250 ms, which with software WebGL costs half a core (bench.page_fps),
+    so a vehicle at rest costs nothing to watch."""
+
+    #: rad, below what the eye sees at the view's scale
+    MIN_TURN = math.radians(0.2)
 
     def __init__(self, server: viser.ViserServer, estimators: list[str], root: str = "") -> None:
         self.onboard = add_vehicle(server, f"{root}/onboard", COLORS["onboard"], None, axes_length=0.5)
@@ -87,14 +118,20 @@ class PoseView:
             name: add_vehicle(server, f"{root}/ghost_{name}", COLORS.get(name, OTHER), GHOST_OPACITY, axes_length=0.35)
             for name in estimators
         }
+        self.drawn: dict[str, tuple[float, float, float, float]] = {}
 
     def update(self, latest: dict[str, AttitudePoint], quaternions: dict[str, np.ndarray]) -> None:
         onboard = latest.get("onboard")
         if onboard is not None:
-            self.onboard.wxyz = display_wxyz(euler_to_quat(onboard.roll, onboard.pitch, onboard.yaw))
+            self._move("onboard", self.onboard, display_wxyz(euler_to_quat(onboard.roll, onboard.pitch, onboard.yaw)))
         for name, ghost in self.ghosts.items():
             if name in latest:
-                ghost.wxyz = display_wxyz(quaternions[name])
+                self._move(name, ghost, display_wxyz(quaternions[name]))
+
+    def _move(self, name: str, frame: viser.FrameHandle, wxyz: tuple[float, float, float, float]) -> None:
+        drawn = self.drawn.get(name)
+        if drawn is None or turned(drawn, wxyz) > self.MIN_TURN:
+            frame.wxyz = self.drawn[name] = wxyz
 
 
 class GainTable:

@@ -13,6 +13,7 @@ import dataclasses
 import os
 from functools import cache, lru_cache
 
+from gcs.core.estimators import whole
 from gcs.sessions.export import export
 from gcs.sessions.sources import ReplaySource, SourceKey, open_source, source_key
 from gcs.sessions.whatif import EstimatorRun, WhatIfView, run_estimator, what_if
@@ -59,9 +60,10 @@ def workbench() -> Workbench:
 
 
 def warm_up() -> None:
-    """Nothing but this module's imports: sent once at server start, so the first replay or
-    what-if does not wait for the worker process to spawn and import gcs."""
+    """This module's imports and the whole-run kernels: sent once at server start, so the first
+    replay or what-if does not wait for the worker process to spawn, import gcs and compile."""
     workbench()
+    whole.warm()
 
 
 def load_source(path: str | os.PathLike) -> ReplaySource:

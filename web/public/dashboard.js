@@ -28,7 +28,6 @@ function onMessage(msg) {
   gcsStats.messages++;
   gcsStats.lastFrameAt = performance.now();
   if (msg.type === "points") ingestFrame(msg);
-  else if (msg.type === "batch") msg.frames.forEach(onMessage);
   else if (msg.type === "gain") showGain(msg.estimator, msg.gain, msg.new);
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
@@ -54,12 +53,14 @@ async function catchUp() {
 
 function connect() {
   const ws = (window.gcsWs = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}${vehicleUrl("/ws/live")}`));
+  ws.binaryType = "arraybuffer";  // points come as binary frames (wire.js), control messages as JSON text
   let queue = [];  // frames that arrive while the history loads, applied after it
   ws.onopen = async () => {
     try { await catchUp(); } catch (e) { console.warn("history:", e.message); }
     queue.forEach(onMessage); queue = null;
   };
-  ws.onmessage = (ev) => { const msg = JSON.parse(ev.data); if (queue) queue.push(msg); else onMessage(msg); };
+  const take = (msg) => { if (queue) queue.push(msg); else onMessage(msg); };
+  ws.onmessage = (ev) => { if (typeof ev.data === "string") take(JSON.parse(ev.data)); else decodeWire(ev.data, take); };
   ws.onclose = () => setTimeout(connect, 1000);
 }
 
@@ -99,8 +100,19 @@ function showStatus(s) {
     + `<tr><th>estimator</th><th>IMU rate</th><th>health</th></tr>${est.join("")}</table>`
     + `<div class="note">lag +20 ms = estimator 20 ms behind onboard ATTITUDE (negative: ahead) · declination ${dec}</div>`;
   const frame = $("pose");
-  if (s.viser_port && !frame.src) frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/`;
+  if (s.viser_port && !frame.src) frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/${softwareWebGL() ? "?fixedDpr=0.5" : ""}`;
   if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+}
+
+// WebGL drawn on the CPU (no GPU driver: SwiftShader, llvmpipe; the renderer names viser's own
+// notice looks for): the 3-D view then renders at half resolution, a quarter of the pixels, on the
+// cores the plots need too (viser's `fixedDpr`; bench.page_fps).
+function softwareWebGL() {
+  const gl = document.createElement("canvas").getContext("webgl");
+  const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+  const renderer = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : "";
+  gl?.getExtension("WEBGL_lose_context")?.loseContext();
+  return /swiftshader|llvmpipe|softpipe|software/i.test(renderer);
 }
 
 // ---- numbers at a glance: current attitude per source, errors per estimator and reference ----

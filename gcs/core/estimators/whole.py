@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.core.estimation import GainChange
-from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled
+from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled, registry
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.jit import kernel
@@ -226,3 +226,15 @@ def errors_at(t: Floats, q: Floats, reference: Floats) -> Floats:
     hi = np.minimum(np.searchsorted(t, ref[:, 0], side="right"), len(t) - 1)
     lo = np.maximum(hi - 1, 0)
     return _attitude_errors(np.ascontiguousarray(t), np.ascontiguousarray(q), ref, lo, hi)
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the whole-run loop and the error kernels now, on a
+    few synthetic inputs of every kind, so that a process's first what-if does not wait for it."""
+    kind = np.array([InputKind.IMU_MAG, InputKind.IMU, InputKind.GPS_VEL, InputKind.IMU_MAG], dtype=np.uint8)
+    imu = np.array([[0.01 * i, 0.01, -0.02, 0.03, 0.1, 0.2, -9.8, 0.2, 0.01, 0.4] for i in range(3)])
+    gps = np.array([[0.015, 0.0, 0.0, 0.0, 5.0, 0.1, 5.0, 0.5, 0.0, 3.0]])
+    for name in registry.names():
+        run = run_whole(registry.create(name), kind, imu, gps, lambda _: GainChange(None, "", 0.0), name)
+        errors_at(imu[:, 0], run.q, np.array([[0.015, 0.0, 0.0, 0.0]]))
+        euler_of(run.q)

@@ -3,13 +3,12 @@ arrives (frames of ≤ 10 ms, see gcs.server.live), and GET /api/history fills a
 from the live store at once (every sample, or min/max per plot column with `columns`, with each
 estimator's error against onboard and truth), and a reconnecting page's gap (`since`).
 
-Messages on /ws/live, JSON text:
-* `{"type":"hello","client":ID,"history_s":S}` once;
-* `{"type":"points","seq":N,"server_time":T,"points":{SOURCE:[[t...],[roll...],[pitch...],[yaw...]]}}`
-  (vehicle seconds; degrees);
-* `{"type":"batch","frames":[...]}`: several frames at once, when this client fell behind;
-* `{"type":"gain",...}`: a gain changed (the event log record);
-* `{"type":"client",...}`: this client's counters (sent, dropped), about once a second.
+Messages on /ws/live:
+* binary: one message per client per send, every frame queued for it since the last one
+  (`gcs.server.wire`: points as float arrays per source, vehicle seconds and degrees; a gain
+  change as a JSON frame `{"type":"gain",...}`, the event log record, in order with the points);
+* text, JSON: `{"type":"hello","client":ID,"history_s":S}` once, and
+  `{"type":"client",...}`, this client's counters (sent, dropped), about once a second.
 """
 
 from __future__ import annotations
@@ -76,8 +75,8 @@ async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
     """Send this client's queue as fast as it reads; its counters about once a second."""
     last_stats = time.monotonic()
     while True:
-        text, points = await feed.next_message()
-        await ws.send_text(text)
+        frames, points = await feed.next_message()
+        await ws.send_bytes(frames)
         feed.sent(points)
         now = time.monotonic()
         if now - last_stats >= CLIENT_STATS_PERIOD:
