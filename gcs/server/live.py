@@ -269,7 +269,10 @@ class HistorySlice:
 
 
 def columnar(t: np.ndarray, rpy: np.ndarray) -> list[list[float]]:
-    return [np.round(t, 6).tolist(), *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
+    """History columns; times rounded exactly as the live frames round them (wire.wire_time), so
+    the page finds a sample it had live at the same time in the history (np.round can differ by
+    an ulp, and the page then held the sample twice)."""
+    return [[wire.wire_time(x) for x in t.tolist()], *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
 
 
 def wrap180(d: np.ndarray) -> np.ndarray:

@@ -41,6 +41,11 @@ def _padded(data: bytes) -> bytes:
     return data + _PAD[: -len(data) % 8]
 
 
+def wire_time(t: float) -> float:
+    """A vehicle time as the page receives it, live or in history: rounded to the µs."""
+    return round(t, 6)
+
+
 def points_frame(seq: int, server_time: float, points: Mapping[str, Sequence[Sequence[float]]]) -> bytes:
     """One points frame from per-source columns [t, roll, pitch, yaw] (s, degrees)."""
     parts = [b"", _POINTS.pack(seq, 0, server_time)]
@@ -48,7 +53,7 @@ def points_frame(seq: int, server_time: float, points: Mapping[str, Sequence[Seq
         name = source.encode()
         parts.append(_SERIES.pack(len(name), 0, len(t)) + _padded(name))
         n = len(t)
-        parts.append(struct.pack(f"<{n}d", *[round(x, 6) for x in t]))
+        parts.append(struct.pack(f"<{n}d", *[wire_time(x) for x in t]))
         parts.append(_padded(struct.pack(f"<{3 * n}f", *roll, *pitch, *yaw)))
     size = _FRAME.size + sum(len(p) for p in parts)
     parts[0] = _FRAME.pack(size, POINTS, VERSION, len(points))
