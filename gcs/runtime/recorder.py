@@ -336,6 +336,10 @@ class SessionRecorder:
             self._early_sent.append(record)
 
     def _on_points(self, points) -> None:
+        if self.session is None and self._armed:
+            # estimated from packets the recorder holds but has not drained yet: they open the
+            # session now, or a warm estimator's first points would come before it and be lost
+            self._drain()
         if self.session is not None:
             self.session.add_rows("attitude", columnar.attitude_rows(points, time.time()))
 
