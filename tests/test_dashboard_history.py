@@ -53,7 +53,7 @@ def server_count(hub, source: str, t0: float, t1: float) -> int:
     t, _ = hub.store[source].ordered()
     # as on the wire, which is where the page's t0 and t1 come from (a sample may sit on them)
     t = np.array([wire_time(x) for x in t.tolist()])
-    return int(np.count_nonzero((t >= t0) & (t <= t1)))
+    return int(np.count_nonzero((t >= t0) & (t <= t1 + 1e-9)))  # as the page's Series.count
 
 
 @pytest.mark.timeout(900)  # about 90 s on a quiet machine; minutes at load 14 on two cores
