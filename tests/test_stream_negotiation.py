@@ -10,6 +10,7 @@ import asyncio
 from live import running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
+from gcs.runtime.link import LinkState
 
 REQUESTED = {"RAW_IMU": 50.0, "SCALED_IMU2": 50.0, "ATTITUDE": 50.0, "AHRS2": 50.0, "SCALED_PRESSURE": 5.0}
 
@@ -85,3 +86,28 @@ def test_message_refused_at_every_rate_alone_falls_back_to_its_group(udp_port):
         row = streams.messages[name]
         assert row.method == "SET_MESSAGE_INTERVAL" and vehicle_rates[name] == 50.0, (name, row)
         assert abs(row.achieved_hz - 50.0) <= 5.0, (name, row)
+
+
+def test_a_vehicle_that_forgot_its_streams_is_asked_again(udp_port):
+    """A reboot quicker than the heartbeat timeout: the link never goes lost and the new boot
+    (ArduPilot: nothing streamed until asked) sends only heartbeats, none with a boot time that
+    would show the reboot. The station asks again once every accepted stream has gone silent."""
+
+    async def scenario():
+        address = f"udpout:127.0.0.1:{udp_port}"
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station:
+            # checked often; a retry only once the old boot's packets have left the rate window,
+            # so the rule for a stream far below its rate (0 < achieved < half) cannot fire
+            station.streams.check_interval = 0.5
+            station.streams.retry_interval = station.link.stats.window + 5.0
+            states = []
+            station.link.state_changed.connect(lambda old, new: states.append(new))
+            async with running_sim(address, profile="pixhawk") as first:
+                await wait_for(lambda: first.stream_rates().get("ATTITUDE", 0) > 0, 30, "the first boot's streams")
+            async with running_sim(address, profile="pixhawk") as second:
+                assert "ATTITUDE" not in second.stream_rates()
+                await wait_for(lambda: second.stream_rates().get("ATTITUDE", 0) > 0, 60, "the second boot asked again")
+            return states
+
+    states = asyncio.run(scenario())
+    assert LinkState.LOST not in states, states

@@ -356,6 +356,8 @@ class StreamRequester:
                 continue
             achieved = self.link.stats.rates()
             now = time.monotonic()
+            if self._all_silent(achieved, now):
+                return  # ask for everything again, as after a reconnect
             starved = {
                 name: n
                 for name, n in self.negotiated.items()
@@ -375,6 +377,16 @@ class StreamRequester:
                         await self._set_interval(name, n.accepted_hz, sub, attempts=1)
             finally:
                 sub.close()
+
+    def _all_silent(self, achieved: dict[str, float], now: float) -> bool:
+        """Every stream the vehicle accepted has stopped while its heartbeats go on, and none was
+        asked for in the last `retry_interval`: the vehicle forgot the requests (a reboot quicker
+        than the link's heartbeat timeout, or another ground station reset the rates)."""
+        accepted = [name for name, n in self.negotiated.items() if n.accepted_hz]
+        return bool(accepted) and all(
+            achieved.get(name, 0.0) == 0.0 and now - self._last_request.get(name, 0.0) >= self.retry_interval
+            for name in accepted
+        )
 
     def snapshot(self) -> StreamsSnapshot:
         """Requested, accepted and achieved rates per message, and why they differ."""
