@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import time
 
+from bench.link_throughput import best_rate
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.link import Link
@@ -66,23 +67,12 @@ def fleet_link(parts: list[bytes]) -> int:
     return asyncio.run(run())
 
 
-def best_rate(fn, parts: list[bytes], repeats: int = 5) -> tuple[float, int]:
-    """The best of `repeats` runs, in messages per CPU second of this process (others' load on
-    the machine changes the wall time, not this)."""
-    best, count = 0.0, 0
-    for _ in range(repeats):
-        t0 = time.process_time()
-        count = fn(parts)
-        best = max(best, count / (time.process_time() - t0))
-    return best, count
-
-
 def main() -> list[dict]:
     rows = []
     for sysids in ((1,), (1, 2)):
         parts = chunks(sample_stream(sysids))
-        base, n_base = best_rate(station_link, parts)
-        ours, n_ours = best_rate(fleet_link, parts)
+        base, n_base = best_rate(station_link, parts, 5, time.process_time)
+        ours, n_ours = best_rate(fleet_link, parts, 5, time.process_time)
         assert n_base == n_ours, (n_base, n_ours)  # every message reaches its vehicle
         rows.append(
             {
