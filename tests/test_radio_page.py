@@ -14,6 +14,10 @@ from playwright.async_api import async_playwright
 
 from gcs.server.dashboard import DashboardServer
 
+#: the radio table's RAW_IMU row shows an achieved rate (its fifth cell) above 0
+RAW_IMU_ACHIEVED = """() => [...document.querySelectorAll('#radio tr')].some(
+  r => r.innerText.startsWith('RAW_IMU') && parseFloat(r.innerText.split(/\\s+/)[4]) > 0)"""
+
 
 def test_radio_table_and_log_download_button(udp_port, tmp_path):
     async def scenario():
@@ -44,8 +48,9 @@ def test_radio_table_and_log_download_button(udp_port, tmp_path):
                         try:
                             page = await browser.new_page()
                             await page.goto(server.url)
+                            # the row appears with the request; RAW_IMU arrives through the radio after it
+                            await page.wait_for_function(RAW_IMU_ACHIEVED, polling=250, timeout=120_000)
                             row = page.locator("#radio tr", has_text="RAW_IMU").first
-                            await row.wait_for(timeout=60_000)
                             cells = (await row.inner_text()).split()
                             await page.click("button[data-tab=sessions]")
                             await page.click("#onboard-log-btn")
