@@ -29,22 +29,17 @@ def segment(stem: str):
     return cut(trial, 0.0, t_on + AFTER), t_on
 
 
+def test_all_six_trials_are_there():
+    assert len(TRIALS) == 6, f"BROAD trials missing in {BROAD}: {TRIALS}"
+
+
 #: Known shortfalls against the issue's targets, held to what was measured (a regression bound,
 #: stated, not hidden; the target stays the bound for every other case). Remove when met.
 MAGNET_SHORTFALLS = {
-    # target 5°, measured 5.9°: dcm's heading in fast translation is 5.0° RMS without a magnet,
-    # and the offset is learned at that heading error
-    ("15", "dcm"): 6.5,
+    # target 5°, measured 5.17° (5.9° before the turn-rate and acceleration weights): dcm's
+    # heading in fast translation, and the offset is learned at that heading error
+    ("15", "dcm"): 5.5,
 }
-BIAS_SHORTFALLS = {
-    # target 2x VQF, measured 8.0° against VQF's 3.9°: KF-A has no bias state, the step is only
-    # corrected as an error
-    ("07", "kf"): 2.2,
-}
-
-
-def test_all_six_trials_are_there():
-    assert len(TRIALS) == 6, f"BROAD trials missing in {BROAD}: {TRIALS}"
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -83,4 +78,4 @@ def test_gyro_bias_step(stem, name):
     stressed = bias_step(trial, BIAS_STEP, t_on)
     ours = score(stressed, run_estimator(name, stressed), t_on)["total"]
     vqf = score(stressed, run_vqf(stressed), t_on)["total"]
-    assert ours < max(BIAS_SHORTFALLS.get((stem[:2], name), 2.0) * vqf, 3.0), (ours, vqf)
+    assert ours < max(2.0 * vqf, 3.0), (ours, vqf)
