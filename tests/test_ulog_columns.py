@@ -282,3 +282,25 @@ def test_not_a_ulog_or_an_unknown_incompatible_flag_is_a_clear_error(tmp_path):
     path.write_bytes(b"ULog")
     with pytest.raises(InputError, match="offset 0: not a ULog file"):
         UlogFile(str(path)).columns()
+
+
+def test_a_format_with_more_fields_than_a_message_holds_is_damage_not_a_hang(tmp_path):
+    """sensor_combined declared as 65535 nested structs of 65535 floats (4 billion field names
+    if spelled out): refused at once as damage, and no IMU topic is left."""
+
+    def message(kind: str, payload: bytes) -> bytes:
+        return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+    path = tmp_path / "huge.ulg"
+    path.write_bytes(
+        b"ULog\x01\x12\x35\x01" + bytes(8)
+        + message("F", b"big:float[65535] v;")
+        + message("F", b"sensor_combined:uint64_t timestamp;big[65535] x;")
+        + message("A", struct.pack("<BH", 0, 0) + b"sensor_combined")
+        + message("D", struct.pack("<HQ", 0, 1_000_000))
+    )  # fmt: skip
+    reader = UlogFile(str(path))
+    with pytest.raises(InputError, match=r"no sensor_combined instance 0 \(none\)"):
+        reader.columns()
+    assert reader.damage is not None and "sensor_combined has no usable format" in reader.damage
+    assert "more fields than a message has bytes" in reader.damage

@@ -52,6 +52,9 @@ MAX_UNKNOWN_SIZE = 10000
 CLEAN, CUT, BAD_HEADER = 0, 1, 2
 #: Nested types deeper than this are damage (a format naming itself would never end).
 MAX_NESTING = 8
+#: A data message holds at most this many bytes, so no format has more fields (a hostile array
+#: size would otherwise make millions of names).
+MAX_FIELDS = 0xFFFF
 
 
 @kernel
@@ -122,12 +125,13 @@ def _flatten(formats: Formats, name: str, prefix: str = "", depth: int = 0) -> l
         raise ValueError(f"format {name} nested deeper than {MAX_NESTING}")
     out: list[tuple[str, str]] = []
     for kind, count, fname in formats[name]:
-        names = [f"{prefix}{fname}[{i}]" for i in range(count)] if count else [prefix + fname]
-        for full in names:
+        for full in [f"{prefix}{fname}[{i}]" for i in range(min(count, MAX_FIELDS + 1))] if count else [prefix + fname]:
             if kind in TYPES:
                 out.append((full, TYPES[kind]))
             else:
                 out.extend(_flatten(formats, kind, full + ".", depth + 1))
+            if len(out) > MAX_FIELDS:
+                raise ValueError(f"format {name} has more fields than a message has bytes")
     return out
 
 
