@@ -105,10 +105,12 @@ def merge_order(keys: list[tuple[npt.NDArray[np.uint64], int]]) -> tuple[npt.NDA
         rank = np.concatenate([np.full(len(t), r, dtype=np.int64) for t, r in keys])
         order = np.lexsort((rank, t_all))
         return stream[order], row[order]
-    merged = heapq.merge(
-        *[((ts, rank, s, k) for k, ts in enumerate(t.tolist())) for s, (t, rank) in enumerate(keys)],
-        key=lambda item: item[:2],
-    )
+
+    def rows(s: int) -> Iterator[tuple[int, int, int, int]]:
+        t, rank = keys[s]
+        return ((ts, rank, s, k) for k, ts in enumerate(t.tolist()))
+
+    merged = heapq.merge(*[rows(s) for s in range(len(keys))], key=lambda item: item[:2])
     pairs = np.array([(s, k) for _, _, s, k in merged], dtype=np.int64).reshape(-1, 2)
     return pairs[:, 0], pairs[:, 1]
 
