@@ -124,6 +124,7 @@ class UlogFile(LogFile):
         yield from self.columns().inputs()
 
     def columns(self) -> InputTable:
+        """The inputs as an input table, decoded on whole columns; reports as LogFile says."""
         contents = read_ulog(self.path, [IMU_TOPIC, ATTITUDE_TOPIC, *MAG_TOPICS, *GPS_TOPICS])
         if contents.damage:
             first, more = contents.damage[0], len(contents.damage) - 1
