@@ -8,6 +8,7 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
+from gcs.runtime import heap
 from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
@@ -43,6 +44,7 @@ class LiveEstimation:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
             await asyncio.to_thread(registry.warm)
+            heap.freeze()  # the kernels' objects are here for good: no collection walks them
             while True:
                 self._feed([await sub.next(), *sub.drain()])
         finally:
@@ -50,6 +52,7 @@ class LiveEstimation:
             # live outputs hold the same inputs (the station stops the link first).
             self._feed(sub.drain())
             sub.close()
+            heap.release()
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []

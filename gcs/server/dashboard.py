@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import uvicorn
 
+from gcs.runtime import heap
 from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
@@ -101,6 +102,7 @@ class DashboardServer:
         if self.viser is not None:
             self._tasks.append(asyncio.create_task(self._pose_loop()))
         self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
+        heap.freeze()  # the app, uvicorn and viser: no full collection walks them again
 
     def _start_viser(self) -> None:
         from gcs.server.fleet_scene import FleetScene  # noqa: PLC0415 - imports viser
@@ -126,3 +128,4 @@ class DashboardServer:
         if self.viser is not None:
             self.viser.stop()
             self.viser = None
+        heap.release()
