@@ -1,15 +1,20 @@
 """What keeps the event loop answering quickly while it serves (docs/benchmarks.md, issue 17):
 the start-up heap frozen out of the collector's walk while a station serves, and handed back
-when it stops."""
+when it stops; the status body encoded once per published snapshot, and anew when it changes."""
 
 from __future__ import annotations
 
 import asyncio
 import gc
+import socket
 
-from live import dashboard, wait_for
+import httpx
+from live import dashboard, running_station, wait_for
 
+from gcs.core import strict_json
+from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.station import Station, StationConfig
+from gcs.server.status_body import PER_REQUEST
 
 
 def test_start_up_heap_frozen_while_serving(udp_port):
@@ -34,3 +39,48 @@ def test_start_up_heap_frozen_while_serving(udp_port):
     # a full pass walks a small part of the process: the start-up objects are frozen
     assert walked < with_server / 4, (walked, with_server)
     assert after_stop == 0  # handed back: a stopped station's cycles are collected again
+
+
+def test_status_encoded_once_per_snapshot_and_anew_when_it_changes(udp_port):
+    asyncio.run(status_per_snapshot(udp_port))
+
+
+async def status_per_snapshot(udp_port: int) -> None:
+    vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    encoder = Encoder(1, 1)
+
+    heartbeat = mavlink.MAVLink_heartbeat_message(2, 3, 81, 0, 4, 3)
+
+    def heartbeats(n: int) -> None:
+        for _ in range(n):
+            vehicle.sendto(encoder.encode(heartbeat), ("127.0.0.1", udp_port))
+
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False) as station,
+        dashboard(station, viser=False) as server,
+        httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as http,
+    ):
+        bodies = server._server.config.app.state.status_bodies
+        heartbeats(3)
+        await wait_for(lambda: station.link.stats.framing.packets >= 3, 10, "the heartbeats")
+        for _ in range(20):  # two requests between two publishes (one a second): retried if one fell between
+            station.publish()
+            snap, encoded = station.snapshot, bodies.encoded
+            anonymous = strict_json.loads((await http.get("/api/status")).content)
+            authorised = strict_json.loads((await http.get("/api/status", headers=server.auth_headers)).content)
+            if station.snapshot is snap:
+                break
+        assert station.snapshot is snap
+        assert bodies.encoded == encoded + 1  # one encoding for both requests
+        assert not anonymous["authorised"] and authorised["authorised"]  # each request's own fields
+        shared = {k: v for k, v in anonymous.items() if k not in PER_REQUEST}
+        assert shared == {k: v for k, v in authorised.items() if k not in PER_REQUEST}
+        assert shared["link"]["packets"] == snap.link.stats.packets >= 3
+
+        heartbeats(2)  # the link's counters move; the next snapshot carries them
+        await wait_for(lambda: station.link.stats.framing.packets >= snap.link.stats.packets + 2, 10, "the heartbeats")
+        station.publish()
+        after = strict_json.loads((await http.get("/api/status")).content)
+        assert after["link"]["packets"] == station.snapshot.link.stats.packets >= shared["link"]["packets"] + 2
+        assert set(after) == set(anonymous)
+    vehicle.close()
