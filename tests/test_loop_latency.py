@@ -1,12 +1,16 @@
 """What keeps the event loop answering quickly while it serves (docs/benchmarks.md, issue 17):
 the start-up heap frozen out of the collector's walk while a station serves, and handed back
-when it stops; the status body encoded once per published snapshot, and anew when it changes."""
+when it stops; the status body encoded once per published snapshot, and anew when it changes;
+the station's priority raised when the system permits it, and left with a reason when not."""
 
 from __future__ import annotations
 
 import asyncio
 import gc
+import os
 import socket
+import subprocess
+import sys
 
 import httpx
 from live import dashboard, running_station, wait_for
@@ -84,3 +88,26 @@ async def status_per_snapshot(udp_port: int) -> None:
         assert after["link"]["packets"] == station.snapshot.link.stats.packets >= shared["link"]["packets"] + 2
         assert set(after) == set(anonymous)
     vehicle.close()
+
+
+RAISE = (
+    "import os; from gcs.runtime.priority import raise_priority; "
+    "line = raise_priority(-5); print(os.getpriority(os.PRIO_PROCESS, 0), line)"
+)
+
+
+def priority_child(*wrapper: str) -> tuple[int, str]:
+    out = subprocess.run([*wrapper, sys.executable, "-c", RAISE], capture_output=True, text=True, check=True).stdout
+    nice, line = out.strip().split(" ", 1)
+    return int(nice), line
+
+
+def test_priority_raised_when_permitted_and_left_with_a_reason_when_not():
+    # not permitted: no CAP_SYS_NICE (dropped when running as root) and a RLIMIT_NICE allowing nothing
+    drop = ["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice"] if os.geteuid() == 0 else []
+    nice, line = priority_child("prlimit", "--nice=0", *drop)
+    assert nice == 0, line
+    assert "not permitted" in line and "limits.conf" in line, line
+    if os.geteuid() == 0:  # permitted (CAP_SYS_NICE): the station runs ahead of ordinary programs
+        nice, line = priority_child()
+        assert nice == -5 and "raised from 0" in line, line
