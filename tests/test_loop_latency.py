@@ -1,7 +1,8 @@
 """What keeps the event loop answering quickly while it serves (docs/benchmarks.md, issue 17):
 the start-up heap frozen out of the collector's walk while a station serves, and handed back
 when it stops; the status body encoded once per published snapshot, and anew when it changes;
-the station's priority raised when the system permits it, and left with a reason when not."""
+the station's priority raised when the system permits it, and left with a reason when not;
+connections that write without waiting for the client's delayed ACK."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import subprocess
 import sys
 
 import httpx
+import websockets
 from live import dashboard, running_station, wait_for
 
 from gcs.core import strict_json
@@ -111,3 +113,27 @@ def test_priority_raised_when_permitted_and_left_with_a_reason_when_not():
     if os.geteuid() == 0:  # permitted (CAP_SYS_NICE): the station runs ahead of ordinary programs
         nice, line = priority_child()
         assert nice == -5 and "raised from 0" in line, line
+
+
+def test_connections_send_without_nagle(udp_port):
+    """Every accepted connection (a page's keep-alive requests, its /ws/live) writes at once: with
+    Nagle's algorithm on, a write behind an unacknowledged one waited for the client's delayed ACK
+    (40 ms on Linux), per request and per live frame."""
+
+    async def run() -> list[int]:
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False) as station,
+            dashboard(station, viser=False) as server,
+            httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}") as http,
+            websockets.connect(f"ws://127.0.0.1:{server.port}/ws/live") as ws,
+        ):
+            await ws.recv()  # hello
+            assert (await http.get("/api/status")).status_code == 200
+            connections = server._server.server_state.connections
+            await wait_for(lambda: len(connections) == 2, 10, "the page's two connections")
+            return [
+                c.transport.get_extra_info("socket").getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+                for c in connections
+            ]
+
+    assert all(asyncio.run(run()))
