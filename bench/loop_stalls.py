@@ -60,6 +60,8 @@ class Probe:
         self._samples: collections.Counter[str] = collections.Counter()
         self._gc_start = self._gc_cpu = 0.0
         self._threads_at_reset: dict[str, float] = {}
+        self.heap: dict[str, Any] = {}
+        self._modules_at_reset: set[str] = set()
         self._stop = threading.Event()
 
     def install(self) -> None:
@@ -109,6 +111,18 @@ class Probe:
             ms = 1000 * (time.perf_counter() - self._gc_start)
             self.gc_pauses.append((info["generation"], ms, 1000 * (time.thread_time() - self._gc_cpu)))
 
+    def look_at_heap(self, *_: object) -> None:
+        """What a full collection walks while serving (SIGUSR2, before the stop releases the frozen)."""
+        walked = gc.get_objects()
+        self.heap = {
+            "frozen": gc.get_freeze_count(),
+            "walked_by_a_full_pass": len(walked),
+            "by_type": dict(collections.Counter(_type_name(o) for o in walked).most_common(10)),
+            "modules_imported_since_the_clients_connected": sorted(
+                {name.split(".")[0] for name in set(sys.modules) - self._modules_at_reset}
+            ),
+        }
+
     def reset(self, *_: object) -> None:
         """Start counting now (SIGUSR1: the clients are connected; start-up is not measured)."""
         self.slow.clear()
@@ -116,6 +130,7 @@ class Probe:
         self.lags.clear()
         self.callbacks = 0
         self._threads_at_reset = _thread_cpu()
+        self._modules_at_reset = set(sys.modules)
 
     def _watch(self) -> None:
         next_probe = time.perf_counter()
@@ -162,6 +177,7 @@ class Probe:
                 "over_slow": sum(ms > SLOW_MS for ms in gcs),
                 "gen2_ms_cpu_ms": [(round(ms, 1), round(cpu, 1)) for g, ms, cpu in self.gc_pauses if g == 2][:20],
             },
+            "heap_while_serving": self.heap,
             "thread_cpu_s": {
                 name: round(cpu - self._threads_at_reset.get(name, 0.0), 2)
                 for name, cpu in sorted(threads.items(), key=lambda kv: -kv[1])
@@ -192,6 +208,11 @@ def _thread_cpu() -> dict[str, float]:
     return out
 
 
+def _type_name(o: object) -> str:
+    module = getattr(type(o), "__module__", None)
+    return f"{module if isinstance(module, str) else '?'}.{type(o).__qualname__}"
+
+
 def _describe(handle: object) -> str:
     callback = getattr(handle, "_callback", None)
     owner = getattr(callback, "__self__", None)
@@ -218,6 +239,7 @@ def child(report_path: str, serve_args: list[str]) -> None:
     probe = Probe()
     probe.install()
     signal.signal(signal.SIGUSR1, probe.reset)
+    signal.signal(signal.SIGUSR2, probe.look_at_heap)
     try:
         gcs_main(["serve", *serve_args])
     except KeyboardInterrupt:
@@ -262,6 +284,8 @@ def run(seconds: float, rate: int, pages: int, ws: int, hog: bool) -> dict[str, 
         if spinner is not None:
             spinner.kill()
             spinner.wait()
+        server.send_signal(signal.SIGUSR2)
+        time.sleep(1.0)
         server.send_signal(signal.SIGINT)
         server.wait(60)
         result: dict[str, Any] = json.loads(Path(report).read_text())

@@ -137,3 +137,29 @@ def test_connections_send_without_nagle(udp_port):
             ]
 
     assert all(asyncio.run(run()))
+
+
+FIRST_FLUSH = """
+import asyncio, sys, tempfile
+from gcs.runtime.station import Station, StationConfig
+from gcs.sessions import columnar
+from gcs.transport.address import free_port
+
+async def main():
+    config = StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", record_dir=tempfile.mkdtemp(), estimate=False)
+    station = Station(config)
+    await station.start()
+    before = set(sys.modules)
+    columnar.StreamEncoder(columnar.ATTITUDE_SCHEMA).encode([(1.0, 0.5, "dcm", 0.1, 0.2, 0.3)])
+    print(sorted(set(sys.modules) - before))
+    await station.stop()
+
+asyncio.run(main())
+"""
+
+
+def test_recording_writer_imports_nothing_at_its_first_flush():
+    """pyarrow's first conversion imports pandas (0.7 s holding the GIL): a recording station has
+    it done when it starts, not by the writer thread with the link and the pages live."""
+    out = subprocess.run([sys.executable, "-c", FIRST_FLUSH], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out
