@@ -2,7 +2,8 @@
 the start-up heap frozen out of the collector's walk while a station serves, and handed back
 when it stops; the status body encoded once per published snapshot, and anew when it changes;
 the station's priority raised when the system permits it, and left with a reason when not;
-connections that write without waiting for the client's delayed ACK."""
+connections that write without waiting for the client's delayed ACK; the recording's first flush
+importing nothing; an estimation backlog worked off in slices."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from live import dashboard, running_station, wait_for
 
 from gcs.core import strict_json
 from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.estimation import SLICE
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.status_body import PER_REQUEST
 
@@ -141,6 +143,7 @@ def test_connections_send_without_nagle(udp_port):
 
 FIRST_FLUSH = """
 import asyncio, sys, tempfile
+from gcs.runtime.estimation import SLICE
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions import columnar
 from gcs.transport.address import free_port
@@ -163,3 +166,48 @@ def test_recording_writer_imports_nothing_at_its_first_flush():
     it done when it starts, not by the writer thread with the link and the pages live."""
     out = subprocess.run([sys.executable, "-c", FIRST_FLUSH], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]", out
+
+
+def test_estimation_backlog_worked_off_in_slices(udp_port):
+    """A burst of IMU packets (as after the process waited for a core) is estimated a slice per
+    turn of the event loop, so everything else on the loop runs between the slices."""
+
+    async def run() -> tuple[int, list[int]]:
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False) as station:
+            estimation = station.estimation
+            vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            encoder = Encoder(1, 1)
+
+            def imu(k: int) -> bytes:
+                return encoder.encode(
+                    mavlink.MAVLink_highres_imu_message(
+                        1000 + 2500 * k, 0.1, 0.0, -9.8, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 1000.0, 0, 0, 25.0, 0x1FFF, 0
+                    )
+                )
+
+            def fed_after_one_more() -> bool:  # the first may come before the socket is bound
+                vehicle.sendto(imu(0), ("127.0.0.1", udp_port))
+                return estimation.messages_fed >= 1
+
+            await wait_for(fed_after_one_more, 120, "the estimators warmed and fed")
+            fed_per_turn: list[int] = []
+            last = [estimation.messages_fed]
+            loop = asyncio.get_running_loop()
+
+            def each_turn() -> None:  # runs once per iteration of the loop, until the burst is in
+                fed_per_turn.append(estimation.messages_fed - last[0])
+                last[0] = estimation.messages_fed
+                if last[0] < start + burst:
+                    loop.call_soon(each_turn)
+
+            burst, start = 300, estimation.messages_fed
+            loop.call_soon(each_turn)
+            for k in range(1, burst + 1):  # all in the socket before the loop runs again
+                vehicle.sendto(imu(k), ("127.0.0.1", udp_port))
+            await wait_for(lambda: estimation.messages_fed >= start + burst, 30, "the burst estimated")
+            vehicle.close()
+            return burst, fed_per_turn
+
+    burst, fed_per_turn = asyncio.run(run())
+    assert sum(fed_per_turn) >= burst
+    assert max(fed_per_turn) <= SLICE, fed_per_turn
