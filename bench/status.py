@@ -10,7 +10,8 @@ loop, the CPU time (`time.thread_time`) of:
 - baseline `recompute`: what each request computed before the Station published snapshots
   (link, streams, vehicle and, per estimator, the comparison with its 101-step lag search).
 Then the round trip over real HTTP (uvicorn, loopback) seen by PAGES clients in another process,
-each polling every POLL_S (twice a page's rate, for more samples): p50 and p99.
+each polling every POLL_S on its own keep-alive connection (twice a page's rate, for more
+samples): p50 and p99.
 Target: ≤ 5 ms. Ratio = baseline / ours (> 1: we are cheaper).
 """
 
@@ -37,15 +38,19 @@ CALLS = 200
 PAGES = 5
 POLL_S = 0.5
 POLL_FOR_S = 30.0
-#: PAGES threads GET a URL every POLL_S for POLL_FOR_S; prints [p50, p99, n] of the round trip in ms
+#: PAGES threads GET a URL every POLL_S for POLL_FOR_S, each on its own keep-alive connection (as a
+#: browser's page polls); prints [p50, p99, n] of the round trip in ms
 HTTP_CLIENT = """
-import json, sys, threading, time, urllib.request
+import http.client, json, sys, threading, time, urllib.parse
 url, pages, period, seconds = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+parts = urllib.parse.urlsplit(url)
 times, end = [], time.monotonic() + seconds
 def page():
+    connection = http.client.HTTPConnection(parts.hostname, parts.port, timeout=30)
     while time.monotonic() < end:
         t0 = time.perf_counter()
-        urllib.request.urlopen(url, timeout=30).read()
+        connection.request("GET", parts.path)
+        connection.getresponse().read()
         times.append(1000 * (time.perf_counter() - t0))
         time.sleep(max(0.0, period - (time.perf_counter() - t0)))
 threads = [threading.Thread(target=page) for _ in range(pages)]
