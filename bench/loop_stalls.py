@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.serve_cpu import http_json, run_sender
+from bench.serve_cpu import pollers, run_sender, wait_until_serving
 from gcs.commands.cli import main as gcs_main
 from gcs.transport.address import free_port
 
@@ -258,19 +258,11 @@ def run(seconds: float, rate: int, pages: int, ws: int, hog: bool) -> dict[str, 
             stdout=subprocess.DEVNULL,
         )
         base = f"http://127.0.0.1:{http}"
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                http_json(f"{base}/api/status")
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.5)
+        wait_until_serving(base)
         helpers = [run_sender(port, rate, seconds + 4)]
         time.sleep(2.0)  # the estimators' kernels load; streams start
         spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if hog else None
-        helpers.append(subprocess.Popen([sys.executable, "-c", _poll_code(f"{base}/api/status", pages, seconds)]))
+        helpers.append(pollers(f"{base}/api/status", seconds, pages))
         helpers.append(
             subprocess.Popen(
                 [sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{http}/ws/live", str(ws), str(seconds)],
@@ -291,19 +283,6 @@ def run(seconds: float, rate: int, pages: int, ws: int, hog: bool) -> dict[str, 
         result: dict[str, Any] = json.loads(Path(report).read_text())
     result["load_avg_1m"] = round(os.getloadavg()[0], 2)
     return result
-
-
-def _poll_code(url: str, pages: int, seconds: float) -> str:
-    """`pages` clients polling GET url once a second each, in one process (as the page does)."""
-    return (
-        "import time, threading, urllib.request\n"
-        f"end = time.monotonic() + {seconds}\n"
-        "def poll():\n"
-        "    while time.monotonic() < end:\n"
-        f"        urllib.request.urlopen({url!r}, timeout=10).read(); time.sleep(1.0)\n"
-        f"ts = [threading.Thread(target=poll) for _ in range({pages})]\n"
-        "[t.start() for t in ts]; [t.join() for t in ts]\n"
-    )
 
 
 def main() -> list[dict[str, Any]]:
