@@ -8,9 +8,16 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
+from gcs.runtime import heap
 from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
+
+#: Input messages estimated per turn of the event loop. A backlog (the process waited for a core,
+#: or the link delivered a burst) is worked off in slices of about a millisecond or two: in one
+#: callback it held the loop for 10-50 ms under load (bench.loop_stalls), with requests and live
+#: frames waiting behind it.
+SLICE = 32
 
 
 class LiveEstimation:
@@ -39,17 +46,25 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        items: list[Message] = []
+        done = 0
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
             await asyncio.to_thread(registry.warm)
+            heap.freeze()  # the kernels' objects are here for good: no collection walks them
             while True:
-                self._feed([await sub.next(), *sub.drain()])
+                items, done = [await sub.next(), *sub.drain()], 0
+                while done < len(items):  # a backlog in slices: requests and live frames go out between
+                    self._feed(items[done : done + SLICE])
+                    done += SLICE
+                    await asyncio.sleep(0)  # also after the last: `next` returns at once while more is queued
         finally:
             # Stopping: what the link delivered is estimated too, so that a recording and the
             # live outputs hold the same inputs (the station stops the link first).
-            self._feed(sub.drain())
+            self._feed(items[done:] + sub.drain())
             sub.close()
+            heap.release()
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []

@@ -167,6 +167,7 @@ class SessionRecorder:
             self._loop = asyncio.get_running_loop()
         except RuntimeError:
             self._loop = None
+        columnar.warm()  # not in the writer thread, with the link running
         try:
             self.root.mkdir(parents=True, exist_ok=True)
             self.recovered = recover_sessions(self.root)
