@@ -115,9 +115,9 @@ class Subscription:
         await self.queue.wait()
         return self.queue.get_nowait()
 
-    def drain(self) -> list[Message]:
-        """Everything queued now, without waiting."""
-        return self.queue.drain()
+    def drain(self, limit: int | None = None) -> list[Message]:
+        """Everything queued now (at most `limit` messages), without waiting."""
+        return self.queue.drain(limit)
 
     def __aiter__(self) -> Subscription:
         return self
