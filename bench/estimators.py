@@ -24,7 +24,7 @@ from gcs.core.estimators.ekf import EkfEstimator
 from gcs.core.estimators.kf import KalmanAttitudeFilter
 from gcs.core.estimators.whole import run_whole
 from gcs.core.samples import ImuSample
-from gcs.sessions.input_table import InputTableBuilder
+from gcs.logs.input_table import InputTableBuilder
 
 TRIAL = next((Path(__file__).resolve().parents[2] / "shared" / "data" / "broad").glob("24_*.hdf5"))
 REFERENCES = {"dcm": DcmEstimator, "kf": KalmanAttitudeFilter, "ekf": EkfEstimator}

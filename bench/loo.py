@@ -5,7 +5,7 @@
 For each estimator and rate, TUNED's 2-3 gains are searched on five trials (coordinate search over
 the default × FACTORS, SWEEPS passes) and scored on the sixth, beside the defaults and the same
 search on all six (in-sample). Every gain set is run once on every case and cached, so the six
-folds share their runs (minutes at 47.6 Hz, about an hour at full rate on two cores).
+folds share their runs (both rates of one estimator: 4 min for dcm, 9 min for kf on two loaded cores).
 
 The search's cost is the mean plus the worst total RMSE over the training cases: each training
 trial as recorded and, with --floor-magnet, also the same trial with bench.stress's floor magnet

@@ -17,7 +17,7 @@ from gcs import __version__
 PACKAGE = Path(__file__).resolve().parent
 #: Written by the wheel's build hook (setup.py); absent in a source checkout.
 BUILD_INFO = PACKAGE / "_build.json"
-DEPENDENCIES = ("pymavlink", "numpy", "filterpy", "scipy", "pyarrow", "pyulog", "fastapi", "uvicorn", "viser")
+DEPENDENCIES = ("pymavlink", "numpy", "numba", "filterpy", "scipy", "pyarrow", "fastapi", "uvicorn", "viser")
 
 
 @dataclass(frozen=True)

@@ -102,7 +102,10 @@ def test_presets():
     seed = DcmEstimator("seed000").gains
     assert (seed["kp_rp"], seed["kp_yaw"], seed["ki_rp"], seed["ki_yaw"]) == (27.8, 41.7, 1.0, 1.5)
     ap = DcmEstimator("ardupilot").gains
-    assert (ap["kp_rp"], ap["kp_yaw"], ap["ki_rp"], ap["ki_yaw"]) == (0.2, 0.2, 0.0087, 0.01)
+    # AHRS_YAW_P doubled at rest; the turn-rate schedule halves it at 2.5 rad/s (docs/estimators/dcm.md)
+    assert (ap["kp_rp"], ap["kp_yaw"], ap["ki_rp"], ap["ki_yaw"]) == (0.2, 0.4, 0.0087, 0.01)
+    assert (ap["yaw_spin_half"], ap["accel_dev_gate"]) == (2.5, 7.0)
+    assert (seed["yaw_spin_half"], seed["accel_dev_gate"], seed["pick_dt"]) == (0.0, 0.0, 0.0)
     assert DcmEstimator.DEFAULT_PRESET == "ardupilot"
 
 

@@ -2,8 +2,8 @@
 that builds them): a magnet fixed to the sensor, a gyro bias step, accelerometer shocks.
 
 For CI time each run is the trial from its start to 40 s after the switch (at its middle), at
-47.6 Hz (every 6th sample, what RAW_IMU streaming gives); the full-trial and full-rate figures are
-`python -m bench.stress`'s."""
+47.6 Hz (every 6th sample, what RAW_IMU streaming gives; the bias step at the full rate too); the
+full-trial figures are `python -m bench.stress`'s."""
 
 import math
 
@@ -22,29 +22,24 @@ EVERY = 6
 AFTER = 40.0  # s of the trial kept after the switch
 
 
-def segment(stem: str):
+def segment(stem: str, every: int = EVERY):
     """The trial up to 40 s after its middle, and the middle (the switch time)."""
-    trial = load_trial(BROAD / f"{stem}.hdf5", EVERY)
+    trial = load_trial(BROAD / f"{stem}.hdf5", every)
     t_on = mid(trial)
     return cut(trial, 0.0, t_on + AFTER), t_on
+
+
+def test_all_six_trials_are_there():
+    assert len(TRIALS) == 6, f"BROAD trials missing in {BROAD}: {TRIALS}"
 
 
 #: Known shortfalls against the issue's targets, held to what was measured (a regression bound,
 #: stated, not hidden; the target stays the bound for every other case). Remove when met.
 MAGNET_SHORTFALLS = {
-    # target 5°, measured 5.9°: dcm's heading in fast translation is 5.0° RMS without a magnet,
-    # and the offset is learned at that heading error
-    ("15", "dcm"): 6.5,
+    # target 5°, measured 5.17° (5.9° before the turn-rate and acceleration weights): dcm's
+    # heading in fast translation, and the offset is learned at that heading error
+    ("15", "dcm"): 5.5,
 }
-BIAS_SHORTFALLS = {
-    # target 2x VQF, measured 8.0° against VQF's 3.9°: KF-A has no bias state, the step is only
-    # corrected as an error
-    ("07", "kf"): 2.2,
-}
-
-
-def test_all_six_trials_are_there():
-    assert len(TRIALS) == 6, f"BROAD trials missing in {BROAD}: {TRIALS}"
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -74,13 +69,15 @@ def test_shocks_leave_no_lasting_error(stem, name):
     assert worst < 2.0
 
 
+@pytest.mark.parametrize("every", [EVERY, 1])
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("stem", TRIALS)
-def test_gyro_bias_step(stem, name):
+def test_gyro_bias_step(stem, name, every):
     """1°/s added to gyro x at the middle: the total error after the step stays within twice
-    VQF's on the same samples (VQF estimates the bias too)."""
-    trial, t_on = segment(stem)
+    VQF's on the same samples (VQF estimates the bias too), at 47.6 Hz and at the full 285.7 Hz
+    (kf, before it learned the bias: 2.2x and 2.7x on the full trials)."""
+    trial, t_on = segment(stem, every)
     stressed = bias_step(trial, BIAS_STEP, t_on)
     ours = score(stressed, run_estimator(name, stressed), t_on)["total"]
     vqf = score(stressed, run_vqf(stressed), t_on)["total"]
-    assert ours < max(BIAS_SHORTFALLS.get((stem[:2], name), 2.0) * vqf, 3.0), (ours, vqf)
+    assert ours < max(2.0 * vqf, 3.0), (ours, vqf)

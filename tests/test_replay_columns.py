@@ -11,12 +11,12 @@ import pytest
 
 from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.logs.input_table import InputTableBuilder
 from gcs.logs.tlog import read_tlog
 from gcs.mavlink import tlog
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime import replay
 from gcs.runtime.replay import ReplaySession
-from gcs.sessions.input_table import InputTableBuilder
 from gcs.sessions.sources import open_source
 
 

@@ -54,7 +54,10 @@ def test_report_of_a_session_has_its_events_notes_gain_changes_and_the_page_colo
         assert f"background:{hex_color(name)}" in page
     attitude, errors = re.findall(r"<img src='data:image/png;base64,([A-Za-z0-9+/=]+)'>", page)[:2]
     for name in ("dcm", "kf", "ekf"):
-        assert colour_pixels(attitude, COLORS[name]) > 50, name
+        # > 20, not 50: the attitude lines lie on one another, and the more closely dcm follows the
+        # others the more of its line kf's and ekf's cover (33-92 of its pixels show; 0 if it
+        # were drawn in another colour)
+        assert colour_pixels(attitude, COLORS[name]) > 20, name
         assert colour_pixels(errors, COLORS[name]) > 50, name
     # matplotlib's own cycle would draw the second estimator's error orange: no ahrs2 orange there
     assert colour_pixels(errors, COLORS["ahrs2"]) < 5

@@ -143,8 +143,12 @@ def test_log_records():
         Record("GPS", TimeUS=2_000_000, I=0, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=180.0, VZ=-0.5, Status=3)
     )
     np.testing.assert_allclose(g.vel_ned, [-2.0, 0.0, -0.5], atol=1e-12)
-    u = ulog.imu_from_ulog_sensor_combined(3_000_000, [0.0, 0.1, 0.0], [0.0, 0.0, -9.81])
-    assert u.t == 3.0 and u.source == "sensor_combined"
+    combined = {"timestamp": np.array([3_000_000], dtype=np.uint64)}
+    for i, (gyro, accel) in enumerate(zip([0.0, 0.1, 0.0], [0.0, 0.0, -9.81], strict=True)):
+        combined[f"gyro_rad[{i}]"], combined[f"accelerometer_m_s2[{i}]"] = np.float32([gyro]), np.float32([accel])
+    u = ulog.imu_rows(combined)
+    assert u.shape == (1, 7) and u[0, 0] == 3.0
+    np.testing.assert_array_equal(u[0, 1:], np.float32([0.0, 0.1, 0.0, 0.0, 0.0, -9.81]))
 
 
 def test_old_dataflash_records_timems_and_instance_by_type():
@@ -188,9 +192,9 @@ def test_ulog_gps_rows_both_generations(modern):
         "vel_ned_valid": np.array([1]),
         "fix_type": np.array([3]),
     }
-    g = ulog.gps_from_ulog(data, 0, "sensor_gps")
-    assert g.t == 5.0 and (g.lat, g.lon, g.alt) == pytest.approx((-35.363261, 149.1652299, 584.09))
-    assert g.ground_speed == 2.0 and g.course == pytest.approx(-math.pi / 2) and g.fix_type == 3
-    np.testing.assert_allclose(g.vel_ned, [0.0, -2.0, 0.1])
+    t, lat, lon, alt, speed, course, vn, ve, vd, fix = ulog.gps_rows(data)[0]
+    assert t == 5.0 and (lat, lon, alt) == pytest.approx((-35.363261, 149.1652299, 584.09))
+    assert speed == 2.0 and course == pytest.approx(-math.pi / 2) and fix == 3
+    np.testing.assert_allclose([vn, ve, vd], [0.0, -2.0, 0.1])
     data["vel_ned_valid"] = np.array([0])
-    assert ulog.gps_from_ulog(data, 0, "sensor_gps").vel_ned is None
+    assert np.isnan(ulog.gps_rows(data)[0, 6:9]).all()  # no NED velocity

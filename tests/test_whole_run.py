@@ -20,8 +20,8 @@ from gcs.core.comparison import errors_at
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry, whole
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.logs.input_table import InputTableBuilder
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
-from gcs.sessions.input_table import InputTableBuilder
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import run_estimator as what_if_run
 from gcs.sim.recording import write_tlog

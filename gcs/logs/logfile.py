@@ -8,6 +8,7 @@ from collections.abc import Iterator
 from gcs.core.declination import VehicleDeclination
 from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
+from gcs.logs.input_table import InputTable, InputTableBuilder
 
 
 class InputError(ValueError):
@@ -35,6 +36,14 @@ class LogFile:
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         raise NotImplementedError  # each reader yields its samples in time order
+
+    def columns(self) -> InputTable:
+        """The samples as an input table, and the same reports; a reader that decodes straight
+        into columns gives them without the objects."""
+        table = InputTableBuilder()
+        for sample in self:
+            table.append(sample)
+        return table.build()
 
     def _seen(self, kind: str, timestamp_us: int) -> None:
         """Count one record of `kind` read at timestamp_us (records come in time order)."""

@@ -1,242 +1,239 @@
-"""PX4 ULog (.ulg) files → the sample stream, through pyulog.
+"""PX4 ULog (.ulg) files → estimation inputs, in columns (gcs.logs.ulog_format reads the file).
 
-`sensor_combined` (gyro rad/s, accelerometer m/s² specific force, body FRD) → `ImuSample`,
-carrying the latest magnetometer reading (see gcs.logs.magnetometer) from `vehicle_magnetometer`
+`sensor_combined` (gyro rad/s, accelerometer m/s² specific force, body FRD) → IMU rows, carrying
+the latest magnetometer reading (see gcs.logs.magnetometer) from `vehicle_magnetometer`
 (calibrated, body FRD, gauss) or, in logs without it, `sensor_mag` (gauss); `sensor_gps` or, in
-older logs, `vehicle_gps_position` → `GpsSample`; `vehicle_attitude` (the onboard EKF2,
-quaternion body→NED, w first) → the "onboard" reference. The topics are merged in timestamp
-order (at equal timestamps a magnetometer reading first, so the IMU sample carries it). The
-parameters (initial, then changed ones at their time) give EKF2_MAG_DECL (degrees) as a
-declination `GainChange`, else the WMM's at the first 3D fix (see `VehicleDeclination`). pyulog
-reads a damaged file up to the damage and flags corruption, but stops silently at a cut end;
-`CutWatch` finds where a cut message starts, and `damage` says either.
+older logs, `vehicle_gps_position` → GPS rows; `vehicle_attitude` (the onboard EKF2, quaternion
+body→NED, w first) → the "onboard" reference. The topics are merged in timestamp order (at equal
+timestamps a magnetometer reading first, so the IMU sample carries it), as `heapq.merge` merges
+them. The parameters (initial, then changed ones at their time) give EKF2_MAG_DECL (degrees) as a
+declination `GainChange`, else the WMM's at the first 3D fix (see `VehicleDeclination`).
+Everything is computed on whole columns; iterating a `UlogFile` gives the same inputs as objects.
 """
 
 from __future__ import annotations
 
 import heapq
-import struct
-from collections.abc import Iterator
-from typing import BinaryIO, TypeAlias
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
-from pyulog import ULog
 
 from gcs.core.declination import WMM_EPOCH, decimal_year
 from gcs.core.estimation import GainChange
-from gcs.core.rotation import quat_to_euler
-from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, MagSample, degE7_to_deg, mm_to_m, usec_to_s
+from gcs.core.estimators.whole import InputKind as Kind
+from gcs.core.estimators.whole import euler_of
+from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, degE7_to_deg, mm_to_m, usec_to_s
+from gcs.logs.input_table import InputTable
 from gcs.logs.logfile import InputError, LogFile
-from gcs.logs.magnetometer import with_latest_mag
+from gcs.logs.ulog_format import read_ulog
 
 IMU_TOPIC = "sensor_combined"
 ATTITUDE_TOPIC = "vehicle_attitude"
 #: Topics carrying each sensor, the preferred one first.
 MAG_TOPICS = ("vehicle_magnetometer", "sensor_mag")
 GPS_TOPICS = ("sensor_gps", "vehicle_gps_position")
-#: One topic's columns, as pyulog decodes them (field name → one array per field).
-Columns: TypeAlias = dict[str, npt.NDArray[np.generic]]
-#: A parameter change: name, value (PX4's own unit).
-Parameter: TypeAlias = tuple[str, float]
-#: A merged row: timestamp µs, rank at equal timestamps, topic, what it carries.
-Row: TypeAlias = tuple[int, int, str, ImuSample | MagSample | GpsSample | AttitudeSample | Parameter]
-#: Row topic of a changed parameter.
-PARAMETER_ROW = "parameter"
+#: A topic's columns by field name (a structured array's fields, or a dict of arrays).
+Columns: TypeAlias = Mapping[str, npt.NDArray[np.generic]]
+Floats: TypeAlias = npt.NDArray[np.float64]
+#: Streams merged, with their rank at equal timestamps (a changed parameter first).
+PARAMETER, MAG, IMU, GPS, ATTITUDE = range(5)
+RANK = {PARAMETER: -1, MAG: 0, IMU: 1, GPS: 2, ATTITUDE: 3}
 
 
-def imu_from_ulog_sensor_combined(
-    timestamp_us: int, gyro_rad: npt.ArrayLike, accelerometer_m_s2: npt.ArrayLike
-) -> ImuSample:
-    """ULog `sensor_combined` row: timestamp µs, gyro_rad[3] rad/s, accelerometer_m_s2[3] (body FRD)."""
-    return ImuSample(
-        usec_to_s(timestamp_us),
-        np.asarray(gyro_rad, dtype=float),
-        np.asarray(accelerometer_m_s2, dtype=float),
-        None,
-        "sensor_combined",
-    )
+def columns_of(rows: npt.NDArray[np.void]) -> Columns:
+    """A structured array's fields as columns (views, no copy)."""
+    return {name: rows[name] for name in rows.dtype.names or ()}
 
 
-def mag_from_ulog(timestamp_us: int, field_gauss: npt.ArrayLike, topic: str) -> MagSample:
-    """`vehicle_magnetometer` magnetometer_ga[3] or `sensor_mag` x, y, z: gauss; timestamp µs."""
-    return MagSample(usec_to_s(timestamp_us), np.asarray(field_gauss, dtype=float), topic)
+def _floats(data: Columns, fields: tuple[str, ...]) -> Floats:
+    return np.column_stack([np.asarray(data[f], dtype=np.float64) for f in fields])
 
 
-def gps_from_ulog(data: Columns, k: int, topic: str) -> GpsSample:
-    """Row k of `sensor_gps` / `vehicle_gps_position`: timestamp µs; latitude_deg, longitude_deg
-    (deg) and altitude_msl_m (m) since PX4 1.14, lat/lon (degE7) and alt (mm) before; vel_n/e/d_m_s
-    and vel_m_s m/s, cog_rad rad, fix_type (MAVLink's GPS_FIX_TYPE values); the NED velocity only
-    where vel_ned_valid."""
-    if "latitude_deg" in data:
-        lat, lon = float(data["latitude_deg"][k]), float(data["longitude_deg"][k])
-        alt = float(data["altitude_msl_m"][k])
-    else:
-        lat, lon = degE7_to_deg(int(data["lat"][k])), degE7_to_deg(int(data["lon"][k]))
-        alt = mm_to_m(int(data["alt"][k]))
-    vel_ned = None
-    if bool(data["vel_ned_valid"][k]):
-        vel_ned = np.array([data["vel_n_m_s"][k], data["vel_e_m_s"][k], data["vel_d_m_s"][k]], dtype=float)
-    return GpsSample(
-        usec_to_s(int(data["timestamp"][k])),
-        lat,
-        lon,
-        alt,
-        float(data["vel_m_s"][k]),
-        float(data["cog_rad"][k]),
-        vel_ned,
-        int(data["fix_type"][k]),
-        topic,
-    )
+def converted(convert: Callable[[Any], Any], values: npt.ArrayLike) -> Floats:
+    """A unit conversion of gcs.core.samples over a whole column, as float64."""
+    return np.asarray(convert(np.asarray(values).astype(np.float64)), dtype=np.float64)
 
 
-def attitude_from_ulog(timestamp_us: int, q: npt.ArrayLike) -> AttitudeSample:
-    """`vehicle_attitude` row: timestamp µs, q[4] (w, x, y, z) body→NED → Z-Y-X Euler in rad."""
-    return AttitudeSample(usec_to_s(timestamp_us), *quat_to_euler(np.asarray(q, dtype=float)), "onboard")
+def seconds(data: Columns) -> Floats:
+    """A topic's `timestamp` (µs) in seconds."""
+    return converted(usec_to_s, data["timestamp"])
 
 
-def _vectors(data: Columns, fields: tuple[str, ...]) -> npt.NDArray[np.float64]:
-    return np.column_stack([np.asarray(data[f], dtype=float) for f in fields])
+def imu_rows(data: Columns) -> Floats:
+    """`sensor_combined` → N×7: t s, gyro_rad[3] rad/s, accelerometer_m_s2[3] (body FRD)."""
+    fields = tuple(f"gyro_rad[{i}]" for i in range(3)) + tuple(f"accelerometer_m_s2[{i}]" for i in range(3))
+    return np.column_stack([seconds(data), _floats(data, fields)])
 
 
-def _imu_rows(data: Columns) -> Iterator[Row]:
-    gyro = _vectors(data, tuple(f"gyro_rad[{i}]" for i in range(3)))
-    accel = _vectors(data, tuple(f"accelerometer_m_s2[{i}]" for i in range(3)))
-    for k, timestamp in enumerate(data["timestamp"].tolist()):
-        yield timestamp, 1, IMU_TOPIC, imu_from_ulog_sensor_combined(timestamp, gyro[k], accel[k])
-
-
-def _mag_rows(data: Columns, topic: str) -> Iterator[Row]:
+def mag_field(data: Columns) -> Floats:
+    """`vehicle_magnetometer` magnetometer_ga[3] or `sensor_mag` x, y, z → N×3 gauss."""
     names = ("magnetometer_ga[0]", "magnetometer_ga[1]", "magnetometer_ga[2]")
-    field = _vectors(data, names if names[0] in data else ("x", "y", "z"))
-    for k, timestamp in enumerate(data["timestamp"].tolist()):
-        yield timestamp, 0, topic, mag_from_ulog(timestamp, field[k], topic)
+    return _floats(data, names if names[0] in data else ("x", "y", "z"))
 
 
-def _gps_rows(data: Columns, topic: str) -> Iterator[Row]:
-    for k, timestamp in enumerate(data["timestamp"].tolist()):
-        yield timestamp, 2, topic, gps_from_ulog(data, k, topic)
+def gps_rows(data: Columns) -> Floats:
+    """`sensor_gps` / `vehicle_gps_position` → the input table's GPS rows: t s; latitude_deg,
+    longitude_deg (deg) and altitude_msl_m (m) since PX4 1.14, lat/lon (degE7) and alt (mm) before;
+    vel_m_s m/s, cog_rad rad, vel_n/e/d_m_s m/s (NaN where not vel_ned_valid), fix_type
+    (MAVLink's GPS_FIX_TYPE values)."""
+    if "latitude_deg" in data:
+        position = _floats(data, ("latitude_deg", "longitude_deg", "altitude_msl_m"))
+    else:
+        lat, lon = converted(degE7_to_deg, data["lat"]), converted(degE7_to_deg, data["lon"])
+        position = np.column_stack([lat, lon, converted(mm_to_m, data["alt"])])
+    vel = _floats(data, ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s"))
+    vel[np.asarray(data["vel_ned_valid"]) == 0] = np.nan
+    motion = _floats(data, ("vel_m_s", "cog_rad"))
+    return np.column_stack([seconds(data), position, motion, vel, _floats(data, ("fix_type",))])
 
 
-def _parameter_rows(changed: list[tuple[int, str, float]]) -> Iterator[Row]:
-    for timestamp, name, value in changed:
-        yield timestamp, -1, PARAMETER_ROW, (name, float(value))
+def attitude_rows(data: Columns) -> Floats:
+    """`vehicle_attitude` q[4] (w, x, y, z) body→NED → N×4: t s, Z-Y-X Euler roll, pitch, yaw rad."""
+    q = np.ascontiguousarray(_floats(data, tuple(f"q[{i}]" for i in range(4))))
+    return np.column_stack([seconds(data), euler_of(q)])
 
 
-def _attitude_rows(data: Columns) -> Iterator[Row]:
-    q = _vectors(data, tuple(f"q[{i}]" for i in range(4)))
-    for k, timestamp in enumerate(data["timestamp"].tolist()):
-        yield timestamp, 3, ATTITUDE_TOPIC, attitude_from_ulog(timestamp, q[k])
+def merge_order(keys: list[tuple[npt.NDArray[np.uint64], int]]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """(stream, row) of every row of the streams (timestamps µs, rank) in `heapq.merge` order by
+    (timestamp, rank): a stable sort when every stream is in time order, else heapq itself."""
+    stream = np.concatenate([np.full(len(t), s, dtype=np.int64) for s, (t, _) in enumerate(keys)])
+    row = np.concatenate([np.arange(len(t), dtype=np.int64) for t, _ in keys])
+    if all(np.all(t[1:] >= t[:-1]) for t, _ in keys):
+        t_all = np.concatenate([t for t, _ in keys])
+        rank = np.concatenate([np.full(len(t), r, dtype=np.int64) for t, r in keys])
+        order = np.lexsort((rank, t_all))
+        return stream[order], row[order]
 
+    def rows(s: int) -> Iterator[tuple[int, int, int, int]]:
+        t, rank = keys[s]
+        return ((ts, rank, s, k) for k, ts in enumerate(t.tolist()))
 
-class CutWatch:
-    """The file object pyulog reads through, noting a read the file's end cut short.
-
-    pyulog reads every message as a 3-byte header (uint16 size, uint8 type), then `size` bytes,
-    and ends quietly on a short read, whether at the clean end (no header byte left) or in the
-    middle of a message. A short read that got some bytes, or a body read that got none after
-    its header, is a cut: `cut` is (offset of the cut message, its length, bytes present). The
-    offset is counted here rather than asked of the file (a tell() per read cost a third of the
-    decoding).
-    """
-
-    def __init__(self, fh: BinaryIO) -> None:
-        self.fh = fh
-        self.cut: tuple[int, int, int] | None = None
-        self._header: tuple[int, int] | None = None  # (offset, body size) of the last header read
-        self._pos = fh.tell()
-
-    def read(self, n: int = -1) -> bytes:
-        at = self._pos
-        data = self.fh.read(n)
-        self._pos = at + len(data)
-        header, self._header = self._header, None
-        if 0 <= len(data) < n:
-            if header is not None and header[1] == n:  # a body after its header
-                self.cut = (header[0], 3 + n, 3 + len(data))
-            elif data and n == 3:
-                self.cut = (at, 3, len(data))
-        elif n == 3 and len(data) == 3:
-            self._header = (at, struct.unpack_from("<H", data)[0])
-        return data
-
-    def seek(self, offset: int, whence: int = 0) -> int:
-        self._header = None
-        self._pos = self.fh.seek(offset, whence)
-        return self._pos
-
-    def tell(self) -> int:
-        return self._pos
-
-    def close(self) -> None:
-        pass  # the reader's `with` closes the file
+    merged = heapq.merge(*[rows(s) for s in range(len(keys))], key=lambda item: item[:2])
+    pairs = np.array([(s, k) for _, _, s, k in merged], dtype=np.int64).reshape(-1, 2)
+    return pairs[:, 0], pairs[:, 1]
 
 
 class UlogFile(LogFile):
-    """Iterates the samples of a .ulg in timestamp order (see LogFile for what it reports);
-    `imu` selects the sensor_combined instance (multi_id)."""
+    """The inputs of a .ulg in timestamp order (see LogFile for what it reports); `imu` selects
+    the sensor_combined instance (multi_id). `columns()` gives them as an input table, iterating
+    the file as sample objects."""
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
-        try:
-            with open(self.path, "rb") as fh:
-                watch = CutWatch(fh)
-                ulog = ULog(watch, [IMU_TOPIC, ATTITUDE_TOPIC, *MAG_TOPICS, *GPS_TOPICS])
-        except OSError as exc:
-            raise InputError(f"{self.path}: offset 0: cannot read ({exc.strerror})") from None
-        except Exception as exc:  # pyulog raises plain Exceptions for a bad header or version
-            raise InputError(f"{self.path}: offset 0: not a ULog file ({exc})") from None
-        if ulog.file_corruption:
-            self.damage = f"{self.path}: pyulog found corrupt data and skipped it; samples up to the damage are used"
-        elif watch.cut is not None:
-            at, length, present = watch.cut
-            self.damage = (
-                f"{self.path}: offset {at}: log ends inside a message ({present} of its {length} bytes); "
-                "samples up to there are used"
-            )
-        imus = {d.multi_id: d.data for d in ulog.data_list if d.name == IMU_TOPIC and len(d.data["timestamp"])}
+        yield from self.columns().inputs()
+
+    def columns(self) -> InputTable:
+        """The inputs as an input table, decoded on whole columns; reports as LogFile says."""
+        contents = read_ulog(self.path, [IMU_TOPIC, ATTITUDE_TOPIC, *MAG_TOPICS, *GPS_TOPICS])
+        if contents.damage:
+            first, more = contents.damage[0], len(contents.damage) - 1
+            self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
+            self.damage += f" ({more} more damaged places)" if more else ""
+        topics = {name: columns_of(rows) for (name, multi_id), rows in contents.topics.items() if multi_id == 0}
+        imus = sorted(m for name, m in contents.topics if name == IMU_TOPIC)
         if self.imu not in imus:
-            found = f"instances in the log: {', '.join(map(str, sorted(imus)))}" if imus else "none"
+            found = f"instances in the log: {', '.join(map(str, imus))}" if imus else "none"
             raise InputError(f"{self.path}: offset 0: no {IMU_TOPIC} instance {self.imu} ({found})")
-        topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
-        streams = [_imu_rows(imus[self.imu])]
+        streams: dict[int, tuple[str, Columns]] = {IMU: (IMU_TOPIC, columns_of(contents.topics[IMU_TOPIC, self.imu]))}
         if ATTITUDE_TOPIC in topics:
-            streams.append(_attitude_rows(topics[ATTITUDE_TOPIC]))
-        mag_topic = next((t for t in MAG_TOPICS if t in topics), None)
-        if mag_topic is None:
-            self.notes.append(f"{self.path}: no {' or '.join(MAG_TOPICS)} topic: heading from the gyro only")
-        else:
-            streams.append(_mag_rows(topics[mag_topic], mag_topic))
-        gps_topic = next((t for t in GPS_TOPICS if t in topics), None)
-        if gps_topic is None:
-            self.notes.append(f"{self.path}: no {' or '.join(GPS_TOPICS)} topic: no GPS aiding")
-        else:
-            streams.append(_gps_rows(topics[gps_topic], gps_topic))
-        for name, value in ulog.initial_parameters.items():
-            change = self.declination.parameter(name, float(value))
-            if change is not None:
-                yield change
-        streams.append(_parameter_rows(ulog.changed_parameters))
-        utc = topics[gps_topic].get("time_utc_usec") if gps_topic is not None else None
-        mag: MagSample | None = None
-        gps_row = 0
-        for timestamp, _, topic, sample in heapq.merge(*streams, key=lambda row: row[:2]):
-            if isinstance(sample, tuple):
-                change = self.declination.parameter(*sample)
-                if change is not None:
-                    yield change
-                continue
-            self._seen(topic, timestamp)
-            if isinstance(sample, MagSample):
-                mag = sample
-            elif isinstance(sample, ImuSample):
-                yield with_latest_mag(sample, mag)
-            elif isinstance(sample, GpsSample):
-                yield sample
-                if not self.declination.gps_fix:
-                    year = decimal_year(usec_to_s(int(utc[gps_row]))) if utc is not None and utc[gps_row] else WMM_EPOCH
-                    change = self.declination.fix(sample.fix_type, sample.lat, sample.lon, sample.alt, year)
-                    if change is not None:
-                        yield change
-                gps_row += 1
+            streams[ATTITUDE] = (ATTITUDE_TOPIC, topics[ATTITUDE_TOPIC])
+        for kind, names, lacking in (
+            (MAG, MAG_TOPICS, "heading from the gyro only"),
+            (GPS, GPS_TOPICS, "no GPS aiding"),
+        ):
+            name = next((t for t in names if t in topics), None)
+            if name is None:
+                self.notes.append(f"{self.path}: no {' or '.join(names)} topic: {lacking}")
             else:
-                yield sample
+                streams[kind] = (name, topics[name])
+        changed = contents.changed_parameters
+        keys = {PARAMETER: np.array([t for t, _, _ in changed], dtype=np.uint64)}
+        keys.update({kind: np.asarray(data["timestamp"]).astype(np.uint64) for kind, (_, data) in streams.items()})
+        order = sorted(keys)
+        which, row = merge_order([(keys[kind], RANK[kind]) for kind in order])
+        which = np.asarray(order, dtype=np.int64)[which]
+        self._report(which, row, keys, streams)
+        return self._table(which, row, streams, contents.initial_parameters, changed)
+
+    def _report(
+        self, which: npt.NDArray[np.int64], row: npt.NDArray[np.int64], keys: dict[int, npt.NDArray[np.uint64]],
+        streams: dict[int, tuple[str, Columns]],
+    ) -> None:  # fmt: skip
+        """counts per topic and the first and last timestamp of the merged topic rows."""
+        for name, data in streams.values():
+            self.counts[name] += len(data["timestamp"])
+        rows = np.flatnonzero(which != PARAMETER)
+        if len(rows):
+            first, last = rows[0], rows[-1]
+            self.first_us = int(keys[int(which[first])][row[first]])
+            self.last_us = int(keys[int(which[last])][row[last]])
+
+    def _table(
+        self, which: npt.NDArray[np.int64], row: npt.NDArray[np.int64], streams: dict[int, tuple[str, Columns]],
+        initial: dict[str, float], changed: list[tuple[int, str, float]],
+    ) -> InputTable:  # fmt: skip
+        """The input table of the merged rows: magnetometer rows ride on the IMU rows after them,
+        declination changes go where the per-sample rules make them."""
+        imu = imu_rows(streams[IMU][1])
+        mag_row = np.maximum.accumulate(np.where(which == MAG, row, -1))[which == IMU] if MAG in streams else None
+        field = np.full((len(imu), 3), np.nan)
+        if mag_row is not None:
+            field[mag_row >= 0] = mag_field(streams[MAG][1])[mag_row[mag_row >= 0]]
+        gps = gps_rows(streams[GPS][1]) if GPS in streams else np.empty((0, 10))
+        gains = self._declination(which, row, streams, gps, initial, changed)
+        inputs = np.flatnonzero((which != MAG) & (which != PARAMETER))
+        slot = np.concatenate([2 * inputs + 1, np.array([s for s, _ in gains], dtype=np.int64)])
+        order = np.argsort(slot, kind="stable")
+        kind = np.concatenate([which[inputs], np.full(len(gains), -1, dtype=np.int64)])[order]
+        codes = np.full(len(kind), Kind.GAIN, dtype=np.uint8)
+        codes[kind == IMU] = np.where(mag_row >= 0, Kind.IMU_MAG, Kind.IMU) if mag_row is not None else Kind.IMU
+        if GPS in streams:
+            codes[kind == GPS] = np.where(np.asarray(streams[GPS][1]["vel_ned_valid"]) != 0, Kind.GPS_VEL, Kind.GPS)
+        codes[kind == ATTITUDE] = Kind.ATTITUDE
+        names = [IMU_TOPIC, "onboard", streams[GPS][0] if GPS in streams else GPS_TOPICS[0]]
+        for _, change in gains:
+            names.extend(n for n in (change.estimator, change.name) if n is not None and n not in names)
+        attitude = attitude_rows(streams[ATTITUDE][1]) if ATTITUDE in streams else np.empty((0, 4))
+        return InputTable(
+            kind=codes,
+            imu=np.column_stack([imu, field]),
+            imu_source=np.zeros(len(imu), dtype=np.uint16),
+            gps=gps,
+            gps_source=np.full(len(gps), 2, dtype=np.uint16),
+            attitude=attitude,
+            attitude_source=np.ones(len(attitude), dtype=np.uint16),
+            gain_estimator=np.array(
+                [-1 if c.estimator is None else names.index(c.estimator) for _, c in gains], dtype=np.int16
+            ),  # fmt: skip
+            gain_name=np.array([names.index(change.name) for _, change in gains], dtype=np.uint16),
+            gain_value=np.array([change.value for _, change in gains], dtype=np.float64),
+            names=tuple(names),
+        )
+
+    def _declination(
+        self, which: npt.NDArray[np.int64], row: npt.NDArray[np.int64], streams: dict[int, tuple[str, Columns]],
+        gps: Floats, initial: dict[str, float], changed: list[tuple[int, str, float]],
+    ) -> list[tuple[int, GainChange]]:  # fmt: skip
+        """The declination changes, each with its slot among the inputs (2 × merged position + 1
+        for an input, so a parameter's change takes its own place and a fix's comes after it)."""
+        gains: list[tuple[int, GainChange]] = []
+        for name, value in initial.items():
+            change = self.declination.parameter(name, value)
+            if change is not None:
+                gains.append((-1, change))
+        utc = streams[GPS][1].get("time_utc_usec") if GPS in streams else None
+        for position in np.flatnonzero((which == PARAMETER) | (which == GPS)).tolist():
+            k = int(row[position])
+            if which[position] == PARAMETER:
+                _, name, value = changed[k]
+                change, slot = self.declination.parameter(name, value), 2 * position
+            elif self.declination.gps_fix:
+                continue
+            else:
+                year = decimal_year(usec_to_s(int(utc[k]))) if utc is not None and utc[k] else WMM_EPOCH
+                t, lat, lon, alt = gps[k, :4].tolist()
+                change, slot = self.declination.fix(int(gps[k, 9]), lat, lon, alt, year), 2 * position + 2
+            if change is not None:
+                gains.append((slot, change))
+        return gains

@@ -27,14 +27,15 @@ import numpy.typing as npt
 
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
 from gcs.core.estimators import registry
+from gcs.core.estimators.whole import InputKind as Kind
 from gcs.logs.dataflash import DataflashLog
+from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import packet_length, read_tlog_records
 from gcs.sessions import layout
-from gcs.sessions.input_table import InputTable, InputTableBuilder
 
 #: A source's identity for caches: resolved path, mtime (ns) and size of the file decoded.
 SourceKey = tuple[str, int, int]
@@ -266,17 +267,24 @@ def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
 def _decode_log(path: str) -> _Decoded:
     """Frames of a DataFlash or ULog file: one per sample, paced on the vehicle clock."""
     log = LOG_FILES[os.path.splitext(path)[1].lower()](path)
-    frames = _FramesBuilder(with_packets=False)
-    table = InputTableBuilder()
-    for sample in log:
-        table.append(sample)
-        if isinstance(sample, GainChange):  # untimed: goes with the next frame's inputs
-            continue
-        frames.append(sample.t, -1, False, len(table))
-    if frames.t:
-        frames.input_end[-1] = len(table)
+    table = log.columns()
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
-    return _Decoded(frames.build(), table.build(), dict(log.counts), log.damage, span=span)
+    return _Decoded(sample_frames(table), table, dict(log.counts), log.damage, span=span)
+
+
+def sample_frames(table: InputTable) -> Frames:
+    """One frame per input that is a sample, at its time; a gain change (untimed) goes with the
+    next frame's inputs, those after the last sample with the last frame's."""
+    t = np.empty(len(table))
+    kind = table.kind
+    t[(kind == Kind.IMU) | (kind == Kind.IMU_MAG)] = table.imu[:, 0]
+    t[(kind == Kind.GPS) | (kind == Kind.GPS_VEL)] = table.gps[:, 0]
+    t[kind == Kind.ATTITUDE] = table.attitude[:, 0]
+    samples = np.flatnonzero(kind != Kind.GAIN)
+    input_end = samples + 1
+    if len(input_end):
+        input_end[-1] = len(table)
+    return Frames(t[samples], None, np.zeros(len(samples), dtype=np.bool_), input_end.astype(np.int64))
 
 
 KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}

@@ -11,6 +11,7 @@ import numpy.typing as npt
 from gcs.core.estimators.base import (
     COMMON_GAINS,
     GPS_GAINS,
+    PICK_GAINS,
     SHOCK_GAINS,
     AttitudeEstimator,
     GpsAcceleration,
@@ -83,14 +84,24 @@ class DcmEstimator(AttitudeEstimator):
         (
             Gain("kp_rp", 0.2, 0.0, 50.0, "1/s", "roll-pitch proportional gain (AHRS_RP_P)"),
             Gain("ki_rp", 0.0087, 0.0, 10.0, "1/s²", "roll-pitch integral gain (gyro bias learning)"),
-            Gain("kp_yaw", 0.2, 0.0, 50.0, "1/s", "yaw proportional gain (AHRS_YAW_P)"),
+            Gain("kp_yaw", 0.4, 0.0, 50.0, "1/s", "yaw proportional gain (AHRS_YAW_P)"),
             Gain("ki_yaw", 0.01, 0.0, 10.0, "1/s²", "yaw integral gain"),
             Gain("spin_gain", 1.0, 0.0, 1.0, "", "1 = roll-pitch P gain × clip(spin/50 deg/s, 1, 10)"),
             Gain("spin_gain_yaw", 0.0, 0.0, 1.0, "", "1 = scale the yaw P gain with spin rate too (ArduPilot does)"),
             Gain("accel_tau", 1.0, 0.0, 10.0, "s", "earth-frame average of the specific force"),
             Gain("accel_weight", 1.0, 0.0, 1.0, "", "1 = roll-pitch weight clip(1 - 2|1 - |f_avg|/g|, 0, 1)"),
+            Gain(
+                "accel_dev_gate",
+                7.0,
+                0.0,
+                1000.0,
+                "m/s²",
+                "roll-pitch P gain × 1/(1 + mean(|f| - g)² / this²); 0 = off",
+            ),
+            Gain("yaw_spin_half", 2.5, 0.0, 1000.0, "rad/s", "yaw P gain × 1/(1 + (|gyro| / this)²); 0 = off"),
         )
         + MAG_GAINS
+        + PICK_GAINS
         + SHOCK_GAINS
         + GPS_GAINS
         + COMMON_GAINS
@@ -105,6 +116,9 @@ class DcmEstimator(AttitudeEstimator):
             "spin_gain": 0.0,
             "accel_tau": 0.0,
             "accel_weight": 0.0,
+            "accel_dev_gate": 0.0,
+            "yaw_spin_half": 0.0,
+            "pick_dt": 0.0,
             **MAG_OFF,
         },
     }
@@ -133,6 +147,7 @@ class DcmEstimator(AttitudeEstimator):
         self.f_avg: tuple[float, float, float] | None = None  # earth-frame specific force, averaged
         self.r_avg = (0.0, 0.0, -G0)  # its reference (gravity + GPS acceleration), averaged alike
         self.accel_w = 1.0
+        self.accel_dev = 0.0  # (|f| - g)², averaged over accel_tau
         self.mag = MagneticHeading()
         self.shock = Shock()
 
@@ -157,8 +172,9 @@ class DcmEstimator(AttitudeEstimator):
         if dt == 0.0:
             return self.valid
         g = self.gains
-        # 1. gyro update with the corrections computed on the previous sample (eq. 27)
-        px, py, pz = self.gyro_prev
+        # 1. gyro update with the corrections computed on the previous sample (eq. 27): a log's
+        #    interval-mean sample turns alone, picked samples (dt > pick_dt) by their trapezoid
+        px, py, pz = self.gyro_prev if dt > g["pick_dt"] else (gx, gy, gz)
         self.gyro_prev = (gx, gy, gz)
         oI, oP, oY = self.omega_I, self.omega_P, self.omega_Y
         wx = 0.5 * (px + gx) + oI[0] + oP[0] + oY[0]
@@ -219,6 +235,16 @@ class DcmEstimator(AttitudeEstimator):
         s = min(max(spin / math.radians(50.0), 1.0), 10.0)
         kp = g["kp_rp"] * (s if g["spin_gain"] >= 0.5 else 1.0)
         kpy = g["kp_yaw"] * (s if g["spin_gain_yaw"] >= 0.5 else 1.0)
+        # 5a. weights: tilt trusts the accelerometer less while |f| departs from g (linear
+        #     acceleration); heading trusts the field less while turning fast (its sample's
+        #     timing against the gyro's is then worth degrees)
+        dev = self.accel_norm - G0
+        self.accel_dev += dt / (g["accel_tau"] + dt) * (dev * dev - self.accel_dev)
+        gate, half = g["accel_dev_gate"], g["yaw_spin_half"]
+        if gate > 0.0:
+            kp /= 1.0 + self.accel_dev / (gate * gate)
+        if half > 0.0:
+            kpy /= 1.0 + (gx * gx + gy * gy + gz * gz) / (half * half)
         self.omega_P = (kp * bx, kp * by, kp * bz)
         self.omega_Y = (kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2])
         self.corr_e = (kp * ex, kp * ey, kpy * ez)

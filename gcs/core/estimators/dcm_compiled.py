@@ -25,8 +25,9 @@ SPIN_GAIN, SPIN_GAIN_YAW, ACCEL_TAU, ACCEL_WEIGHT = (
     _G["accel_tau"],
     _G["accel_weight"],
 )
+YAW_SPIN_HALF, ACCEL_DEV_GATE = _G["yaw_spin_half"], _G["accel_dev_gate"]
 GPS_GAIN, GPS_SPEED_MIN, DECLINATION, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["declination"], _G["max_gap"]
-SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
+SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
 MAG_G = tuple(
     _G[n]
     for n in (
@@ -46,7 +47,8 @@ ROWS = B  # 9
 OMEGA_I, OMEGA_P, OMEGA_Y, GYRO_PREV, CORR_E = B + 9, B + 12, B + 15, B + 18, B + 21
 FAVG_SET, FAVG, RAVG = B + 24, B + 25, B + 28
 ACCEL_W, RENORM_SIZE, RENORM_MAX, ERROR_RP, ERROR_YAW, YAW_SOURCE, MAG_REJECTED = range(B + 31, B + 38)
-SIZE = B + 38
+ACCEL_DEV = B + 38
+SIZE = B + 39
 #: yaw_source labels by code
 YAW_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
 
@@ -94,7 +96,10 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         return code
     dt = t - s[k.T_PREV]
     # 1. gyro update with the previous sample's corrections
-    px, py, pz = s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2]
+    if dt > g[PICK_DT]:
+        px, py, pz = s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2]
+    else:
+        px, py, pz = gx, gy, gz
     s[GYRO_PREV], s[GYRO_PREV + 1], s[GYRO_PREV + 2] = gx, gy, gz
     wx = 0.5 * (px + gx) + s[OMEGA_I] + s[OMEGA_P] + s[OMEGA_Y]
     wy = 0.5 * (py + gy) + s[OMEGA_I + 1] + s[OMEGA_P + 1] + s[OMEGA_Y + 1]
@@ -171,6 +176,13 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     sp = min(max(spin / math.radians(50.0), 1.0), 10.0)
     kp = g[KP_RP] * (sp if g[SPIN_GAIN] >= 0.5 else 1.0)
     kpy = g[KP_YAW] * (sp if g[SPIN_GAIN_YAW] >= 0.5 else 1.0)
+    dev = accel_norm - G0
+    s[ACCEL_DEV] += dt / (g[ACCEL_TAU] + dt) * (dev * dev - s[ACCEL_DEV])
+    gate, half = g[ACCEL_DEV_GATE], g[YAW_SPIN_HALF]
+    if gate > 0.0:
+        kp /= 1.0 + s[ACCEL_DEV] / (gate * gate)
+    if half > 0.0:
+        kpy /= 1.0 + (gx * gx + gy * gy + gz * gz) / (half * half)
     s[OMEGA_P], s[OMEGA_P + 1], s[OMEGA_P + 2] = kp * bx, kp * by, kp * bz
     s[OMEGA_Y], s[OMEGA_Y + 1], s[OMEGA_Y + 2] = kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2]
     s[CORR_E], s[CORR_E + 1], s[CORR_E + 2] = kp * ex, kp * ey, kpy * ez
@@ -205,6 +217,7 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         s[FAVG_SET] = 0.0
         s[RAVG : RAVG + 3] = (0.0, 0.0, -G0)
         s[ACCEL_W] = 1.0
+        s[ACCEL_DEV] = 0.0
         k.reset_mag(s)
         k.reset_shock(s)
 

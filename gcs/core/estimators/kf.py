@@ -23,6 +23,7 @@ from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import (
     Rows,
+    Vec3,
     VectorLike,
     euler_quat,
     euler_to_quat,
@@ -47,6 +48,8 @@ _R_NAMES = tuple(f"r_{s}" for s in _ANGLES + _RATES)
 _DIAG5, _DIAG6 = np.diag_indices(5), np.diag_indices(6)
 #: Measurement rows without a heading: roll, pitch and the three rates.
 _ROWS5 = [0, 1, 3, 4, 5]
+#: Largest gyro bias learned, per axis (rad/s; dcm's OMEGA_I_MAX).
+BIAS_MAX = 0.1
 #: Measurement noise (rad²) of a tilt row that carries no information (a shock, a zero vector).
 _NO_WEIGHT = 1e6
 
@@ -79,6 +82,19 @@ def mag_heading(m: VectorLike, roll: float, pitch: float, declination: float) ->
     if math.hypot(lx, ly) < 1e-9:
         return None
     return wrap_pi(declination - math.atan2(ly, lx))
+
+
+def body_turn(q0: VectorLike, q1: VectorLike) -> Vec3:
+    """The rotation vector δ (rad, body frame) with q1 = q0 ⊗ exp(δ/2): 2·vec(q0⁻¹ ⊗ q1), the
+    sign of q0⁻¹ ⊗ q1 taken so its w is not negative (small-angle form)."""
+    a0, a1, a2, a3 = q0
+    b0, b1, b2, b3 = q1
+    w = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3
+    x = a0 * b1 - a1 * b0 - a2 * b3 + a3 * b2
+    y = a0 * b2 + a1 * b3 - a2 * b0 - a3 * b1
+    z = a0 * b3 - a1 * b2 + a2 * b1 - a3 * b0
+    k = -2.0 if w < 0.0 else 2.0
+    return k * x, k * y, k * z
 
 
 def euler_rates(roll: float, pitch: float, gyro: VectorLike, cos_min: float = 1e-6) -> tuple[float, float, float]:
@@ -133,9 +149,26 @@ class KalmanAttitudeFilter(AttitudeEstimator):
                 "mag_delay", 0.0, 0.0, 0.05, "s", "how much older the field sample is than the gyro's (turned forward)"
             ),
             Gain(
-                "mag_time_sigma", 0.05, 0.0, 1.0, "s", "timing uncertainty of the field sample: yaw noise + (|ω|·σ_t)²"
+                "mag_time_sigma", 0.2, 0.0, 1.0, "s", "timing uncertainty of the field sample: yaw noise + (|ω|·σ_t)²"
             ),
             Gain("mag_dt", 0.02, 0.0, 1.0, "s", "step the yaw noise is given per: faster steps get it × mag_dt/Δt"),
+            Gain(
+                "bias_tau",
+                20.0,
+                0.0,
+                1000.0,
+                "s",
+                "time constant of the gyro bias learned from the corrections; 0 = off",
+            ),
+            Gain(
+                "bias_heading",
+                0.0,
+                0.0,
+                1.0,
+                "",
+                "1 = heading corrections teach the bias too (0: tilt corrections only)",
+            ),
+            Gain("bias_acc_tol", 0.5, 0.0, 1000.0, "m/s²", "the bias is learned only while ||f| - g| is below this"),
         )
         + MAG_GAINS
         + PICK_GAINS
@@ -152,6 +185,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         **MAG_OFF,
         "mag_time_sigma": 0.0,
         "mag_dt": 0.0,
+        "bias_tau": 0.0,
     }
     PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
     DEFAULT_PRESET = "telemetry"
@@ -161,6 +195,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.kf = KalmanFilter(dim_x=6, dim_z=6, dim_u=3)
         self.rates_prev = (0.0, 0.0, 0.0)
         self.gyro_prev = (0.0, 0.0, 0.0)
+        self.bias = (0.0, 0.0, 0.0)  # gyro bias (rad/s, sensor frame), learned from the corrections
         self.f_avg: tuple[float, float, float] | None = None
         self.gps = GpsAcceleration()
         self.mag = MagneticHeading()
@@ -227,6 +262,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.heading_source = "mag" if yaw is not None else "none"
         self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
         self.gyro_prev = vec3(float(v) for v in sample.gyro)
+        self.bias = (0.0, 0.0, 0.0)
         self.f_avg = None
         self.kf.x = np.array([[roll], [pitch], [yaw or 0.0], *([v] for v in self.rates_prev)])
         self.kf.P = np.diag([g[f"q_{s}"] for s in _ANGLES + _RATES])
@@ -261,7 +297,9 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             self._Q[_DIAG6] = [v * scale for v in q_key[3:]]
             self._q_key = q_key
         kf.Q = self._Q
-        gyro = vec3(map(float, sample.gyro))
+        b = self.bias
+        gx, gy, gz = map(float, sample.gyro)
+        gyro = (gx - b[0], gy - b[1], gz - b[2])
         cmin = g["cos_pitch_min"]
         exact = g["exact_predict"] >= 0.5
         x0 = kf.x[:, 0].tolist()
@@ -349,6 +387,18 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         y = kf.y[:, 0].tolist()
         self.innovation = np.array(y if yaw is not None else (y[0], y[1], 0.0, y[2], y[3], y[4]))
         x = kf.x[:, 0].tolist()
+        tau = g["bias_tau"]
+        if tau > 0.0 and not self.shock.active and abs(self.accel_norm - G0) < g["bias_acc_tol"]:
+            # what the update turned is, in the mean, the drift of the bias left in the gyro:
+            # b ← b − δ/τ (δ the body-frame turn of the update) learns it over τ; only while
+            # |f| ≈ g (a linear acceleration's tilt correction is no drift), and by default
+            # only its tilt part (heading corrections also follow the field's changes in place)
+            d = body_turn(q, euler_quat(x[0], x[1], x[2]))
+            if g["bias_heading"] < 0.5:
+                D = Rm[2]
+                dd = d[0] * D[0] + d[1] * D[1] + d[2] * D[2]
+                d = (d[0] - dd * D[0], d[1] - dd * D[1], d[2] - dd * D[2])
+            self.bias = vec3(min(max(b[i] - d[i] / tau, -BIAS_MAX), BIAS_MAX) for i in range(3))
         if self.f_avg is not None and g["accel_tau"] > 0.0:
             # turn the average with the correction (earth frame, R⁺R⁻ᵀ), so it filters the
             # measurement without delaying the loop (as the DCM and VQF do)
@@ -379,5 +429,6 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             "mag_rejected": self.mag_rejected,
             "mag_offset": self.mag.offset,
             "shocks": self.shock.count,
+            "gyro_bias": self.bias,
             **{f"sigma_{s}": float(math.sqrt(max(self.kf.P[i, i], 0.0))) for i, s in enumerate(_ANGLES + _RATES)},
         }

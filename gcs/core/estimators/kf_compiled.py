@@ -18,8 +18,10 @@ from gcs.core.estimators.kf import (
     _ANGLES,
     _NO_WEIGHT,
     _RATES,
+    BIAS_MAX,
     KalmanAttitudeFilter,
     accel_tilt,
+    body_turn,
     euler_rates,
     mag_heading,
 )
@@ -42,6 +44,7 @@ K_Q, DT_REF, EXACT, COS_MIN, GIMBAL_R = (
 ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
+BIAS_TAU, BIAS_ACC_TOL, BIAS_HEADING = _G["bias_tau"], _G["bias_acc_tol"], _G["bias_heading"]
 GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
 _MAG = (
@@ -59,9 +62,11 @@ B = k.BASE
 X, P = B, B + 6  # x (6), P (6×6)
 RATES_PREV, GYRO_PREV, FAVG_SET, FAVG = B + 42, B + 45, B + 48, B + 49
 ACCEL_SCALE, MAG_REJECTED, INNOVATION, HEADING_SOURCE = B + 52, B + 53, B + 54, B + 60
-SIZE = B + 61
+BIAS = B + 61  # 3
+SIZE = B + 64
 #: heading_source labels by code
 HEADING_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
+_body_turn = kernel(body_turn)
 
 
 @kernel
@@ -181,7 +186,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     dt = t - s[k.T_PREV]
     x = s[X : X + 6]
     Pm = s[P : P + 36].reshape(6, 6)
-    b0, b1, b2 = gyro[0], gyro[1], gyro[2]
+    b0, b1, b2 = gyro[0] - s[BIAS], gyro[1] - s[BIAS + 1], gyro[2] - s[BIAS + 2]
     cmin = g[COS_MIN]
     exact = g[EXACT] >= 0.5
     x0, x1, x2, x3, x4 = x[0], x[1], x[2], x[3], x[4]
@@ -307,6 +312,15 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         y = _update(s, rows, z, np.array([r[0], r[1], r[3], r[4], r[5]]))
         s[INNOVATION], s[INNOVATION + 1], s[INNOVATION + 2] = y[0], y[1], 0.0
         s[INNOVATION + 3], s[INNOVATION + 4], s[INNOVATION + 5] = y[2], y[3], y[4]
+    tau = g[BIAS_TAU]
+    if tau > 0.0 and s[k.SHOCK_ACTIVE] == 0.0 and abs(accel_norm - G0) < g[BIAS_ACC_TOL]:
+        d = _body_turn(q, k.euler_quat(x[0], x[1], x[2]))
+        if g[BIAS_HEADING] < 0.5:
+            D = Rm[2]
+            dd = d[0] * D[0] + d[1] * D[1] + d[2] * D[2]
+            d = (d[0] - dd * D[0], d[1] - dd * D[1], d[2] - dd * D[2])
+        for i in range(3):
+            s[BIAS + i] = min(max(s[BIAS + i] - d[i] / tau, -BIAS_MAX), BIAS_MAX)
     if s[FAVG_SET] != 0.0 and g[ACCEL_TAU] > 0.0:
         Rp = k.quat_rows(k.euler_quat(x[0], x[1], x[2]))
         F0, F1, F2 = s[FAVG], s[FAVG + 1], s[FAVG + 2]
@@ -369,6 +383,7 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         s[RATES_PREV : RATES_PREV + 3] = rates
         s[GYRO_PREV : GYRO_PREV + 3] = np.asarray(sample.gyro, float)
         s[FAVG_SET] = 0.0
+        s[BIAS : BIAS + 3] = 0.0
         s[X : X + 6] = (roll, pitch, yaw or 0.0, *rates)
         s[P : P + 36] = np.diag([g[f"q_{a}"] for a in _ANGLES + _RATES]).reshape(-1)
         s[k.Q : k.Q + 4] = euler_quat(roll, pitch, yaw or 0.0)
@@ -397,5 +412,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
             "mag_rejected": int(s[MAG_REJECTED]),
             "mag_offset": view.offset,
             "shocks": int(s[k.SHOCK_COUNT]),
+            "gyro_bias": (float(s[BIAS]), float(s[BIAS + 1]), float(s[BIAS + 2])),
             **{f"sigma_{a}": math.sqrt(max(v, 0.0)) for a, v in zip(_ANGLES + _RATES, diag)},
         }

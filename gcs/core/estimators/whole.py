@@ -2,7 +2,7 @@
 
 The live path calls an estimator once per sample from Python; over a recording that call, the
 per-sample objects and the plausibility check around it cost ten times the filter. Here the
-inputs stay in the columns `gcs.sessions.input_table` keeps (kind per input, IMU and GPS rows) and
+inputs stay in the columns `gcs.logs.input_table` keeps (kind per input, IMU and GPS rows) and
 `run_inputs` walks them in numba, calling the same step kernels the live path calls, so the
 attitudes equal the per-sample path's to rounding (tests/test_whole_run.py). It returns to Python
 only where the per-sample path does Python work: a re-initialisation, a gain change, `ekf`'s
