@@ -20,7 +20,7 @@ from gcs.runtime.signal import Signal
 #: callback a backlog held the loop for 10-50 ms under load (bench.loop_stalls).
 #: About 2 ms of estimation at the live pipeline's ~100-150 µs per IMU message: at 20,000 msg/s a turn
 #: brings ~50 datagrams, fewer than the link reads in one (gcs.transport.pipes.UDP_READ_BATCH).
-BATCH = 16
+SLICE = 16
 
 
 class LiveEstimation:
@@ -49,21 +49,19 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
-        items: list[Message] = []
-        done = 0
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
             await asyncio.to_thread(registry.warm)
             heap.freeze()  # the kernels' objects are here for good: no collection walks them
             while True:
-                self._feed([await sub.next(), *sub.drain(BATCH - 1)])
+                self._feed([await sub.next(), *sub.drain(SLICE - 1)])
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)
         finally:
             # Stopping: what the link delivered is estimated too, so that a recording and the
             # live outputs hold the same inputs (the station stops the link first).
-            self._feed(items[done:] + sub.drain())
+            self._feed(sub.drain())
             sub.close()
             heap.release()
 
