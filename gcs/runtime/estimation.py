@@ -20,7 +20,7 @@ from gcs.runtime.signal import Signal
 #: callback a backlog held the loop for 10-50 ms under load (bench.loop_stalls).
 #: About 2 ms of estimation at the live pipeline's ~100-150 µs per IMU message: at 20,000 msg/s a turn
 #: brings ~50 datagrams, fewer than the link reads in one (gcs.transport.pipes.UDP_READ_BATCH).
-SLICE = 16
+BATCH = 16
 
 
 class LiveEstimation:
@@ -55,7 +55,7 @@ class LiveEstimation:
             await asyncio.to_thread(registry.warm)
             heap.freeze()  # the kernels' objects are here for good: no collection walks them
             while True:
-                self._feed([await sub.next(), *sub.drain(SLICE - 1)])
+                self._feed([await sub.next(), *sub.drain(BATCH - 1)])
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)
         finally:

@@ -36,7 +36,7 @@ TCP_WRITE_LIMIT = 1 << 20
 UDP_RECEIVE_BUFFER = 4 << 20
 #: Datagrams read per wake-up at most: a flood is drained without holding the event loop for
 #: long (~2-3 ms of the station's receive path), and faster than a busy loop's other work per
-#: turn lets it arrive (gcs.runtime.estimation.SLICE).
+#: turn lets it arrive (gcs.runtime.estimation.BATCH).
 UDP_READ_BATCH = 256
 
 #: Seconds after its last datagram a `udpin` peer is still sent to (a restarted sender's old port
