@@ -126,18 +126,31 @@ def http_json(url: str) -> dict:
         return json.loads(r.read())
 
 
-def pollers(url: str, seconds: float) -> subprocess.Popen:
-    """PAGES clients polling GET url once a second each, in one process."""
+def pollers(url: str, seconds: float, pages: int = PAGES) -> subprocess.Popen:
+    """`pages` clients polling GET url once a second each, in one process."""
     code = (
         "import time, threading, urllib.request\n"
         f"end = time.monotonic() + {seconds}\n"
         "def poll():\n"
         "    while time.monotonic() < end:\n"
         f"        urllib.request.urlopen({url!r}, timeout=10).read(); time.sleep(1.0)\n"
-        f"ts = [threading.Thread(target=poll) for _ in range({PAGES})]\n"
+        f"ts = [threading.Thread(target=poll) for _ in range({pages})]\n"
         "[t.start() for t in ts]; [t.join() for t in ts]\n"
     )
     return subprocess.Popen([sys.executable, "-c", code])
+
+
+def wait_until_serving(base: str, timeout: float = 120) -> None:
+    """Until `gcs serve` at base answers GET /api/status."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            http_json(f"{base}/api/status")
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
 
 
 def serve(rate: int, seconds: float, measure: bool) -> dict:
@@ -152,15 +165,7 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
         )  # fmt: skip
         proc = psutil.Process(server.pid)
         base = f"http://127.0.0.1:{http}"
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                http_json(f"{base}/api/status")
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.5)
+        wait_until_serving(base)
         time.sleep(2.0)  # the estimators' kernels load
         helpers = [pollers(f"{base}/api/status", seconds + 2)]
         helpers.append(

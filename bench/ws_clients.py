@@ -3,8 +3,9 @@ the server's: `python -m bench.ws_clients URL N SECONDS [--until-from-stdin]`
 (with the flag, each client stops earlier, once it holds an onboard sample at or past the vehicle
 time the caller writes on stdin). Each client reads /ws/live as fast as
 it can; at the end one JSON line is printed: per client, the (vehicle time, host monotonic
-receive time) of every onboard sample. time.monotonic is the system-wide CLOCK_MONOTONIC, so
-the receive times compare with the server's Message.host_time."""
+receive time, the frame's server_time: when the server flushed it) of every onboard sample.
+time.monotonic is the system-wide CLOCK_MONOTONIC, so the receive times compare with the
+server's Message.host_time."""
 
 from __future__ import annotations
 
@@ -18,10 +19,10 @@ import websockets
 from gcs.server import wire
 
 
-async def client(url: str, seconds: float, until: list[float]) -> list[tuple[float, float]]:
+async def client(url: str, seconds: float, until: list[float]) -> list[tuple[float, float, float]]:
     """Read for `seconds`, or until holding an onboard sample at or past `until[0]` once the
     caller has set it."""
-    got: list[tuple[float, float]] = []
+    got: list[tuple[float, float, float]] = []
     async with websockets.connect(url, max_size=None) as ws:
         end = time.monotonic() + seconds
         while time.monotonic() < end and not (until and got and got[-1][0] >= until[0]):
@@ -34,7 +35,7 @@ async def client(url: str, seconds: float, until: list[float]) -> list[tuple[flo
                 continue  # hello, this client's counters
             for frame in wire.decode(message):
                 if isinstance(frame, wire.PointsFrame) and "onboard" in frame.points:
-                    got += [(t, now) for t in frame.points["onboard"][0]]
+                    got += [(t, now, frame.server_time) for t in frame.points["onboard"][0]]
     return got
 
 

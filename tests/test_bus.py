@@ -1,12 +1,13 @@
 import asyncio
 
-from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
 
 
 def _item(i: int) -> Message:
     msg = mavlink.MAVLink_attitude_message(i, 0, 0, 0, 0, 0, 0)
-    return Message(msg, "ATTITUDE", float(i), float(i), vehicle_time_of(msg), 1, 1)
+    Encoder(1, 1).encode(msg)  # packed: it carries its wire bytes and header
+    return Message.of(msg, float(i), float(i))
 
 
 def test_slow_subscriber_drops_oldest_and_counts_while_others_get_everything():

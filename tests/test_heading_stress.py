@@ -2,8 +2,8 @@
 that builds them): a magnet fixed to the sensor, a gyro bias step, accelerometer shocks.
 
 For CI time each run is the trial from its start to 40 s after the switch (at its middle), at
-47.6 Hz (every 6th sample, what RAW_IMU streaming gives); the full-trial and full-rate figures are
-`python -m bench.stress`'s."""
+47.6 Hz (every 6th sample, what RAW_IMU streaming gives; the bias step at the full rate too); the
+full-trial figures are `python -m bench.stress`'s."""
 
 import math
 

@@ -1,7 +1,7 @@
 """The link refuses inf and NaN exactly where the station reads a number (gcs.mavlink.finite),
 and passes MAVLink's legitimate NaN "unknown" values elsewhere. Real packets over a real UDP
-socket into a real station; what was refused is counted per type, is a link event, and shows in
-`gcs status` (text and strict JSON)."""
+socket into a real station that estimates (so reads every type checked here); what was refused is
+counted per type, is a link event, and shows in `gcs status` (text and strict JSON)."""
 
 from __future__ import annotations
 
@@ -76,9 +76,11 @@ def test_non_finite_values_are_refused_only_where_the_station_reads_them(udp_por
 
 
 async def scenario(udp_port: int):
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False, request_streams=False) as station:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False) as station:
         sub = station.bus.subscribe("test", maxlen=100)
         await wait_for(lambda: station.link.is_open, 10, "the UDP socket")
+        # the estimation reads them (the link checks what a part reads by name)
+        await wait_for(lambda: all(station.bus.wants(t) for t in ("HIGHRES_IMU", "AHRS2", "SIMSTATE")), 10, "readers")
         encoder = Encoder(1, 1)
         sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         for msg in [*REFUSED, *PASSED]:

@@ -16,7 +16,8 @@ from conftest import ROOT, free_port
 from live import running_sim, running_station, wait_for
 from pymavlink import mavutil
 
-from gcs.mavlink.dialect import Encoder, MAVLink, mavlink
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.signing import Signing, SigningKeyError, key_from_file, key_from_passphrase, parse_key
 
 KEY = hashlib.sha256(b"flight test 13").digest()
@@ -27,8 +28,10 @@ def _arm(sysid: int = 1) -> mavlink.MAVLink_message:
     return mavlink.MAVLink_command_long_message(sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
 
 
-def _decode(packet: bytes):
-    return MAVLink(None).decode(bytearray(packet))
+def _frame(packet: bytes) -> tuple[bytes, str]:
+    """The packet and its type, as the link's framing gives them to the check."""
+    ((packet, msg_type, _, _),) = MavlinkDecoder().frames(packet, final=True)
+    return packet, msg_type
 
 
 def test_keys_from_passphrase_and_files(tmp_path):
@@ -48,20 +51,20 @@ def test_check_accepts_pymavlink_signatures_and_refuses_unsigned_forged_and_repl
     Signing(KEY).sign_with(signer)
     first, second = signer.encode(_arm()), signer.encode(_arm())
     check = Signing(KEY)
-    assert check.check(_decode(first)) is None and check.check(_decode(second)) is None
-    assert check.check(_decode(first)) == "old timestamp"  # replayed
+    assert check.check(*_frame(first)) is None and check.check(*_frame(second)) is None
+    assert check.check(*_frame(first)) == "old timestamp"  # replayed
     forged = bytearray(second)
     forged[-1] ^= 0xFF
-    assert check.check(_decode(bytes(forged))) == "bad signature"
-    assert check.check(_decode(Encoder(1, 1).encode(_arm()))) == "unsigned"
+    assert check.check(*_frame(bytes(forged))) == "bad signature"
+    assert check.check(*_frame(Encoder(1, 1).encode(_arm()))) == "unsigned"
     radio = Encoder(51, 68).encode(mavlink.MAVLink_radio_status_message(200, 190, 50, 10, 5, 0, 0))
-    assert check.check(_decode(radio)) is None  # a SiK radio cannot sign its RADIO_STATUS
+    assert check.check(*_frame(radio)) is None  # a SiK radio cannot sign its RADIO_STATUS
     assert check.counters.good == 2 and check.counters.radio_unsigned == 1
     assert check.counters.rejected == {"old timestamp": 1, "bad signature": 1, "unsigned": 1}
     optional = Signing(KEY, required=False)
-    assert optional.check(_decode(Encoder(1, 1).encode(_arm()))) is None
+    assert optional.check(*_frame(Encoder(1, 1).encode(_arm()))) is None
     assert optional.counters.accepted_unsigned == {"unsigned": 1}
-    assert Signing(WRONG).check(_decode(signer.encode(_arm()))) == "bad signature"
+    assert Signing(WRONG).check(*_frame(signer.encode(_arm()))) == "bad signature"
 
 
 def test_signed_vehicle_with_the_key_is_fully_usable_and_refuses_an_unsigned_command(udp_port):

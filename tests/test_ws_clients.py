@@ -108,7 +108,7 @@ async def twenty_clients(udp_port: int, seconds: float = 8.0) -> dict:
                 result = {
                     "attitude_sent": len(sent),
                     "reader_share": sorted(
-                        round(len(sent & {round(t, 3) for t, _ in got}) / len(sent), 4) for got in received
+                        round(len(sent & {round(t, 3) for t, *_ in got}) / len(sent), 4) for got in received
                     ),
                     "stuck_dropped": stuck_feed.dropped_points,
                     "stuck_queued": len(stuck_feed.frames),

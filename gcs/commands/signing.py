@@ -79,7 +79,7 @@ async def _verify(beats, sysid: int, signing: Signing, timeout: float, disable: 
     while (item := await beats.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
         if item.sysid != sysid:
             continue
-        verdict = signing.check(item.msg)
+        verdict = signing.check(item.raw, item.type)
         if disable and verdict == "unsigned":
             return True, f"vehicle {sysid}: signing switched off (its heartbeats are unsigned)"
         if not disable and verdict is None:

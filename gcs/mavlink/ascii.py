@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from gcs.mavlink.dialect import Encoder, MAVLinkMessage, mavlink
-from gcs.mavlink.framing import FramingCounters
+from gcs.mavlink.framing import Frame, FramingCounters
 
 ANGLES = ("roll", "pitch", "yaw")
 UNITS = ("deg", "rad")
@@ -99,6 +99,13 @@ class AsciiAttitudeDecoder:
             del buf[:]
             out += self._line(line)
         return out
+
+    def frames(self, data: bytes, final: bool = False) -> list[Frame]:
+        """What `feed` gives, as packets (the link's framing's output)."""
+        return [
+            (bytes(m.get_msgbuf()), m.get_type(), m.get_srcSystem(), m.get_srcComponent())
+            for m in self.feed(data, final)
+        ]
 
     def _line(self, raw: bytes) -> list[MAVLinkMessage]:
         text = raw.strip()

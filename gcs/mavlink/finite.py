@@ -11,6 +11,7 @@ estimation's own range checks (gcs.core.plausibility) still apply to what passes
 from __future__ import annotations
 
 import math
+from operator import attrgetter
 
 from gcs.mavlink.dialect import MAVLinkMessage, mavlink
 
@@ -30,13 +31,18 @@ FINITE_FIELDS: dict[str, tuple[str, ...]] = {
 _REAL_PARAM_TYPES = (mavlink.MAV_PARAM_TYPE_REAL32, mavlink.MAV_PARAM_TYPE_REAL64)
 
 
+#: the fields of each type in one C call (every type here has several)
+_VALUES = {msg_type: attrgetter(*names) for msg_type, names in FINITE_FIELDS.items()}
+
+
 def nonfinite_field(msg: MAVLinkMessage, msg_type: str) -> str | None:
     """The first field of msg that must be finite and is not, or None when msg may be used."""
     if msg_type == "PARAM_VALUE":
         if msg.param_type in _REAL_PARAM_TYPES and not math.isfinite(msg.param_value):
             return "param_value"
         return None
-    for name in FINITE_FIELDS.get(msg_type, ()):
-        if not math.isfinite(getattr(msg, name)):
-            return name
-    return None
+    values = _VALUES.get(msg_type)
+    # the sum of float32 values is finite exactly when every value is (inf - inf is NaN)
+    if values is None or math.isfinite(sum(values(msg))):
+        return None
+    return next(name for name in FINITE_FIELDS[msg_type] if not math.isfinite(getattr(msg, name)))

@@ -1,20 +1,40 @@
-"""MAVLink framing that survives bad bytes.
+"""MAVLink framing that survives bad bytes, and checks every packet without decoding it.
 
 pymavlink's own stream parser trusts a frame's length byte: after a truncated frame or a
 flipped length it swallows the start of the next, intact packet. This decoder finds
-frame candidates itself, lets pymavlink decode and check each (CRC with CRC_EXTRA), and on
-any failure moves on by ONE byte from the candidate's start, so every intact packet after
-damage still decodes. MAVLink 1 and 2 are accepted per packet.
+frame candidates itself, checks each one's CRC (with the type's CRC_EXTRA) and on any failure
+moves on by ONE byte from the candidate's start, so every intact packet after damage still
+decodes. MAVLink 1 and 2 are accepted per packet.
+
+Checking is not decoding: `frames()` gives each intact packet as its bytes and header (a
+`Frame`), and only what needs the fields builds pymavlink's message object
+(gcs.mavlink.decoding), which costs several times the framing (the live link decodes only the
+types some part subscribes to, gcs.runtime.link). The CRC is pymavlink's own (CRC-16/MCRF4XX
+from fastcrc, which pymavlink requires and checks with), called once per packet on its bytes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TypeAlias
 
-from gcs.mavlink.dialect import MARKER_V1, MARKER_V2, MAVError, MAVLink, MAVLinkMessage, mavlink
+from fastcrc import crc16
+
+from gcs.mavlink.decoding import decode
+from gcs.mavlink.dialect import MARKER_V1, MARKER_V2, MAVLinkMessage, mavlink
 from gcs.mavlink.tlog import SIGNED
 
-_MAP = mavlink.mavlink_map
+_MCRF4XX = crc16.mcrf4xx
+#: message id → (name, CRC_EXTRA as one byte, largest payload)
+_TYPES: dict[int, tuple[str, bytes, int]] = {
+    msgid: (cls.msgname, bytes((cls.crc_extra,)), cls.unpacker.size) for msgid, cls in mavlink.mavlink_map.items()
+}
+_MARKERS = (MARKER_V1, MARKER_V2)
+
+
+#: One intact packet: (its bytes as received, its type, sysid, compid from its header). A plain
+#: tuple: a NamedTuple costs ~20 times as much to build, once per packet.
+Frame: TypeAlias = tuple[bytes, str, int, int]
 
 
 @dataclass
@@ -32,30 +52,34 @@ class FramingCounters:
 
 
 class MavlinkDecoder:
-    """Incremental decoder: feed() it bytes in any chunking, get whole messages back."""
+    """Incremental: give it bytes in any chunking, get whole packets back (`frames`) or their
+    decoded messages (`feed`)."""
 
     def __init__(self) -> None:
-        self._mav = MAVLink(None)
-        self._buf = bytearray()
+        self._buf = b""
         self._last_seq: dict[tuple[int, int], int] = {}
         self.counters = FramingCounters()
 
     def feed(self, data: bytes, final: bool = False) -> list[MAVLinkMessage]:
-        """Decode what `data` completes. With `final` (end of a datagram or of a file) an
-        incomplete candidate at the end is given up on instead of waited for."""
-        buf = self._buf
-        buf += data
-        out: list[MAVLinkMessage] = []
+        """The messages `data` completes, decoded."""
+        return [decode(packet) for packet, _, _, _ in self.frames(data, final)]
+
+    def frames(self, data: bytes, final: bool = False) -> list[Frame]:
+        """The packets `data` completes, CRC-checked and counted. With `final` (end of a
+        datagram or of a file) an incomplete candidate at the end is given up on instead of
+        waited for."""
+        buf = self._buf + data if self._buf else bytes(data)
+        out: list[Frame] = []
         c = self.counters
         n = len(buf)
         i = 0
         while i < n:
-            start = self._next_marker(buf, i)
-            if start < 0:
-                c.bytes_skipped += n - i
-                i = n
-                break
-            if start > i:
+            if buf[i] not in _MARKERS:
+                start = self._next_marker(buf, i)
+                if start < 0:
+                    c.bytes_skipped += n - i
+                    i = n
+                    break
                 c.bytes_skipped += start - i
                 i = start
             verdict = self._try_frame(buf, i, n, final)
@@ -65,14 +89,13 @@ class MavlinkDecoder:
                 c.bytes_skipped += 1
                 i += 1
                 continue
-            msg, length = verdict
-            out.append(msg)
-            i += length
-        del buf[:i]
+            out.append(verdict)
+            i += len(verdict[0])
+        self._buf = buf[i:] if i < n else b""
         return out
 
     @staticmethod
-    def _next_marker(buf: bytearray, i: int) -> int:
+    def _next_marker(buf: bytes, i: int) -> int:
         a = buf.find(MARKER_V1, i)
         b = buf.find(MARKER_V2, i)
         if a < 0:
@@ -81,8 +104,8 @@ class MavlinkDecoder:
             return a
         return min(a, b)
 
-    def _try_frame(self, buf: bytearray, i: int, n: int, final: bool) -> tuple[MAVLinkMessage, int] | int | None:
-        """(message, length) for a valid frame at i; None to wait for more bytes; 0 to reject."""
+    def _try_frame(self, buf: bytes, i: int, n: int, final: bool) -> Frame | int | None:
+        """The frame at i if it is valid; None to wait for more bytes; 0 to reject."""
         c = self.counters
         v2 = buf[i] == MARKER_V2
         header = 10 if v2 else 6
@@ -101,19 +124,19 @@ class MavlinkDecoder:
             msgid = buf[i + 5]
             seq, sysid, compid = buf[i + 2], buf[i + 3], buf[i + 4]
             length = header + plen + 2
-        cls = _MAP.get(msgid)
-        if cls is None:
+        known = _TYPES.get(msgid)
+        if known is None:
             # No CRC_EXTRA to check it with, so indistinguishable from garbage: skip it.
             c.unknown += 1
             return 0
-        if plen > cls.unpacker.size or (v2 and plen == 0):
+        name, crc_extra, size = known
+        if plen > size or (v2 and plen == 0):
             c.malformed += 1
             return 0
         if n - i < length:
             return 0 if final else None
-        try:
-            msg = self._mav.decode(buf[i : i + length])
-        except MAVError:
+        end = i + header + plen
+        if _MCRF4XX(crc_extra, _MCRF4XX(buf[i + 1 : end], 0xFFFF)) != buf[end] | (buf[end + 1] << 8):
             c.crc_errors += 1
             return 0
         c.packets += 1
@@ -122,7 +145,7 @@ class MavlinkDecoder:
         else:
             c.mavlink1 += 1
         self._count_sequence(sysid, compid, seq)
-        return msg, length
+        return buf[i : i + length], name, sysid, compid
 
     def _count_sequence(self, sysid: int, compid: int, seq: int) -> None:
         key = (sysid, compid)

@@ -103,7 +103,7 @@ class SigningSnapshot:
 class Signing:
     """One link's signing: sign what the station sends, check what it receives.
 
-    `check(msg)` returns None to accept the packet, or the reason it is refused; with
+    `check(packet, type)` returns None to accept the packet, or the reason it is refused; with
     `required=False` nothing is refused, the reason is counted as accepted-unsigned instead.
     """
 
@@ -126,13 +126,14 @@ class Signing:
         encoder.mavlink1 = False
         self._encoders.append(encoder)
 
-    def check(self, msg: MAVLinkMessage) -> str | None:
-        """None when the packet is accepted; else why it is refused (counted either way)."""
-        reason = self._verify(bytes(msg.get_msgbuf()))
+    def check(self, packet: bytes, msg_type: str) -> str | None:
+        """None when the packet (of type `msg_type`) is accepted; else why it is refused
+        (counted either way)."""
+        reason = self._verify(packet)
         c = self.counters
         if reason is None:
             return None
-        if msg.get_type() in UNSIGNED_ALLOWED and reason == "unsigned":
+        if msg_type in UNSIGNED_ALLOWED and reason == "unsigned":
             c.radio_unsigned += 1
             return None
         if self.required:

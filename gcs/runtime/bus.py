@@ -1,4 +1,4 @@
-"""The message bus: every decoded message, stamped, fanned out to subscribers.
+"""The message bus: every packet received, stamped, fanned out to subscribers.
 
 The link publishes from its receive callback and must never wait, so each subscriber has
 its own bounded queue; when a slow subscriber's queue is full the OLDEST message is dropped
@@ -8,8 +8,8 @@ and counted for that subscriber alone. Publishing costs one append per intereste
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 
+from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.runtime.dropqueue import DropOldestQueue
@@ -19,28 +19,61 @@ from gcs.runtime.dropqueue import DropOldestQueue
 _EPOCH_US = 10**15
 
 
-@dataclass(slots=True)
 class Message:
-    """A decoded MAVLink message as it arrived.
+    """A MAVLink packet as it arrived: its bytes, type and source always; the decoded pymavlink
+    message (`msg`) built on first use. The link builds it at once for the types some subscriber
+    asked for by name (it checks their values, gcs.mavlink.finite); a subscriber to every type
+    (the recorder) takes the bytes, so a type no part reads is never decoded.
 
     host_time: the host's monotonic clock at arrival, s (for latency and rates).
     wall_time: the host's UNIX time at arrival, s (for .tlog records).
     vehicle_time: the sender's time since boot in s, from time_usec or time_boot_ms when the
-    message has one (None otherwise: AHRS2, SIMSTATE, HEARTBEAT, ...).
+    message has one (None otherwise: AHRS2, SIMSTATE, HEARTBEAT, ...); it decodes the message.
     """
 
-    msg: MAVLinkMessage
-    type: str
-    host_time: float
-    wall_time: float
-    vehicle_time: float | None
-    sysid: int
-    compid: int
-    link: str = ""
+    __slots__ = ("raw", "type", "host_time", "wall_time", "sysid", "compid", "link", "_msg")
+
+    def __init__(
+        self,
+        raw: bytes,
+        type: str,
+        host_time: float,
+        wall_time: float,
+        sysid: int,
+        compid: int,
+        link: str = "",
+        msg: MAVLinkMessage | None = None,
+    ) -> None:
+        self.raw = raw
+        self.type = type
+        self.host_time = host_time
+        self.wall_time = wall_time
+        self.sysid = sysid
+        self.compid = compid
+        self.link = link
+        self._msg = msg
+
+    @classmethod
+    def of(cls, msg: MAVLinkMessage, host_time: float, wall_time: float, link: str = "") -> Message:
+        """A message already decoded (or built and packed: its wire bytes are the raw bytes)."""
+        header = msg.get_header()
+        raw = bytes(msg.get_msgbuf())
+        return cls(raw, msg.get_type(), host_time, wall_time, header.srcSystem, header.srcComponent, link, msg)
 
     @property
-    def raw(self) -> bytes:
-        return bytes(self.msg.get_msgbuf())
+    def msg(self) -> MAVLinkMessage:
+        if self._msg is None:
+            self._msg = decode(self.raw)
+        return self._msg
+
+    @property
+    def decoded(self) -> bool:
+        """Whether the pymavlink message has been built (by the link, or by a reader of `msg`)."""
+        return self._msg is not None
+
+    @property
+    def vehicle_time(self) -> float | None:
+        return vehicle_time_of(self.msg)
 
 
 def vehicle_time_of(msg: MAVLinkMessage) -> float | None:
@@ -82,9 +115,9 @@ class Subscription:
         await self.queue.wait()
         return self.queue.get_nowait()
 
-    def drain(self) -> list[Message]:
-        """Everything queued now, without waiting."""
-        return self.queue.drain()
+    def drain(self, limit: int | None = None) -> list[Message]:
+        """Everything queued now (at most `limit` messages), without waiting."""
+        return self.queue.drain(limit)
 
     def __aiter__(self) -> Subscription:
         return self
@@ -97,6 +130,10 @@ class Subscription:
 
 
 class MessageBus:
+    #: changes with every subscription made or closed on any bus: what a link caches about who
+    #: reads which type (`wants`) is stale once it moves (rare: parts subscribe as they start).
+    epoch = 0
+
     def __init__(self) -> None:
         self._all: list[Subscription] = []
         self._by_type: dict[str, list[Subscription]] = {}
@@ -106,6 +143,7 @@ class MessageBus:
     def subscribe(self, name: str, types: Iterable[str] | None = None, maxlen: int = 10_000) -> Subscription:
         """A new subscriber for the given message types (None: every message)."""
         sub = Subscription(self, name, frozenset(types) if types is not None else None, maxlen)
+        MessageBus.epoch += 1
         if sub.types is None:
             self._all.append(sub)
         else:
@@ -114,6 +152,7 @@ class MessageBus:
         return sub
 
     def unsubscribe(self, sub: Subscription) -> None:
+        MessageBus.epoch += 1
         if sub.types is None:
             if sub in self._all:
                 self._all.remove(sub)
@@ -122,6 +161,12 @@ class MessageBus:
                 subs = self._by_type.get(t, [])
                 if sub in subs:
                     subs.remove(sub)
+                if not subs:
+                    self._by_type.pop(t, None)
+
+    def wants(self, msg_type: str) -> bool:
+        """Whether a subscriber asked for this type by name (so reads its fields: decode it)."""
+        return msg_type in self._by_type
 
     def publish(self, item: Message) -> None:
         self.published += 1

@@ -47,8 +47,10 @@ class DropOldestQueue(Generic[T]):
     def get_nowait(self) -> T:
         return self.items.popleft()
 
-    def drain(self) -> list[T]:
-        """Everything queued now, oldest first, without waiting."""
+    def drain(self, limit: int | None = None) -> list[T]:
+        """Everything queued now (at most `limit` items), oldest first, without waiting."""
+        if limit is not None and limit < len(self.items):
+            return [self.items.popleft() for _ in range(limit)]
         items = list(self.items)
         self.items.clear()
         return items

@@ -8,9 +8,19 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
+from gcs.runtime import heap
 from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
+
+#: Messages estimated per turn of the event loop at most. Behind (a flood, a starved machine), the
+#: estimation takes this many, then lets the link read the socket before the next ones: the
+#: backlog waits in the estimation's own bounded queue (oldest dropped and counted when full),
+#: not in the kernel's buffer, where it would be lost for the recording and the outputs too. In one
+#: callback a backlog held the loop for 10-50 ms under load (bench.loop_stalls).
+#: About 2 ms of estimation at the live pipeline's ~100-150 µs per IMU message: at 20,000 msg/s a turn
+#: brings ~50 datagrams, fewer than the link reads in one (gcs.transport.pipes.UDP_READ_BATCH).
+BATCH = 16
 
 
 class LiveEstimation:
@@ -39,17 +49,23 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        items: list[Message] = []
+        done = 0
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
             await asyncio.to_thread(registry.warm)
+            heap.freeze()  # the kernels' objects are here for good: no collection walks them
             while True:
-                self._feed([await sub.next(), *sub.drain()])
+                self._feed([await sub.next(), *sub.drain(BATCH - 1)])
+                if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
+                    await asyncio.sleep(0)
         finally:
             # Stopping: what the link delivered is estimated too, so that a recording and the
             # live outputs hold the same inputs (the station stops the link first).
-            self._feed(sub.drain())
+            self._feed(items[done:] + sub.drain())
             sub.close()
+            heap.release()
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []

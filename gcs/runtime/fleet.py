@@ -52,6 +52,9 @@ class _LinkBus(MessageBus):
             super().publish(item)
         self.fleet.route(self.index, item)
 
+    def wants(self, msg_type: str) -> bool:
+        return super().wants(msg_type) or self.fleet.wants(self.index, msg_type)
+
 
 class Fleet:
     """`single`: serve one vehicle only (the commands that address one: params, logs, signing,
@@ -119,6 +122,12 @@ class Fleet:
         return next((e.station for e in self._entries if e.sysid == sysid), None)
 
     # ---- routing --------------------------------------------------------------------------------
+    def wants(self, index: int, msg_type: str) -> bool:
+        """Whether a core that link `index` may deliver to reads this type (the link decodes it)."""
+        if self._unbound is not None and _view(self._unbound).bus.wants(msg_type):
+            return True
+        return any(view.bus.wants(msg_type) for view in self._on_link[index])
+
     def route(self, index: int, item: Message) -> None:
         key = (index, item.sysid)
         view = self._by_key.get(key)
@@ -165,6 +174,7 @@ class Fleet:
                 core.launch()
         self._by_key[(index, item.sysid)] = _view(core)
         self._on_link[index].append(_view(core))
+        MessageBus.epoch += 1  # who reads what on each link changed (Link decodes by `wants`)
         address = str(link.address)
         core.events.record("vehicle", "fleet", event="heard", sysid=item.sysid, compid=item.compid, link=address)
         self.vehicle_added.emit(entry)

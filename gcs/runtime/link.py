@@ -17,12 +17,13 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
+from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.finite import nonfinite_field
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.identity import is_vehicle_heartbeat
 from gcs.mavlink.signing import Signing
-from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
+from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import LinkNote, LinkSnapshot
@@ -138,6 +139,9 @@ class Link:
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
+        #: message type → decoded on arrival (a part reads it), as of MessageBus.epoch `_epoch`
+        self._decoded: dict[str, bool] = {}
+        self._epoch = -1
 
     # ---- public API -------------------------------------------------------------------
     async def run(self) -> None:
@@ -210,29 +214,39 @@ class Link:
 
     # ---- receive path -----------------------------------------------------------------
     def _on_data(self, data: bytes) -> None:
+        """Every intact packet is counted, forwarded and published as bytes; only the types a
+        subscriber asked for by name (and HEARTBEAT, which the link reads) are decoded here, and
+        those are checked for non-finite values (gcs.mavlink.finite) before anything sees them."""
         now = time.monotonic()
         wall = time.time()
-        self.stats.bytes_in += len(data)
-        for msg in self.decoder.feed(data, final=self._datagram):
-            msg_type = msg.get_type()
-            if self.signing is not None and (why := self.signing.check(msg)) is not None:
+        stats = self.stats
+        stats.bytes_in += len(data)
+        counts = stats.counts
+        signing, outputs, bus, name = self.signing, self.outputs, self.bus, self.name
+        if self._epoch != MessageBus.epoch:  # someone subscribed or left: ask the bus again
+            self._epoch = MessageBus.epoch
+            self._decoded.clear()
+        decoded = self._decoded
+        for raw, msg_type, sysid, compid in self.decoder.frames(data, final=self._datagram):
+            if signing is not None and (why := signing.check(raw, msg_type)) is not None:
                 self._refuse_unsigned(msg_type, why)
                 continue
-            self.stats.count(msg_type)
-            field = nonfinite_field(msg, msg_type)
-            if field is not None:
-                self._reject(msg_type, field)
-                continue
-            header = getattr(msg, "_header", None)
-            sysid = header.srcSystem if header else 0
-            compid = header.srcComponent if header else 0
-            if self.outputs:
-                raw = msg.get_msgbuf()
-                for out in self.outputs:
-                    out.write(raw, self, sysid)
+            counts[msg_type] = counts.get(msg_type, 0) + 1
+            msg = None
+            read = decoded.get(msg_type)
+            if read is None:
+                read = decoded[msg_type] = msg_type == "HEARTBEAT" or bus.wants(msg_type)
+            if read:
+                msg = decode(raw)
+                field = nonfinite_field(msg, msg_type)
+                if field is not None:
+                    self._reject(msg_type, field)
+                    continue
+            for out in outputs:
+                out.write(raw, self, sysid)
             if msg_type == "HEARTBEAT":
                 self._on_heartbeat(msg, sysid, compid, now)
-            self.bus.publish(Message(msg, msg_type, now, wall, vehicle_time_of(msg), sysid, compid, self.name))
+            bus.publish(Message(raw, msg_type, now, wall, sysid, compid, name, msg))
 
     def _reject(self, msg_type: str, field: str) -> None:
         """A message with a non-finite value where the station needs a number goes nowhere;
@@ -323,7 +337,7 @@ class Link:
                 transport = make_transport(self.address, baud=baud)
 
                 def deliver(data: bytes, decoder: MavlinkDecoder | AsciiAttitudeDecoder = decoder) -> None:
-                    decoder.feed(data)
+                    decoder.frames(data)
 
                 try:
                     await transport.open(deliver)

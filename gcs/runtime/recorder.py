@@ -27,6 +27,7 @@ from typing import Protocol
 
 from gcs import __version__
 from gcs.core import strict_json
+from gcs.mavlink.finite import nonfinite_field
 from gcs.mavlink.params import param_name
 from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.mavlink.tlog import tlog_record
@@ -167,6 +168,7 @@ class SessionRecorder:
             self._loop = asyncio.get_running_loop()
         except RuntimeError:
             self._loop = None
+        columnar.warm()  # not in the writer thread, with the link running
         try:
             self.root.mkdir(parents=True, exist_ok=True)
             self.recovered = recover_sessions(self.root)
@@ -356,6 +358,8 @@ class SessionRecorder:
             self._early_events.append(encoded)
 
     def _on_param(self, msg) -> None:
+        if nonfinite_field(msg, "PARAM_VALUE") is not None:
+            return  # the link checks it only when a part reads parameters: the recorder reads it here
         name = param_name(msg)
         if name not in self.params:
             self.params[name] = float(msg.param_value)

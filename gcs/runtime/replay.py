@@ -32,7 +32,7 @@ from gcs.core.estimators import registry
 from gcs.core.estimators.kernels import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.runtime.bus import Message, MessageBus, vehicle_time_of
+from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
 from gcs.sessions.workbench import workbench
@@ -190,20 +190,8 @@ class ReplaySession:
             if self._packets is None:
                 return
         now = time.monotonic()
-        for msg in self._decoder.feed(self._packets.packet(frame), final=True):
-            header = msg.get_header()
-            self.bus.publish(
-                Message(
-                    msg,
-                    msg.get_type(),
-                    now,
-                    wall_time,
-                    vehicle_time_of(msg),
-                    header.srcSystem,
-                    header.srcComponent,
-                    "replay",
-                )
-            )
+        for raw, msg_type, sysid, compid in self._decoder.frames(self._packets.packet(frame), final=True):
+            self.bus.publish(Message(raw, msg_type, now, wall_time, sysid, compid, "replay"))
 
     def run_to_end(self, progress: Callable[[int, int], None] | None = None) -> None:
         """Play every remaining frame at once (no pacing): `--fast`, reports, tests."""

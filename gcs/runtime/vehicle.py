@@ -30,6 +30,20 @@ _AUTOPILOTS = {
 }
 
 
+#: Messages whose time_boot_ms is the vehicle's clock, for reboot detection: the ones the station
+#: asks for (gcs.runtime.streams) and ArduPilot and PX4 send by default that carry it.
+CLOCK_TYPES = ("ATTITUDE", "SCALED_IMU2", "SCALED_PRESSURE", "GLOBAL_POSITION_INT", "SYSTEM_TIME")
+#: What the vehicle state reads (only these are decoded for it).
+OBSERVED_TYPES = (
+    "HEARTBEAT",
+    "SYS_STATUS",
+    "GPS_RAW_INT",
+    "EKF_STATUS_REPORT",
+    "STATUSTEXT",
+    "AUTOPILOT_VERSION",
+    *CLOCK_TYPES,
+)
+
 #: STATUSTEXT kept for the page (all of them go to the event log)
 MESSAGES_KEPT = 50
 #: track points kept (one a second: 15 minutes)
@@ -92,10 +106,11 @@ class VehicleState:
     rebooted: Signal[[]] = field(default_factory=Signal)
 
     async def run(self) -> None:
-        sub = self.link.bus.subscribe("vehicle-state", maxlen=2000)
+        sub = self.link.bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=2000)
         try:
-            async for item in sub:
-                self.observe(item)
+            while True:
+                for item in [await sub.next(), *sub.drain()]:
+                    self.observe(item)
         finally:
             sub.close()
 

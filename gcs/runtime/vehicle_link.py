@@ -52,7 +52,7 @@ class VehicleLink(Link):
 
     # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
     def deliver(self, item: Message) -> None:
-        self.stats.bytes_in += len(item.msg.get_msgbuf())
+        self.stats.bytes_in += len(item.raw)
         self.stats.count(item.type)
         if item.type == "HEARTBEAT" and item.sysid == self.target_system:
             self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)

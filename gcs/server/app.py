@@ -23,6 +23,7 @@ from gcs.server.guard import Refusal, RequestGuard
 from gcs.server.live import LiveHub
 from gcs.server.ratelimit import default_limits
 from gcs.server.routers import ROUTERS
+from gcs.server.status_body import StatusBodies
 from gcs.server.vehicles import serve_vehicles
 
 
@@ -58,6 +59,7 @@ def create_app(
     app.state.assets = assets
     app.state.rate_limits = default_limits()
     app.state.viser_port = viser_port
+    app.state.status_bodies = StatusBodies()
     app.add_exception_handler(RequestValidationError, refuse_invalid)
     app.add_middleware(
         RequestGuard,

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import uvicorn
 
+from gcs.runtime import heap
 from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
@@ -70,7 +71,13 @@ class DashboardServer:
         return {TOKEN_HEADER: self.token}
 
     async def start(self) -> None:
-        sock = socket.socket(socket.AF_INET6 if ":" in self.host else socket.AF_INET)
+        # IPPROTO_TCP named, not left 0: asyncio turns Nagle's algorithm off (TCP_NODELAY) only on
+        # sockets whose proto says TCP, and the accepted ones inherit it. With Nagle on, a response's
+        # body or a live frame written while the previous write was unacknowledged waited for the
+        # client's delayed ACK: 44 ms per keep-alive request instead of 0.3 (docs/benchmarks.md).
+        sock = socket.socket(
+            socket.AF_INET6 if ":" in self.host else socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP
+        )
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         # Inherited by every accepted connection: caps the kernel memory a viewer that stops
         # reading can hold, and makes its back-pressure reach its queue (and drop counter) in
@@ -101,6 +108,7 @@ class DashboardServer:
         if self.viser is not None:
             self._tasks.append(asyncio.create_task(self._pose_loop()))
         self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
+        heap.freeze()  # the app, uvicorn and viser: no full collection walks them again
 
     def _start_viser(self) -> None:
         from gcs.server.fleet_scene import FleetScene  # noqa: PLC0415 - imports viser
@@ -126,3 +134,4 @@ class DashboardServer:
         if self.viser is not None:
             self.viser.stop()
             self.viser = None
+        heap.release()

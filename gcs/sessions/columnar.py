@@ -53,6 +53,14 @@ def attitude_rows(points, wall_time: float) -> list[tuple]:
     return [(wall_time, p.t, p.source, p.roll, p.pitch, p.yaw) for p in points]
 
 
+def warm() -> None:
+    """Convert one value to Arrow now. pyarrow's first Python-to-Arrow conversion imports pandas
+    when it is installed (0.7 s, holding the GIL): done by a recording's writer thread at its first
+    flush, it stalled the live event loop as long (bench.loop_stalls). A recorder calls this when
+    it starts, before any data."""
+    pa.array([0.0], type=pa.float64())
+
+
 class StreamEncoder:
     """Encodes rows of one table as Arrow IPC stream bytes; `encode(rows)` returns the bytes to
     append to the file (the schema header comes with the first call)."""

@@ -42,9 +42,9 @@ SHOCK_GAINS: tuple[Gain, ...] = (
     Gain("shock_hold", 0.5, 0.0, 10.0, "s", "the accelerometer stays ignored this long after a shock"),
 )
 
-#: What a gyro sample is, for the estimators that turn by two of them (kf, ekf): a log's every
+#: What a gyro sample is, for the estimators that turn by two of them (dcm, kf, ekf): a log's every
 #: sample is the mean rate over the interval before it (turn ω₁ dt); a slower stream (RAW_IMU at
-#: 25-50 Hz) picks samples, each the rate at its instant (the trapezoid plus the coning term).
+#: 25-50 Hz) picks samples, each the rate at its instant (the trapezoid; kf and ekf add the coning term).
 PICK_GAINS: tuple[Gain, ...] = (
     Gain("pick_dt", 0.01, 0.0, 10.0, "s", "IMU intervals longer than this are picked samples: trapezoid + coning"),
 )

@@ -1,0 +1,103 @@
+"""GET /api/status's body, encoded once per published snapshot.
+
+The station publishes a snapshot once a second and every open page polls the status once a
+second. What comes from the snapshot (link, vehicle, streams, estimators, parts, radio: nearly all
+of the body) is validated and encoded by the first request after a publish and reused by the
+others; a request then costs only its own few fields (the newest data's age, the viewers, whether
+it carries the token), encoded and spliced after them. A new snapshot, or a part's failure (which
+replaces it), is encoded anew on the next request.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from gcs.core import strict_json
+from gcs.runtime.facade import StationFacade
+from gcs.runtime.snapshots import StationSnapshot
+from gcs.server.live import LiveHub
+from gcs.server.models import EstimatorStatus, LinkStatus, StatusResponse
+
+#: The fields of StatusResponse each request computes for itself.
+PER_REQUEST = frozenset({"data_age_ms", "clients", "viser_port", "authorised"})
+
+
+class StatusBodies:
+    """The encoded snapshot part of each station's status, kept until its snapshot changes."""
+
+    def __init__(self) -> None:
+        self._cached: dict[int, tuple[StationSnapshot, bytes]] = {}
+        #: snapshot parts encoded so far (one per snapshot that was asked for)
+        self.encoded = 0
+
+    def body(self, station: StationFacade, hub: LiveHub, viser_port: int | None, authorised: bool) -> bytes:
+        """The whole JSON body: the snapshot's part, then this request's own fields."""
+        snap = station.snapshot
+        cached = self._cached.get(id(station))
+        if cached is None or cached[0] is not snap:
+            cached = self._cached[id(station)] = (snap, encode(snapshot_status(snap)))
+            self.encoded += 1
+        age = hub.data_age()
+        own = encode(
+            {
+                "data_age_ms": None if age is None else round(age * 1000, 1),
+                "clients": [dataclasses.asdict(c.snapshot()) for c in hub.clients.values()],
+                "viser_port": viser_port,
+                "authorised": authorised,
+            }
+        )
+        return cached[1][:-1] + b"," + own[1:]
+
+
+def encode(content: dict) -> bytes:
+    """As every REST answer (server.app.StrictJSONResponse): strict JSON, UTF-8."""
+    return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode(errors="replace")
+
+
+def snapshot_status(snap: StationSnapshot) -> dict:
+    """The snapshot's fields of StatusResponse, validated by the model, as JSON-ready values."""
+    link, stats, streams, estimation = snap.link, snap.link.stats, snap.streams, snap.estimation
+    model = StatusResponse(
+        link=LinkStatus(
+            address=link.address,
+            state=link.state,
+            heartbeat_age_s=link.heartbeat_age_s,
+            packets=stats.packets,
+            packets_lost=stats.packets_lost,
+            loss_fraction=stats.loss_fraction,
+            crc_errors=stats.crc_errors,
+            malformed=stats.malformed,
+            nonfinite_rejected=stats.nonfinite_rejected,
+            kernel_drops=stats.kernel_drops,
+            bytes_per_s=stats.bytes_per_s,
+            rates_hz=stats.rates_hz,
+            stream_method=streams.method,
+            streams=streams.messages,
+            signing=link.signing,
+        ),
+        vehicle=snap.vehicle,
+        data_age_ms=None,
+        imu_type=estimation.imu_type if estimation else None,
+        declination_rad=estimation.declination_rad if estimation else None,
+        declination_source=estimation.declination_source if estimation else "none",
+        estimators={
+            name: EstimatorStatus(
+                preset=e.preset,
+                reliable=e.reliable,
+                reason=e.reason,
+                imu_rate_hz=e.imu_rate_hz,
+                lag_s=e.lag_s,
+                health=e.health,
+            )
+            for name, e in (estimation.estimators.items() if estimation else ())
+        },
+        refused_inputs=estimation.refused_inputs if estimation else {},
+        estimator_restarts=estimation.restarts if estimation else {},
+        estimator_restart_reasons=estimation.restart_reasons if estimation else {},
+        parts=snap.parts,
+        clients=[],
+        viser_port=None,
+        authorised=False,
+        radio=snap.radio,
+    )
+    return model.model_dump(mode="json", exclude=set(PER_REQUEST))

@@ -1,0 +1,46 @@
+"""Behind (a flood, a starved machine), the live estimation works through its backlog a batch per
+turn of the event loop, so the link goes on reading the socket in between; every message is still
+estimated, in order."""
+
+from __future__ import annotations
+
+import asyncio
+
+from live import wait_for
+
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.bus import Message
+from gcs.runtime.estimation import BATCH, LiveEstimation
+from gcs.runtime.link import Link
+
+
+def imu(encoder: Encoder, k: int) -> Message:
+    msg = mavlink.MAVLink_highres_imu_message(
+        k * 2500, 0.0, 0.0, -9.81, 0.01, 0.0, 0.0, 0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 20.0, 0x1FFF
+    )
+    encoder.encode(msg)
+    return Message.of(msg, 0.0, 0.0)
+
+
+def test_a_backlog_is_estimated_a_batch_per_turn_of_the_loop():
+    async def scenario():
+        link = Link("udpin:127.0.0.1:9")  # never run: the test publishes on its bus
+        estimation = LiveEstimation(link)
+        task = asyncio.create_task(estimation.run())
+        encoder = Encoder(1, 1)
+        await wait_for(lambda: link.bus.wants("HIGHRES_IMU"), 10, "the estimation's subscription")
+        link.bus.publish(imu(encoder, 1))
+        await wait_for(lambda: estimation.messages_fed == 1, 120, "the kernels loaded, the first message")
+        backlog = 10 * BATCH
+        for k in range(backlog):
+            link.bus.publish(imu(encoder, k + 2))
+        turns = []
+        while estimation.messages_fed < 1 + backlog:
+            await asyncio.sleep(0)  # one turn of the loop for everyone else (the link reading)
+            turns.append(estimation.messages_fed)
+        task.cancel()
+        return turns
+
+    turns = asyncio.run(scenario())
+    assert turns[0] == 1 + BATCH  # the first turn took one batch, not the whole backlog
+    assert len(turns) >= 10 and turns[-1] == 1 + 10 * BATCH
