@@ -315,9 +315,10 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         z[2] = xs2 + k.wrap_pi(yaw - xs2)
         skip = 6
     _update(s, skip, z, r)
+    q_post = k.euler_quat(x[0], x[1], x[2])  # the updated attitude, once for the three uses below
     tau = g[BIAS_TAU]
     if tau > 0.0 and s[k.SHOCK_ACTIVE] == 0.0 and abs(accel_norm - G0) < g[BIAS_ACC_TOL]:
-        d = _body_turn(q, k.euler_quat(x[0], x[1], x[2]))
+        d = _body_turn(q, q_post)
         if g[BIAS_HEADING] < 0.5:
             D = Rm[2]
             dd = d[0] * D[0] + d[1] * D[1] + d[2] * D[2]
@@ -325,7 +326,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         for i in range(3):
             s[BIAS + i] = min(max(s[BIAS + i] - d[i] / tau, -BIAS_MAX), BIAS_MAX)
     if s[FAVG_SET] != 0.0 and g[ACCEL_TAU] > 0.0:
-        Rp = k.quat_rows(k.euler_quat(x[0], x[1], x[2]))
+        Rp = k.quat_rows(q_post)
         F0, F1, F2 = s[FAVG], s[FAVG + 1], s[FAVG + 2]
         fs0 = Rm[0][0] * F0 + Rm[1][0] * F1 + Rm[2][0] * F2
         fs1 = Rm[0][1] * F0 + Rm[1][1] * F1 + Rm[2][1] * F2
@@ -333,8 +334,11 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         s[FAVG] = Rp[0][0] * fs0 + Rp[0][1] * fs1 + Rp[0][2] * fs2
         s[FAVG + 1] = Rp[1][0] * fs0 + Rp[1][1] * fs1 + Rp[1][2] * fs2
         s[FAVG + 2] = Rp[2][0] * fs0 + Rp[2][1] * fs1 + Rp[2][2] * fs2
-    x[0], x[2] = k.wrap_pi(x[0]), k.wrap_pi(x[2])
-    s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = k.euler_quat(x[0], x[1], x[2])
+    r0, r2 = k.wrap_pi(x[0]), k.wrap_pi(x[2])
+    if r0 != x[0] or r2 != x[2]:  # wrapped: the angles' sines and cosines round differently
+        x[0], x[2] = r0, r2
+        q_post = k.euler_quat(r0, x[1], r2)
+    s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = q_post
     return code
 
 
