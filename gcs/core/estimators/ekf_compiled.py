@@ -98,7 +98,7 @@ def _shift_velocity(s: State, d0: float, d1: float, d2: float) -> None:
 @kernel
 def _work(s: State, at: int, rows: int) -> State:
     """The rows×3 work matrix at slot `at` (a view: no allocation per step)."""
-    return s[at : at + 3 * rows].reshape(rows, 3)
+    return k.matrix(s, at, rows, 3)
 
 
 @kernel
@@ -113,7 +113,7 @@ def _update(s: State, PHt: State, S: State, y: State, m: int) -> State:
             for l in range(m):
                 acc += PHt[i, l] * S_inv[l, j]
             K[i, j] = acc
-    Pm = s[P : P + 81].reshape(9, 9)
+    Pm = k.matrix(s, P, 9, 9)
     for i in range(9):  # in place: each pair (i, j), (j, i) is read only at its own turn
         for j in range(i, 9):
             a = b = 0.0
@@ -140,7 +140,7 @@ def _update(s: State, PHt: State, S: State, y: State, m: int) -> State:
 def _block_update(s: State, lo: int, hi: int, r: float, y: State) -> State:
     """_update with H selecting states lo..hi-1: P Hᵀ = P[:, lo:hi], S = P[lo:hi, lo:hi] + r I."""
     m = hi - lo
-    Pm = s[P : P + 81].reshape(9, 9)
+    Pm = k.matrix(s, P, 9, 9)
     PHt, S = _work(s, W_PHT, 9), _work(s, W_S, 3)
     for i in range(9):
         for j in range(m):
@@ -191,7 +191,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     if code == k.DUPLICATE:
         return code
     dt = t - s[k.T_PREV]
-    Pm = s[P : P + 81].reshape(9, 9)
+    Pm = k.matrix(s, P, 9, 9)
     spin = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     shock = k.shock_update(s, t, a_norm, spin, g[GYRO_LIMIT], g[SHOCK_ACC], g[SHOCK_HOLD])
@@ -363,7 +363,7 @@ def gps_step(s: State, hist: State, g: State, t: float, vn: float, ve: float) ->
     now = s[k.T]
     if math.isnan(now) or now - s[GPS_T_FUSED] > g[GPS_TIMEOUT]:
         _shift_velocity(s, vn - s[V], ve - s[V + 1], 0.0)
-        Pm = s[P : P + 81].reshape(9, 9)
+        Pm = k.matrix(s, P, 9, 9)
         Pm[3:5, :] = 0.0
         Pm[:, 3:5] = 0.0
         Pm[3, 3] = Pm[4, 4] = g[GPS_NOISE] ** 2

@@ -125,7 +125,7 @@ def _invert(A: State, inv: State, n: int) -> None:
 @kernel
 def _work(s: State, at: int) -> State:
     """The 6×6 work matrix at slot `at` (a view: no allocation per step)."""
-    return s[at : at + 36].reshape(6, 6)
+    return k.matrix(s, at, 6, 6)
 
 
 @kernel
@@ -197,7 +197,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         return code
     dt = t - s[k.T_PREV]
     x = s[X : X + 6]
-    Pm = s[P : P + 36].reshape(6, 6)
+    Pm = k.matrix(s, P, 6, 6)
     b0, b1, b2 = gyro[0] - s[BIAS], gyro[1] - s[BIAS + 1], gyro[2] - s[BIAS + 2]
     cmin = g[COS_MIN]
     exact = g[EXACT] >= 0.5
