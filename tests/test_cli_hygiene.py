@@ -197,6 +197,27 @@ def test_sigterm_closes_the_session_as_ctrl_c_does(tmp_path):
         sim.wait(10)
 
 
+def test_sigterm_stops_a_command_started_with_sigint_ignored():
+    """A background job of a script (`gcs sim &`) starts with SIGINT ignored: SIGTERM still stops
+    it (it had become an ignored SIGINT, and the process ran on until killed)."""
+    sim = subprocess.Popen(
+        GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    try:
+        assert "apm25" in sim.stdout.readline()  # printed once its link is open
+        sim.send_signal(signal.SIGTERM)
+        rc = sim.wait(60)  # a deadline for a hang only
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+            sim.wait()
+    assert rc == 0, (rc, sim.stderr.read())  # `gcs sim` ends cleanly when stopped, as on Ctrl-C
+
+
 # ---- .tlog stamps ---------------------------------------------------------------------------------
 def test_tlog_stamps_never_go_backwards_with_sent_and_received_packets(udp_port, tmp_path):
     async def scenario() -> Path:

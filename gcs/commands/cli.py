@@ -86,8 +86,12 @@ def main(argv: list[str] | None = None) -> int:
 def stop_on_sigterm() -> list[int]:
     """SIGTERM (systemd, docker, kill) stops a command as Ctrl-C does: it becomes SIGINT, which
     asyncio turns into a cancellation of the main task, so every `finally` runs (the session is
-    closed, its files completed). The returned list gets the signal number once it arrived."""
+    closed, its files completed). A process started with SIGINT ignored (`cmd &` in a script, a
+    supervisor that ignores it) gets Python's own SIGINT handler back, or SIGTERM would be lost and
+    the process could only be killed. The returned list gets the signal number once it arrived."""
     received: list[int] = []
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def interrupt(signum: int, frame: object) -> None:
         received.append(signum)
