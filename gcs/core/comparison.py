@@ -150,12 +150,14 @@ class _Stats:
             for i in range(3):
                 wss[i] = math.fsum(r[i + 1] * r[i + 1] for r in self.recent) - err[i] * err[i]
         self.n += 1
+        sum_sq, top, window_max = self.sum_sq, self.max, self.window_max
         for i, e in enumerate(err):
             sq, mag = e * e, abs(e)
-            self.sum_sq[i] += sq
+            sum_sq[i] += sq
             wss[i] += sq
-            self.max[i] = max(self.max[i], mag)
-            peaks = self.window_max[i]
+            if mag > top[i]:  # = max(top[i], mag), NaN included
+                top[i] = mag
+            peaks = window_max[i]
             while peaks and peaks[-1][1] <= mag:
                 peaks.pop()
             peaks.append((t, mag))
