@@ -18,6 +18,7 @@ BENCHMARKS = {
     "replay_memory": "bench.replay_memory",
     "batch": "bench.batch",
     "estimators": "bench.estimators",
+    "live_pipeline": "bench.live_pipeline",
     "serve_cpu": "bench.serve_cpu",
     "page_fps": "bench.page_fps",
     "wire": "bench.wire",

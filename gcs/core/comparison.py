@@ -150,12 +150,14 @@ class _Stats:
             for i in range(3):
                 wss[i] = math.fsum(r[i + 1] * r[i + 1] for r in self.recent) - err[i] * err[i]
         self.n += 1
+        sum_sq, top, window_max = self.sum_sq, self.max, self.window_max
         for i, e in enumerate(err):
             sq, mag = e * e, abs(e)
-            self.sum_sq[i] += sq
+            sum_sq[i] += sq
             wss[i] += sq
-            self.max[i] = max(self.max[i], mag)
-            peaks = self.window_max[i]
+            if mag > top[i]:  # = max(top[i], mag), NaN included
+                top[i] = mag
+            peaks = window_max[i]
             while peaks and peaks[-1][1] <= mag:
                 peaks.pop()
             peaks.append((t, mag))
@@ -209,27 +211,33 @@ class Comparison:
         self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: tuple[float, float, float] | None = None
     ) -> None:
         """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
-        if self.estimates and t < self.estimates[-1][0]:  # vehicle clock went back: a new session
-            self.estimates.clear()
-            self.pending.clear()
-            self.running_lag.reset()
-            self._window_t.clear()
-        if self.estimates and t == self.estimates[-1][0]:
-            return
+        estimates = self.estimates  # per estimate of every estimator: attributes read once
+        if estimates:
+            last = estimates[-1][0]
+            if t < last:  # vehicle clock went back: a new session
+                estimates.clear()
+                self.pending.clear()
+                self.running_lag.reset()
+                self._window_t.clear()
+            elif t == last:
+                return
         w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
-        self.estimates.append((t, (float(w), float(x), float(y), float(z))))
+        estimates.append((t, (float(w), float(x), float(y), float(z))))
         lag = self.running_lag
         if not lag.estimates or t >= lag.estimates[-1][0] + self.lag_step:  # the lag's resolution
             roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
             lag.add_estimate(t, roll, pitch)
-        while self.estimates[0][0] < t - self.history:
-            self.estimates.popleft()
+        start = t - self.history
+        while estimates[0][0] < start:
+            estimates.popleft()
         recent = self._window_t
         recent.append(t)
-        while recent[0] < t - self.window:
+        start = t - self.window
+        while recent[0] < start:
             recent.popleft()
-        while self.pending and self.pending[0].t <= t:
-            self._score(self.pending.popleft())
+        pending = self.pending
+        while pending and pending[0].t <= t:
+            self._score(pending.popleft())
 
     def add_reference(self, ref: AttitudeSample) -> None:
         if self.estimates and ref.t <= self.estimates[-1][0]:

@@ -129,6 +129,7 @@ class EstimationPipeline:
     def _imu(self, sample: ImuSample) -> list[AttitudePoint]:
         self.imu_samples += 1
         points = []
+        t, comparisons, latest, isfinite = sample.t, self.comparisons, self.latest, math.isfinite  # per sample: locals
         for name, est in list(self.estimators.items()):
             try:
                 valid = est.update_imu(sample)
@@ -137,14 +138,13 @@ class EstimationPipeline:
                 continue
             q = est.quaternion.tolist()  # plain floats from here on: numpy scalars are slow
             w, x, y, z = q
-            if not math.isfinite(w + x + y + z):  # a NaN or an infinity anywhere (|q| = 1 otherwise)
-                self._restart(name, est, f"non-finite state at t={sample.t:.3f} s")
+            if not isfinite(w + x + y + z):  # a NaN or an infinity anywhere (|q| = 1 otherwise)
+                self._restart(name, est, f"non-finite state at t={t:.3f} s")
                 continue
             euler = quat_to_euler(q)
-            self.comparisons[name].add_estimate(sample.t, q, euler)
+            comparisons[name].add_estimate(t, q, euler)
             if valid:
-                point = AttitudePoint(sample.t, name, *euler)
-                self.latest[name] = point
+                latest[name] = point = AttitudePoint(t, name, *euler)
                 points.append(point)
         return points
 

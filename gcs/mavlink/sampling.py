@@ -234,7 +234,9 @@ class MessageSampler:
                 sample = attitude_from_message(held, held_t)
                 if sample is not None:
                     out.append(sample)
-        now = self.clock.observe(msg)
+        if own_time is not None:  # self.clock.observe(msg) without reading the time twice
+            self.clock.latest[system] = own_time
+        now = self.clock.latest.get(system)
         if kind in LEADING_MESSAGES:
             self._leading = msg
             return out

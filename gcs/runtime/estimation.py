@@ -67,16 +67,18 @@ class LiveEstimation:
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []
-        inputs = self.inputs
+        # per message: bound methods and the declination read once (MessageInputs' properties)
+        feed_inputs, feed_pipeline = self.inputs.feed, self.pipeline.feed
+        declination = self.inputs.vehicle_declination
         for item in items:
             self.messages_fed += 1
-            had_fix, before = inputs.gps_fix, (inputs.declination_source, inputs.declination)
+            had_fix, source, value = declination.gps_fix, declination.source, declination.value
             # the wall time as the recording's tlog keeps it, so a replay dates the WMM the same
-            for estimation_input in inputs.feed(item.msg, tlog_wall_time(item.wall_time)):
-                points += self.pipeline.feed(estimation_input)
-            if inputs.gps_fix and not had_fix:
+            for estimation_input in feed_inputs(item.msg, tlog_wall_time(item.wall_time)):
+                points += feed_pipeline(estimation_input)
+            if declination.gps_fix and not had_fix:
                 self.gps_locked.emit()
-            if (inputs.declination_source, inputs.declination) != before:
-                self.declination_changed.emit(inputs.declination_source, inputs.declination)
+            if (declination.source, declination.value) != (source, value):
+                self.declination_changed.emit(declination.source, declination.value)
         if points:
             self.points.emit(points)
