@@ -25,6 +25,7 @@ from gcs.core.estimators.kf import (
     euler_rates,
     mag_heading,
 )
+from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import Vec3, euler_quat
 from gcs.core.samples import G0, GpsSample, ImuSample
 
@@ -45,6 +46,7 @@ ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
 BIAS_TAU, BIAS_ACC_TOL, BIAS_HEADING = _G["bias_tau"], _G["bias_acc_tol"], _G["bias_heading"]
+REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
 _MAG = (
@@ -63,7 +65,8 @@ X, P = B, B + 6  # x (6), P (6×6)
 RATES_PREV, GYRO_PREV, FAVG_SET, FAVG = B + 42, B + 45, B + 48, B + 49
 ACCEL_SCALE, MAG_REJECTED, INNOVATION, HEADING_SOURCE = B + 52, B + 53, B + 54, B + 60
 BIAS = B + 61  # 3
-SIZE = B + 64
+REST = B + 64  # RestBias
+SIZE = REST + REST_SIZE
 #: heading_source labels by code
 HEADING_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
 _body_turn = kernel(body_turn)
@@ -321,6 +324,13 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
             d = (d[0] - dd * D[0], d[1] - dd * D[1], d[2] - dd * D[2])
         for i in range(3):
             s[BIAS + i] = min(max(s[BIAS + i] - d[i] / tau, -BIAS_MAX), BIAS_MAX)
+    b0, b1, b2 = rest_bias(
+        s, REST, t, gyro, s[BIAS], s[BIAS + 1], s[BIAS + 2], accel, k.gps_at(s, t), dt,
+        g[REST_GYRO], g[REST_ACC], g[REST_TIME], g[REST_TAU],
+    )  # fmt: skip
+    s[BIAS] = min(max(b0, -BIAS_MAX), BIAS_MAX)
+    s[BIAS + 1] = min(max(b1, -BIAS_MAX), BIAS_MAX)
+    s[BIAS + 2] = min(max(b2, -BIAS_MAX), BIAS_MAX)
     if s[FAVG_SET] != 0.0 and g[ACCEL_TAU] > 0.0:
         Rp = k.quat_rows(k.euler_quat(x[0], x[1], x[2]))
         F0, F1, F2 = s[FAVG], s[FAVG + 1], s[FAVG + 2]
@@ -377,6 +387,7 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         roll, pitch = accel_tilt(sample.accel)
         k.reset_mag(s)
         k.reset_shock(s)
+        reset_rest(s, REST)
         yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
         s[HEADING_SOURCE] = 1.0 if yaw is not None else 0.0
         rates = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
