@@ -22,6 +22,7 @@ BENCHMARKS = {
     "page_fps": "bench.page_fps",
     "wire": "bench.wire",
     "fleet_routing": "bench.fleet_routing",
+    "loop_stalls": "bench.loop_stalls",
 }
 
 

@@ -3,7 +3,7 @@ WebSocket client, p50/p95/p99, with ATTITUDE and raw IMU at 200 Hz from the simu
 and 20 clients (in a separate process). Split at the frame's flush (its server_time): `queue`
 is arrival → flush (estimation, the hub's frame interval), `delivery` flush → received (the
 per-client sends, the kernel, the client process's own turn on a core).
-The last configuration runs the station at `gcs serve`'s default nice (gcs.runtime.priority) when
+The last configuration runs the station at a raised priority (`gcs serve --nice -5`) (gcs.runtime.priority) when
 this machine permits it; the simulator, the clients and the hog stay at nice 0.
 GCS_BENCH_PROBE=1: the event loop's slow callbacks and answer delay (bench.loop_stalls.Probe)
 are printed for each configuration.
@@ -25,7 +25,7 @@ import numpy as np
 import psutil
 
 from bench.loop_stalls import Probe
-from gcs.runtime.priority import DEFAULT_NICE, raise_priority
+from gcs.runtime.priority import RAISED_NICE, raise_priority
 from gcs.runtime.station import Station, StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.server.dashboard import DashboardServer
@@ -125,7 +125,7 @@ async def measure(clients: int, seconds: float, hog: bool = False, probe: Probe 
 
 def main(seconds: float = 10.0) -> list[dict]:
     rows = []
-    for clients, hog, nice in ((1, False, 0), (20, False, 0), (20, True, 0), (20, True, DEFAULT_NICE)):
+    for clients, hog, nice in ((1, False, 0), (20, False, 0), (20, True, 0), (20, True, RAISED_NICE)):
         priority = raise_priority(nice)
         if os.getpriority(os.PRIO_PROCESS, 0) != nice:
             print(f"skipped: {priority}", file=sys.stderr)

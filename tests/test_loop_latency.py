@@ -20,7 +20,7 @@ from live import dashboard, running_station, wait_for
 
 from gcs.core import strict_json
 from gcs.mavlink.dialect import Encoder, mavlink
-from gcs.runtime.estimation import SLICE
+from gcs.runtime.estimation import BATCH
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.status_body import PER_REQUEST
 
@@ -143,7 +143,6 @@ def test_connections_send_without_nagle(udp_port):
 
 FIRST_FLUSH = """
 import asyncio, sys, tempfile
-from gcs.runtime.estimation import SLICE
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions import columnar
 from gcs.transport.address import free_port
@@ -210,4 +209,4 @@ def test_estimation_backlog_worked_off_in_slices(udp_port):
 
     burst, fed_per_turn = asyncio.run(run())
     assert sum(fed_per_turn) >= burst
-    assert max(fed_per_turn) <= SLICE, fed_per_turn
+    assert max(fed_per_turn) <= BATCH, fed_per_turn

@@ -14,7 +14,7 @@ from gcs.commands.options import add_link_arguments, links_of, station_config_or
 from gcs.core.estimation import pipeline_from
 from gcs.core.gains import GainError, PresetFile
 from gcs.runtime.fleet import Fleet
-from gcs.runtime.priority import DEFAULT_NICE, raise_priority
+from gcs.runtime.priority import raise_priority
 from gcs.server.dashboard import DashboardServer
 from gcs.server.live import LiveHub
 
@@ -75,9 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--nice",
         type=int,
-        default=DEFAULT_NICE,
-        help=f"run the station at this nice value when the system permits it (default {DEFAULT_NICE}: ahead of "
-        "ordinary programs, so a busy machine delays the live link and pages less; 0 leaves it)",
+        default=0,
+        help="run the station at this nice value when the system permits it, e.g. -5: ahead of ordinary "
+        "programs, for a busy machine whose viewers are elsewhere (default 0: the priority is left alone)",
     )
 
 
@@ -88,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     if config is None or presets is None:
         return 2
     config = dataclasses.replace(config, presets=presets)
-    print(f"gcs serve: {raise_priority(args.nice)}", flush=True)
+    if args.nice:
+        print(f"gcs serve: {raise_priority(args.nice)}", flush=True)
     try:
         asyncio.run(_serve(config, args))
     except OSError as exc:

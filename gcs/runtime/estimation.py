@@ -49,8 +49,6 @@ class LiveEstimation:
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
-        items: list[Message] = []
-        done = 0
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
@@ -63,7 +61,7 @@ class LiveEstimation:
         finally:
             # Stopping: what the link delivered is estimated too, so that a recording and the
             # live outputs hold the same inputs (the station stops the link first).
-            self._feed(items[done:] + sub.drain())
+            self._feed(sub.drain())
             sub.close()
             heap.release()
 

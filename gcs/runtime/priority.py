@@ -1,21 +1,23 @@
-"""The live process's CPU priority: raised when the system allows it, never required.
+"""The live process's CPU priority: raised on request when the system allows it, never required.
 
 On a machine with few cores, another program that keeps a core busy at the same priority takes
-an equal share of the CPU, and the station's event loop waits in the run queue behind it: on 2
-cores with such a hog, the dashboard's WebSocket p99 went from ~16 ms to 33 ms and beyond
-(docs/benchmarks.md). A lower nice value puts the station ahead of ordinary programs without
-realtime scheduling, whose runaway loop could freeze a machine. An ordinary user may lower it only
-as far as RLIMIT_NICE allows (`nice` in /etc/security/limits.conf) or with CAP_SYS_NICE (root has
-it); otherwise nothing changes and the answer says so. Processes the station starts afterwards
-inherit the value (the worker lowers its own from there: gcs.runtime.station.WORKER_NICE).
+an equal share of the CPU, and the station's event loop waits in the run queue behind it. A lower
+nice value (`gcs serve --nice -5`) puts the station ahead of ordinary programs without realtime
+scheduling, whose runaway loop could freeze a machine. It is not the default: measured with the
+pages on the same machine (bench.ws_latency), the station at nice -5 made the pages' own process
+wait more and the WebSocket p99 worse (87-99 ms against 19-25 ms at nice 0, docs/benchmarks.md);
+it is for a station whose viewers are elsewhere. An ordinary user may lower it only as far as
+RLIMIT_NICE allows (`nice` in /etc/security/limits.conf) or with CAP_SYS_NICE (root has it);
+otherwise nothing changes and the answer says so. Processes the station starts afterwards inherit
+the value (the worker lowers its own from there: gcs.runtime.station.WORKER_NICE).
 """
 
 from __future__ import annotations
 
 import os
 
-#: The nice value `gcs serve` asks for by default (0: leave it).
-DEFAULT_NICE = -5
+#: The nice value bench.ws_latency measures a raised station at (`gcs serve --nice`).
+RAISED_NICE = -5
 
 
 def raise_priority(nice: int) -> str:
