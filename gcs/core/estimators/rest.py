@@ -17,12 +17,13 @@ from gcs.core.estimators.kernels import State
 from gcs.core.gains import Gain
 from gcs.core.rotation import Vec3
 
-#: The rest test's settings (ekf declares the first three alike) and the learning time constant.
+#: The rest test's settings (ekf declares the first three alike) and the longest averaging time
+#: (VQF's biasForgettingTime).
 REST_GAINS: tuple[Gain, ...] = (
     Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
     Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
     Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before the bias is learned"),
-    Gain("rest_bias_tau", 1.0, 0.0, 600.0, "s", "at rest the bias follows the gyro over this; 0 = off"),
+    Gain("rest_bias_tau", 100.0, 0.0, 1000.0, "s", "bias = mean gyro at rest so far, at most this long; 0 = off"),
 )
 #: REST_GAINS values that switch it off (the thesis presets).
 REST_OFF = {"rest_bias_tau": 0.0}
@@ -31,12 +32,15 @@ REST_OFF = {"rest_bias_tau": 0.0}
 class RestBias:
     """At rest (bias-corrected |ω| < `rest_gyro`, the accel vector within `rest_acc` of where it
     was and the GPS acceleration below `rest_acc`, all for `rest_time` s): the bias estimate b
-    follows the gyro, b += dt/(τ + dt)·(ω − b). A steady acceleration that GPS sees is no rest."""
+    is the gyro's mean over all the rest seen so far, at most the last τ = `rest_bias_tau` s:
+    b += (ω − b)·dt/min(T, τ), T the time at rest so far. A steady acceleration that GPS sees is
+    no rest; a slow turn taken for rest moves b by dt/T of it, not by all of it within 1 s."""
 
     def __init__(self) -> None:
         self.since = -math.inf
         self.acc: Vec3 | None = None
         self.at_rest = False
+        self.total = 0.0  # time at rest so far (s)
 
     def update(
         self, t: float, gyro: Vec3, bias: Vec3, accel: Vec3, gps_acc: Vec3, dt: float, g: Mapping[str, float]
@@ -54,18 +58,20 @@ class RestBias:
         self.at_rest = t - self.since >= g["rest_time"] and tau > 0.0
         if not self.at_rest:
             return bias
-        a = dt / (tau + dt)
+        self.total += dt
+        a = dt / min(self.total, tau)
         return (bias[0] + a * wx, bias[1] + a * wy, bias[2] + a * wz)
 
 
-#: Slots of RestBias in a compiled state, from the offset the estimator gives: since, acc set, acc (3).
-REST_SIZE = 5
+#: Slots of RestBias in a compiled state, from the offset the estimator gives: since, acc set, acc (3),
+#: total.
+REST_SIZE = 6
 
 
 def reset_rest(s: State, r: int) -> None:
     """A new RestBias at slot r."""
     s[r] = -math.inf
-    s[r + 1 : r + 5] = 0.0
+    s[r + 1 : r + 6] = 0.0
 
 
 @kernel
@@ -84,5 +90,6 @@ def rest_bias(
         s[r], s[r + 1], s[r + 2], s[r + 3], s[r + 4] = t, 1.0, accel[0], accel[1], accel[2]
     if not (t - s[r] >= rest_time and tau > 0.0):
         return b0, b1, b2
-    a = dt / (tau + dt)
+    s[r + 5] += dt
+    a = dt / min(s[r + 5], tau)
     return b0 + a * wx, b1 + a * wy, b2 + a * wz
