@@ -20,6 +20,8 @@ from gcs.runtime.link import Link
 from gcs.runtime.station import StationConfig
 
 CHUNK = 4096
+#: what the consumers ask for by name: every type of the stream, so the link decodes each one
+TYPES = ("HEARTBEAT", "RAW_IMU", "ATTITUDE", "GPS_RAW_INT", "SCALED_PRESSURE")
 
 
 def sample_stream(sysids: tuple[int, ...], n: int = 60_000) -> bytes:
@@ -41,7 +43,7 @@ def chunks(data: bytes) -> list[bytes]:
 def station_link(parts: list[bytes]) -> int:
     async def run() -> int:
         link = Link("tcp:127.0.0.1:9")
-        sub = link.bus.subscribe("consumer", maxlen=100_000)
+        sub = link.bus.subscribe("consumer", types=TYPES, maxlen=100_000)
         delivered = 0
         for part in parts:
             link._on_data(part)
@@ -54,9 +56,12 @@ def station_link(parts: list[bytes]) -> int:
 def fleet_link(parts: list[bytes]) -> int:
     async def run() -> int:
         fleet = Fleet(StationConfig(connect="tcp:127.0.0.1:9"))
-        subs = [fleet.first.bus.subscribe("consumer", maxlen=100_000)]
+        subs = [fleet.first.bus.subscribe("consumer", types=TYPES, maxlen=100_000)]
         fleet.vehicle_added.connect(
-            lambda e: e.station is fleet.first or subs.append(e.station.bus.subscribe("consumer", maxlen=100_000))
+            lambda e: (
+                e.station is fleet.first
+                or subs.append(e.station.bus.subscribe("consumer", types=TYPES, maxlen=100_000))
+            )
         )
         delivered = 0
         for part in parts:

@@ -8,8 +8,10 @@ the per-sample errors."""
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry, whole
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 from gcs.logs.input_table import InputTableBuilder
+from gcs.runtime import replay
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import run_estimator as what_if_run
@@ -163,6 +166,26 @@ def test_replay_table_from_whole_runs(which, sources):
     for got, want in zip(rows, expected, strict=True):
         assert np.allclose(got["rms_deg"], want["rms_deg"], rtol=0, atol=TOL)
         assert np.allclose(got["max_deg"], want["max_deg"], rtol=0, atol=TOL)
+
+
+def test_replay_table_runs_the_estimators_side_by_side(sources, monkeypatch):
+    """Each estimator's whole run goes to a thread of its own (up to one per core), off the
+    caller's thread, and the rows still come in the estimators' order."""
+    threads: dict[str, int] = {}
+    real = replay.run_whole
+
+    def recorded(estimator, *args, **kwargs):
+        threads[args[-1]] = threading.get_ident()
+        return real(estimator, *args, **kwargs)
+
+    monkeypatch.setattr(replay, "run_whole", recorded)
+    done: list[tuple[int, int]] = []
+    rows, _ = whole_table(sources["px4"], ["ekf", "dcm", "kf"], {}, lambda *p: done.append(p))
+    assert sorted(threads) == ["dcm", "ekf", "kf"]
+    assert threading.get_ident() not in threads.values()
+    assert len(set(threads.values())) == min(3, os.cpu_count() or 1)
+    assert [r["estimator"] for r in rows] == ["ekf", "dcm", "kf"]
+    assert done == [(1, 3), (2, 3), (3, 3)]
 
 
 @pytest.mark.parametrize("name", NAMES)

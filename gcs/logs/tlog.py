@@ -7,6 +7,7 @@ from collections.abc import Iterator
 
 from gcs.core.estimation import EstimationInput
 from gcs.logs.logfile import InputError
+from gcs.mavlink.decoding import decode
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import read_tlog_records
@@ -25,9 +26,9 @@ def _imu_stream(path: str, imu: int) -> tuple[str, int]:
     decoder = MavlinkDecoder()
     seen: dict[str, int] = {}
     for _, packet in read_tlog_records(path):
-        for msg in decoder.feed(packet, final=True):
-            if msg.get_type() in IMU_TYPES:
-                seen.setdefault(msg.get_type(), msg.get_srcSystem())
+        for _, kind, sysid, _ in decoder.frames(packet, final=True):
+            if kind in IMU_TYPES:
+                seen.setdefault(kind, sysid)
         if wanted in seen:
             break
     for kind in IMU_TYPES if imu == 0 else (wanted,):
@@ -51,6 +52,6 @@ def read_tlog(path: str, imu: int = 0, inputs: MessageInputs | None = None) -> I
     for usec, packet in read_tlog_records(path):
         if usec & 3 == 3:
             continue
-        for msg in decoder.feed(packet, final=True):
-            if msg.get_type() in INPUT_TYPES:  # what the live estimation subscribes to, no more
-                yield from inputs.feed(msg, (usec & ~3) / 1e6)
+        for raw, kind, _, _ in decoder.frames(packet, final=True):
+            if kind in INPUT_TYPES:  # what the live estimation subscribes to, no more
+                yield from inputs.feed(decode(raw), (usec & ~3) / 1e6)

@@ -19,6 +19,7 @@ import math
 import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import islice
@@ -280,25 +281,34 @@ def whole_table(
     instead of the per-sample pipeline: each estimator in one compiled loop, every reference
     scored against every output the estimator produced, as the pipeline's Comparison scores them
     (tests/test_whole_run.py). For `gcs replay --fast`, where nothing watches the frames go by.
+    The estimators are independent and their kernels release the GIL, so each runs in its own
+    thread: the replay takes about the slowest one's time on a machine with as many cores.
     Also returns the IMU samples fed (the pipeline's `imu_samples`); progress(done, total) counts
     estimators."""
+    workers = max(1, min(len(estimators), os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers, thread_name_prefix="whole-run") as pool:
+        runs = [pool.submit(_whole_rows, source, name, gains.get(name, {})) for name in estimators]
+        for done, _ in enumerate(as_completed(runs), start=1):
+            if progress:
+                progress(done, len(estimators))
+        results = [run.result() for run in runs]
+    return [row for rows, _ in results for row in rows], results[-1][1] if results else 0
+
+
+def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tuple[list[dict[str, object]], int]:
+    """whole_table's rows of one estimator, and the IMU samples it was fed."""
     table = source.table
-    t_all = table.imu[:, 0]
+    preset, recorded = source.estimator_config(name)
+    estimator = registry.create(name, preset, **{**recorded, **gains})
+    run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name)
+    t = table.imu[run.fed, 0]
     rows: list[dict[str, object]] = []
-    fed = 0
-    for done, name in enumerate(estimators, start=1):
-        preset, recorded = source.estimator_config(name)
-        estimator = registry.create(name, preset, **{**recorded, **gains.get(name, {})})
-        run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name)
-        fed = int(run.fed.sum())
-        for ref, data in sorted(source.references.items()):
-            err = errors_at(t_all[run.fed], run.q[run.fed], data)[:, 1:]
-            if len(err):
-                rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
-                rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
-        if progress:
-            progress(done, len(estimators))
-    return rows, fed
+    for ref, data in sorted(source.references.items()):
+        err = errors_at(t, run.q[run.fed], data)[:, 1:]
+        if len(err):
+            rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
+            rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
+    return rows, int(run.fed.sum())
 
 
 #: Replays kept encoded in the worker (a 10-minute session at 50 Hz is a few MB).

@@ -32,6 +32,7 @@ from gcs.logs.dataflash import DataflashLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
+from gcs.mavlink.decoding import decode
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import packet_length, read_tlog_records
@@ -217,15 +218,14 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
     position = 0  # estimation input messages so far (the live pipeline's input index)
     for offset, usec, packet in records.records():
         sent = usec & 3 == 3
-        for msg in decoder.feed(packet, final=True):
-            kind = msg.get_type()
+        for raw, kind, _, _ in decoder.frames(packet, final=True):
             counts[kind] += 1
-            if sent or kind not in INPUT_TYPES:
+            if sent or kind not in INPUT_TYPES:  # framed and counted, not decoded
                 continue
             while pending and pending[0][0] <= position:
                 table.append(pending.pop(0)[1])
             position += 1
-            for item in to_inputs.feed(msg, (usec & ~3) / 1e6):
+            for item in to_inputs.feed(decode(raw), (usec & ~3) / 1e6):
                 table.append(item)
         frames.append((usec & ~3) / 1e6, offset, sent, len(table))
     if pending and frames.t:

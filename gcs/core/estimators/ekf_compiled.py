@@ -51,7 +51,10 @@ ACC_INFLATION, VEL_INNOV, GPS_NIS, GPS_AIDED, MAG_NIS, MAG_INNOV_DEG, MAG_REJECT
 )
 P = B + 27  # 9×9
 GYRO_PREV_SET, GYRO_PREV = P + 81, P + 82  # flag, 3: the last sample's gyro (picked samples)
-SIZE = P + 85
+# work space of one step (no allocation per sample): an update's P Hᵀ (9×3), S and S⁻¹ (3×3),
+# K (9×3), the correction (9) and the innovation (3)
+W_PHT, W_S, W_SI, W_K, W_DX, W_Y = P + 85, P + 112, P + 121, P + 130, P + 157, P + 166
+SIZE = P + 169
 #: the stats that are counts or flags (ints in the reference's health)
 _INT_STATS = ("gps_aided", "mag_rejected", "at_rest", "dropped")
 _STATS = (
@@ -64,10 +67,9 @@ INITIALISE = 9
 
 
 @kernel
-def _inv_sym(S: State) -> State:
-    """ekf._inv_sym: inverse of a symmetric 1×1, 2×2 or 3×3 matrix (adjugate / determinant)."""
-    m = S.shape[0]
-    out = np.empty((m, m))
+def _inv_sym(S: State, out: State, m: int) -> None:
+    """ekf._inv_sym: out = S⁻¹ for the symmetric m×m top left of S, m = 1, 2 or 3 (adjugate /
+    determinant)."""
     if m == 1:
         out[0, 0] = 1.0 / S[0, 0]
     elif m == 2:
@@ -82,7 +84,6 @@ def _inv_sym(S: State) -> State:
         out[0, 0], out[0, 1], out[0, 2] = A / det, Bc / det, C / det
         out[1, 0], out[1, 1], out[1, 2] = Bc / det, D / det, E / det
         out[2, 0], out[2, 1], out[2, 2] = C / det, E / det, F / det
-    return out
 
 
 @kernel
@@ -96,29 +97,31 @@ def _shift_velocity(s: State, d0: float, d1: float, d2: float) -> None:
 
 
 @kernel
-def _update(s: State, PHt: State, S: State, y: State) -> State:
-    """EkfEstimator._update: K = P Hᵀ S⁻¹, P ← sym(P − K (P Hᵀ)ᵀ), inject K y. Returns S⁻¹."""
-    m = S.shape[0]
-    S_inv = _inv_sym(S)
-    K = np.zeros((9, m))
+def _work(s: State, at: int, rows: int) -> State:
+    """The rows×3 work matrix at slot `at` (a view: no allocation per step)."""
+    return k.matrix(s, at, rows, 3)
+
+
+@kernel
+def _update(s: State, PHt: State, S: State, y: State, m: int) -> State:
+    """EkfEstimator._update for m measurements (the first m columns of PHt, S's m×m top left; PHt
+    not a view of P): K = P Hᵀ S⁻¹, P ← sym(P − K (P Hᵀ)ᵀ), inject K y. Returns S⁻¹."""
+    S_inv, K, dx = _work(s, W_SI, 3), _work(s, W_K, 9), s[W_DX : W_DX + 9]
+    _inv_sym(S, S_inv, m)
     for i in range(9):
         for j in range(m):
             acc = 0.0
             for l in range(m):
                 acc += PHt[i, l] * S_inv[l, j]
             K[i, j] = acc
-    Pm = s[P : P + 81].reshape(9, 9)
-    new = np.empty((9, 9))
-    for i in range(9):
-        for j in range(9):
-            acc = 0.0
+    Pm = k.matrix(s, P, 9, 9)
+    for i in range(9):  # in place: each pair (i, j), (j, i) is read only at its own turn
+        for j in range(i, 9):
+            a = b = 0.0
             for l in range(m):
-                acc += K[i, l] * PHt[j, l]
-            new[i, j] = Pm[i, j] - acc
-    for i in range(9):
-        for j in range(9):
-            Pm[i, j] = 0.5 * (new[i, j] + new[j, i])
-    dx = np.zeros(9)
+                a += K[i, l] * PHt[j, l]
+                b += K[j, l] * PHt[i, l]
+            Pm[i, j] = Pm[j, i] = 0.5 * ((Pm[i, j] - a) + (Pm[j, i] - b))
     for i in range(9):
         acc = 0.0
         for l in range(m):
@@ -137,12 +140,17 @@ def _update(s: State, PHt: State, S: State, y: State) -> State:
 @kernel
 def _block_update(s: State, lo: int, hi: int, r: float, y: State) -> State:
     """_update with H selecting states lo..hi-1: P Hᵀ = P[:, lo:hi], S = P[lo:hi, lo:hi] + r I."""
-    Pm = s[P : P + 81].reshape(9, 9)
-    PHt = Pm[:, lo:hi].copy()
-    S = Pm[lo:hi, lo:hi].copy()
-    for i in range(hi - lo):
+    m = hi - lo
+    Pm = k.matrix(s, P, 9, 9)
+    PHt, S = _work(s, W_PHT, 9), _work(s, W_S, 3)
+    for i in range(9):
+        for j in range(m):
+            PHt[i, j] = Pm[i, lo + j]
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = Pm[lo + i, lo + j]
         S[i, i] += r
-    return _update(s, PHt, S, y)
+    return _update(s, PHt, S, y, m)
 
 
 @kernel
@@ -184,7 +192,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     if code == k.DUPLICATE:
         return code
     dt = t - s[k.T_PREV]
-    Pm = s[P : P + 81].reshape(9, 9)
+    Pm = k.matrix(s, P, 9, 9)
     spin = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     shock = k.shock_update(s, t, a_norm, spin, g[GYRO_LIMIT], g[SHOCK_ACC], g[SHOCK_HOLD])
@@ -237,18 +245,17 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         (-R[2][0] * dt, -R[2][1] * dt, -R[2][2] * dt),
     )
     K = ((0.0, fz * dt, -fy * dt), (-fz * dt, 0.0, fx * dt), (fy * dt, -fx * dt, 0.0))
-    FP = Pm.copy()
+    # in place: a column (then a row) is read whole before any of it is written
     for j in range(9):
         p0, p1, p2, p6, p7, p8 = Pm[0, j], Pm[1, j], Pm[2, j], Pm[6, j], Pm[7, j], Pm[8, j]
         for i in range(3):
-            FP[i, j] += d[i][0] * p6 + d[i][1] * p7 + d[i][2] * p8
-            FP[3 + i, j] += K[i][0] * p0 + K[i][1] * p1 + K[i][2] * p2
+            Pm[i, j] += d[i][0] * p6 + d[i][1] * p7 + d[i][2] * p8
+            Pm[3 + i, j] += K[i][0] * p0 + K[i][1] * p1 + K[i][2] * p2
     for i in range(9):
-        f0, f1, f2, f6, f7, f8 = FP[i, 0], FP[i, 1], FP[i, 2], FP[i, 6], FP[i, 7], FP[i, 8]
+        f0, f1, f2, f6, f7, f8 = Pm[i, 0], Pm[i, 1], Pm[i, 2], Pm[i, 6], Pm[i, 7], Pm[i, 8]
         for j in range(3):
-            Pm[i, j] = FP[i, j] + f6 * d[j][0] + f7 * d[j][1] + f8 * d[j][2]
-            Pm[i, 3 + j] = FP[i, 3 + j] + f0 * K[j][0] + f1 * K[j][1] + f2 * K[j][2]
-            Pm[i, 6 + j] = FP[i, 6 + j]
+            Pm[i, j] += f6 * d[j][0] + f7 * d[j][1] + f8 * d[j][2]
+            Pm[i, 3 + j] += f0 * K[j][0] + f1 * K[j][1] + f2 * K[j][2]
     sa = g[ACC_NOISE] * inflation
     qg, qh = g[GYRO_NOISE] ** 2 * dt, g[HEADING_NOISE] ** 2 * dt
     qa, qb = sa * sa * dt, g[BIAS_WALK] ** 2 * dt
@@ -285,29 +292,28 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
             s[AT_REST] = 1.0 if t - s[REST_SINCE] >= g[REST_TIME] else 0.0
         if s[AT_REST] != 0.0:
             # zero rate: y = gyro − b, H = [0, 0, I]
-            y = np.array([g0 - s[BIAS], g1 - s[BIAS + 1], g2 - s[BIAS + 2]])
+            y = s[W_Y : W_Y + 3]
+            y[0], y[1], y[2] = g0 - s[BIAS], g1 - s[BIAS + 1], g2 - s[BIAS + 2]
             _block_update(s, 6, 9, g[REST_NOISE] ** 2 / dt, y)
             if not aided:
                 # gravity: y = (R a + g)_NE, P Hᵀ = P[:, θ] Uᵀ with U the non-zero rows of [−g]×
                 r = g[REST_ACC_NOISE] ** 2 / dt
-                PHt = np.empty((9, 2))
+                PHt, S = _work(s, W_PHT, 9), _work(s, W_S, 3)
                 for i in range(9):
                     PHt[i, 0] = Pm[i, 1] * G0
                     PHt[i, 1] = -G0 * Pm[i, 0]
-                S = np.empty((2, 2))
                 for j in range(2):
                     S[0, j] = G0 * PHt[1, j]
                     S[1, j] = -G0 * PHt[0, j]
                 S[0, 0] += r
                 S[1, 1] += r
                 R2 = k.quat_rows((s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3]))
-                y2 = np.array(
-                    [R2[0][0] * a0 + R2[0][1] * a1 + R2[0][2] * a2, R2[1][0] * a0 + R2[1][1] * a1 + R2[1][2] * a2]
-                )
-                _update(s, PHt, S, y2)
+                y[0] = R2[0][0] * a0 + R2[0][1] * a1 + R2[0][2] * a2
+                y[1] = R2[1][0] * a0 + R2[1][1] * a1 + R2[1][2] * a2
+                _update(s, PHt, S, y, 2)
     # -- _update_velocity_prior
     axes = 1 if aided else 3
-    yv = np.empty(axes)
+    yv = s[W_Y : W_Y + 3]
     for i in range(axes):
         yv[i] = -s[V + 3 - axes + i]
     if axes == 3:
@@ -336,7 +342,9 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
                 tt = turn * g[MAG_TIME_SIGMA]
                 r = sigma * sigma / dt + tt * tt * max(1.0, MAG_TIME_DT / dt)
                 y = s[k.YAW_ERROR]
-                p = Pm[:, 2].copy()
+                p = s[W_DX : W_DX + 9]
+                for i in range(9):
+                    p[i] = Pm[i, 2]
                 sv = p[2] + r
                 kk = p[2] / sv
                 for j in range(9):
@@ -357,13 +365,14 @@ def gps_step(s: State, hist: State, g: State, t: float, vn: float, ve: float) ->
     now = s[k.T]
     if math.isnan(now) or now - s[GPS_T_FUSED] > g[GPS_TIMEOUT]:
         _shift_velocity(s, vn - s[V], ve - s[V + 1], 0.0)
-        Pm = s[P : P + 81].reshape(9, 9)
+        Pm = k.matrix(s, P, 9, 9)
         Pm[3:5, :] = 0.0
         Pm[:, 3:5] = 0.0
         Pm[3, 3] = Pm[4, 4] = g[GPS_NOISE] ** 2
     else:
         v0, v1, _ = _velocity_at(s, hist, t - g[GPS_DELAY])
-        y = np.array([vn - v0, ve - v1])
+        y = s[W_Y : W_Y + 3]
+        y[0], y[1] = vn - v0, ve - v1
         S_inv = _block_update(s, 3, 5, g[GPS_NOISE] ** 2, y)
         a, b, d = S_inv[0, 0], S_inv[0, 1], S_inv[1, 1]
         s[GPS_NIS] = a * y[0] * y[0] + 2.0 * b * y[0] * y[1] + d * y[1] * y[1]

@@ -16,6 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
+from numpy.lib.stride_tricks import as_strided
 
 from gcs.core import rotation
 from gcs.core.estimators.base import GpsAcceleration
@@ -459,6 +460,14 @@ def rows_to_quat(s: State, rows: int) -> None:
     n = math.sqrt(w * w + x * x + y * y + z * z)
     sign = -1.0 if w / n < 0 else 1.0
     s[Q], s[Q + 1], s[Q + 2], s[Q + 3] = sign * w / n, sign * x / n, sign * y / n, sign * z / n
+
+
+@kernel
+def matrix(s: State, at: int, rows: int, cols: int) -> State:
+    """The rows×cols matrix kept row by row at s[at:], as a view. Not `reshape`: its no-copy check
+    is a call into numba's helper library (~15 ns), several per step; the state's layout
+    guarantees the room."""
+    return as_strided(s[at:], (rows, cols), (cols * s.itemsize, s.itemsize))
 
 
 # rotation.py's plain-float formulas, compiled from the same source (one copy of each formula)

@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import HealthValue
@@ -65,7 +64,10 @@ X, P = B, B + 6  # x (6), P (6×6)
 RATES_PREV, GYRO_PREV, FAVG_SET, FAVG = B + 42, B + 45, B + 48, B + 49
 ACCEL_SCALE, MAG_REJECTED, INNOVATION, HEADING_SOURCE = B + 52, B + 53, B + 54, B + 60
 BIAS = B + 61  # 3
-REST = B + 64  # RestBias
+# work space of one step (no allocation per sample): r and z (6 each), six 6×6 matrices
+W_R, W_Z = B + 64, B + 70
+W_PHT, W_S, W_SI, W_K, W_IKH, W_T = range(B + 76, B + 76 + 6 * 36, 36)
+REST = B + 76 + 6 * 36  # RestBias
 SIZE = REST + REST_SIZE
 #: heading_source labels by code
 HEADING_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
@@ -95,11 +97,12 @@ def _mag_heading(mx: float, my: float, mz: float, roll: float, pitch: float, dec
 
 
 @kernel
-def _inv_spd(S: State) -> State:
-    """S⁻¹ by Gauss-Jordan elimination with partial pivoting (filterpy: numpy's LU inverse)."""
-    n = S.shape[0]
-    A = S.copy()
-    inv = np.eye(n)
+def _invert(A: State, inv: State, n: int) -> None:
+    """inv[:n, :n] = A[:n, :n]⁻¹ by Gauss-Jordan elimination with partial pivoting (filterpy:
+    numpy's LU inverse); A is overwritten."""
+    for i in range(n):
+        for j in range(n):
+            inv[i, j] = 1.0 if i == j else 0.0
     for c in range(n):
         p = c
         for i in range(c + 1, n):
@@ -120,29 +123,37 @@ def _inv_spd(S: State) -> State:
                     for j in range(n):
                         A[i, j] -= f * A[c, j]
                         inv[i, j] -= f * inv[c, j]
-    return inv
 
 
 @kernel
-def _update(s: State, rows: npt.NDArray[np.int64], z: State, r: State) -> State:
-    """filterpy KalmanFilter.update(z, R=diag(r), H=I[rows]): y = z − Hx, S = HPHᵀ + R,
-    K = PHᵀS⁻¹, x += Ky, P = (I − KH)P(I − KH)ᵀ + KRKᵀ. Returns y."""
-    m = rows.shape[0]
+def _work(s: State, at: int) -> State:
+    """The 6×6 work matrix at slot `at` (a view: no allocation per step)."""
+    return k.matrix(s, at, 6, 6)
+
+
+@kernel
+def _update(s: State, skip: int, z: State, r: State) -> None:
+    """filterpy KalmanFilter.update(z, R=diag(r), H=I without row `skip`; 6: none): y = z − Hx,
+    S = HPHᵀ + R, K = PHᵀS⁻¹, x += Ky, P = (I − KH)P(I − KH)ᵀ + KRKᵀ. y goes to INNOVATION
+    (0 for the skipped row). z and r have six rows; the skipped one is not read."""
+    m = 6 if skip >= 6 else 5
     x = s[X : X + 6]
-    Pm = s[P : P + 36].reshape(6, 6)
-    y = np.empty(m)
-    PHT = np.empty((6, m))
-    S = np.empty((m, m))
+    Pm = _work(s, P)
+    PHT, S, SI = _work(s, W_PHT), _work(s, W_S), _work(s, W_SI)
+    K, IKH, T = _work(s, W_K), _work(s, W_IKH), _work(s, W_T)
     for a in range(m):
-        y[a] = z[a] - x[rows[a]]
+        ra = a if a < skip else a + 1
+        s[INNOVATION + ra] = z[ra] - x[ra]
         for i in range(6):
-            PHT[i, a] = Pm[i, rows[a]]
+            PHT[i, a] = Pm[i, ra]
+    if m == 5:
+        s[INNOVATION + skip] = 0.0
     for a in range(m):
+        ra = a if a < skip else a + 1
         for b in range(m):
-            S[a, b] = PHT[rows[a], b]
-        S[a, a] += r[a]
-    SI = _inv_spd(S)
-    K = np.zeros((6, m))
+            S[a, b] = PHT[ra, b]
+        S[a, a] += r[ra]
+    _invert(S, SI, m)
     for i in range(6):
         for b in range(m):
             acc = 0.0
@@ -152,13 +163,15 @@ def _update(s: State, rows: npt.NDArray[np.int64], z: State, r: State) -> State:
     for i in range(6):
         acc = 0.0
         for a in range(m):
-            acc += K[i, a] * y[a]
+            acc += K[i, a] * s[INNOVATION + (a if a < skip else a + 1)]
         x[i] += acc
-    IKH = np.eye(6)
+    for i in range(6):
+        for j in range(6):
+            IKH[i, j] = 1.0 if i == j else 0.0
+            T[i, j] = 0.0
     for i in range(6):
         for a in range(m):
-            IKH[i, rows[a]] -= K[i, a]
-    T = np.zeros((6, 6))
+            IKH[i, a if a < skip else a + 1] -= K[i, a]
     for i in range(6):
         for l in range(6):
             f = IKH[i, l]
@@ -171,9 +184,8 @@ def _update(s: State, rows: npt.NDArray[np.int64], z: State, r: State) -> State:
             for l in range(6):
                 acc += T[i, l] * IKH[j, l]
             for a in range(m):
-                acc += K[i, a] * r[a] * K[j, a]
+                acc += K[i, a] * r[a if a < skip else a + 1] * K[j, a]
             Pm[i, j] = acc
-    return y
 
 
 @kernel
@@ -188,7 +200,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         return code
     dt = t - s[k.T_PREV]
     x = s[X : X + 6]
-    Pm = s[P : P + 36].reshape(6, 6)
+    Pm = k.matrix(s, P, 6, 6)
     b0, b1, b2 = gyro[0] - s[BIAS], gyro[1] - s[BIAS + 1], gyro[2] - s[BIAS + 2]
     cmin = g[COS_MIN]
     exact = g[EXACT] >= 0.5
@@ -218,17 +230,13 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     n0, n1, n2 = x[0] + dt * x[3] + h * u0, x[1] + dt * x[4] + h * u1, x[2] + dt * x[5] + h * u2
     x[3], x[4], x[5] = x[3] + dt * u0, x[4] + dt * u1, x[5] + dt * u2
     x[0], x[1], x[2] = n0, n1, n2
-    FP = Pm.copy()
-    for i in range(3):
+    for i in range(3):  # in place: rows 3-5 and then columns 3-5 are read before they change
         for j in range(6):
-            FP[i, j] += dt * Pm[i + 3, j]
+            Pm[i, j] += dt * Pm[i + 3, j]
     scale = g[K_Q] * dt / g[DT_REF]
     for i in range(6):
-        for j in range(6):
-            v = FP[i, j]
-            if j < 3:
-                v += FP[i, j + 3] * dt
-            Pm[i, j] = v
+        for j in range(3):
+            Pm[i, j] += Pm[i, j + 3] * dt
         Pm[i, i] += g[Q_GAINS + i] * scale
     if exact:
         x[0], x[1], x[2], x[3], x[4], x[5] = ang[0], ang[1], ang[2], rates[0], rates[1], rates[2]
@@ -241,7 +249,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     Rm = k.quat_rows(q)
     an, ae, ad = k.gps_at(s, t)
     kg = g[GPS_GAIN]
-    r = np.empty(6)
+    r = s[W_R : W_R + 6]
     for i in range(6):
         r[i] = g[R_GAINS + i]
     spin = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
@@ -300,24 +308,20 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
             source = 2.0
     s[HEADING_SOURCE] = source
     z0 = xs0 + k.wrap_pi(roll - xs0)
+    z = s[W_Z : W_Z + 6]
+    z[0], z[1], z[3], z[4], z[5] = z0, pitch, rates[0], rates[1], rates[2]
+    skip = 2  # no heading: H without the yaw row
     if not math.isnan(yaw):
         r[2] += (spin * g[MAG_TIME_SIGMA]) ** 2
         if dt < g[MAG_DT]:
             r[2] *= g[MAG_DT] / dt
-        rows = np.arange(6)
-        z = np.array([z0, pitch, xs2 + k.wrap_pi(yaw - xs2), rates[0], rates[1], rates[2]])
-        y = _update(s, rows, z, r)
-        for i in range(6):
-            s[INNOVATION + i] = y[i]
-    else:
-        rows = np.array([0, 1, 3, 4, 5])
-        z = np.array([z0, pitch, rates[0], rates[1], rates[2]])
-        y = _update(s, rows, z, np.array([r[0], r[1], r[3], r[4], r[5]]))
-        s[INNOVATION], s[INNOVATION + 1], s[INNOVATION + 2] = y[0], y[1], 0.0
-        s[INNOVATION + 3], s[INNOVATION + 4], s[INNOVATION + 5] = y[2], y[3], y[4]
+        z[2] = xs2 + k.wrap_pi(yaw - xs2)
+        skip = 6
+    _update(s, skip, z, r)
+    q_post = k.euler_quat(x[0], x[1], x[2])  # the updated attitude, once for the three uses below
     tau = g[BIAS_TAU]
     if tau > 0.0 and s[k.SHOCK_ACTIVE] == 0.0 and abs(accel_norm - G0) < g[BIAS_ACC_TOL]:
-        d = _body_turn(q, k.euler_quat(x[0], x[1], x[2]))
+        d = _body_turn(q, q_post)
         if g[BIAS_HEADING] < 0.5:
             D = Rm[2]
             dd = d[0] * D[0] + d[1] * D[1] + d[2] * D[2]
@@ -332,7 +336,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     s[BIAS + 1] = min(max(b1, -BIAS_MAX), BIAS_MAX)
     s[BIAS + 2] = min(max(b2, -BIAS_MAX), BIAS_MAX)
     if s[FAVG_SET] != 0.0 and g[ACCEL_TAU] > 0.0:
-        Rp = k.quat_rows(k.euler_quat(x[0], x[1], x[2]))
+        Rp = k.quat_rows(q_post)
         F0, F1, F2 = s[FAVG], s[FAVG + 1], s[FAVG + 2]
         fs0 = Rm[0][0] * F0 + Rm[1][0] * F1 + Rm[2][0] * F2
         fs1 = Rm[0][1] * F0 + Rm[1][1] * F1 + Rm[2][1] * F2
@@ -340,8 +344,11 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         s[FAVG] = Rp[0][0] * fs0 + Rp[0][1] * fs1 + Rp[0][2] * fs2
         s[FAVG + 1] = Rp[1][0] * fs0 + Rp[1][1] * fs1 + Rp[1][2] * fs2
         s[FAVG + 2] = Rp[2][0] * fs0 + Rp[2][1] * fs1 + Rp[2][2] * fs2
-    x[0], x[2] = k.wrap_pi(x[0]), k.wrap_pi(x[2])
-    s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = k.euler_quat(x[0], x[1], x[2])
+    r0, r2 = k.wrap_pi(x[0]), k.wrap_pi(x[2])
+    if r0 != x[0] or r2 != x[2]:  # wrapped: the angles' sines and cosines round differently
+        x[0], x[2] = r0, r2
+        q_post = k.euler_quat(r0, x[1], r2)
+    s[k.Q], s[k.Q + 1], s[k.Q + 2], s[k.Q + 3] = q_post
     return code
 
 
