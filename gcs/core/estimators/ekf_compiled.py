@@ -12,7 +12,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import HealthValue, initial_attitude
-from gcs.core.estimators.ekf import MAG_SETTLE_TILT, EkfEstimator
+from gcs.core.estimators.ekf import MAG_SETTLE_TILT, MAG_TIME_DT, EkfEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
 from gcs.core.rotation import Vec3, matrix_to_quat
@@ -27,6 +27,7 @@ GYRO_NOISE, HEADING_NOISE, BIAS_WALK, ACC_NOISE = (
 )
 ACC_GATE, VEL_NOISE, GPS_NOISE, GPS_DELAY = _G["acc_gate"], _G["vel_noise"], _G["gps_noise"], _G["gps_delay"]
 GPS_TIMEOUT, MAG_NOISE, REST_GYRO, REST_ACC_G = _G["gps_timeout"], _G["mag_noise"], _G["rest_gyro"], _G["rest_acc"]
+MAG_TIME_SIGMA = _G["mag_time_sigma"]
 REST_TIME, REST_NOISE, REST_ACC_NOISE, MAX_GAP = _G["rest_time"], _G["rest_noise"], _G["rest_acc_noise"], _G["max_gap"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
 _MAG = (
@@ -338,7 +339,8 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
                 s[MAG_REJECTED] += 1.0
             else:
                 sigma = g[MAG_NOISE] * m_norm / m_h
-                r = sigma * sigma / dt
+                tt = turn * g[MAG_TIME_SIGMA]
+                r = sigma * sigma / dt + tt * tt * max(1.0, MAG_TIME_DT / dt)
                 y = s[k.YAW_ERROR]
                 p = s[W_DX : W_DX + 9]
                 for i in range(9):

@@ -20,6 +20,7 @@ from gcs.core.estimators.base import (
     Shock,
 )
 from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
+from gcs.core.estimators.rest import REST_GAINS, REST_OFF, RestBias
 from gcs.core.gains import Gain
 from gcs.core.rotation import (
     Rows,
@@ -171,6 +172,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             Gain("bias_acc_tol", 0.5, 0.0, 1000.0, "m/s²", "the bias is learned only while ||f| - g| is below this"),
         )
         + MAG_GAINS
+        + REST_GAINS
         + PICK_GAINS
         + SHOCK_GAINS
         + GPS_GAINS
@@ -186,6 +188,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         "mag_time_sigma": 0.0,
         "mag_dt": 0.0,
         "bias_tau": 0.0,
+        **REST_OFF,
     }
     PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
     DEFAULT_PRESET = "telemetry"
@@ -200,6 +203,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.gps = GpsAcceleration()
         self.mag = MagneticHeading()
         self.shock = Shock()
+        self.rest = RestBias()
         self.valid = False
         self.accel_norm = 0.0
         self.accel_scale = 1.0
@@ -258,6 +262,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         roll, pitch = accel_tilt(sample.accel)
         self.mag = MagneticHeading()
         self.shock = Shock()
+        self.rest = RestBias()
         yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
         self.heading_source = "mag" if yaw is not None else "none"
         self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
@@ -399,6 +404,9 @@ class KalmanAttitudeFilter(AttitudeEstimator):
                 dd = d[0] * D[0] + d[1] * D[1] + d[2] * D[2]
                 d = (d[0] - dd * D[0], d[1] - dd * D[1], d[2] - dd * D[2])
             self.bias = vec3(min(max(b[i] - d[i] / tau, -BIAS_MAX), BIAS_MAX) for i in range(3))
+        # at rest the gyro reads its bias, heading axis included
+        b = self.rest.update(sample.t, (gx, gy, gz), self.bias, (fx, fy, fz), self.gps.at(sample.t), dt, g)
+        self.bias = vec3(min(max(v, -BIAS_MAX), BIAS_MAX) for v in b)
         if self.f_avg is not None and g["accel_tau"] > 0.0:
             # turn the average with the correction (earth frame, R⁺R⁻ᵀ), so it filters the
             # measurement without delaying the loop (as the DCM and VQF do)

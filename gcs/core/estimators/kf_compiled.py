@@ -24,6 +24,7 @@ from gcs.core.estimators.kf import (
     euler_rates,
     mag_heading,
 )
+from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import Vec3, euler_quat
 from gcs.core.samples import G0, GpsSample, ImuSample
 
@@ -44,6 +45,7 @@ ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
 BIAS_TAU, BIAS_ACC_TOL, BIAS_HEADING = _G["bias_tau"], _G["bias_acc_tol"], _G["bias_heading"]
+REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
 _MAG = (
@@ -65,7 +67,8 @@ BIAS = B + 61  # 3
 # work space of one step (no allocation per sample): r and z (6 each), six 6×6 matrices
 W_R, W_Z = B + 64, B + 70
 W_PHT, W_S, W_SI, W_K, W_IKH, W_T = range(B + 76, B + 76 + 6 * 36, 36)
-SIZE = B + 76 + 6 * 36
+REST = B + 76 + 6 * 36  # RestBias
+SIZE = REST + REST_SIZE
 #: heading_source labels by code
 HEADING_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
 _body_turn = kernel(body_turn)
@@ -325,6 +328,13 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
             d = (d[0] - dd * D[0], d[1] - dd * D[1], d[2] - dd * D[2])
         for i in range(3):
             s[BIAS + i] = min(max(s[BIAS + i] - d[i] / tau, -BIAS_MAX), BIAS_MAX)
+    b0, b1, b2 = rest_bias(
+        s, REST, t, gyro, s[BIAS], s[BIAS + 1], s[BIAS + 2], accel, k.gps_at(s, t), dt,
+        g[REST_GYRO], g[REST_ACC], g[REST_TIME], g[REST_TAU],
+    )  # fmt: skip
+    s[BIAS] = min(max(b0, -BIAS_MAX), BIAS_MAX)
+    s[BIAS + 1] = min(max(b1, -BIAS_MAX), BIAS_MAX)
+    s[BIAS + 2] = min(max(b2, -BIAS_MAX), BIAS_MAX)
     if s[FAVG_SET] != 0.0 and g[ACCEL_TAU] > 0.0:
         Rp = k.quat_rows(q_post)
         F0, F1, F2 = s[FAVG], s[FAVG + 1], s[FAVG + 2]
@@ -384,6 +394,7 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         roll, pitch = accel_tilt(sample.accel)
         k.reset_mag(s)
         k.reset_shock(s)
+        reset_rest(s, REST)
         yaw = mag_heading(sample.mag, roll, pitch, g["declination"]) if sample.mag is not None else None
         s[HEADING_SOURCE] = 1.0 if yaw is not None else 0.0
         rates = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
