@@ -13,6 +13,8 @@ from dataflash_reference import DfreaderLog
 from dataflash_writer import hop_in_both_formats
 from pyulog_reference import assert_same_samples
 
+from gcs.commands.cli import main
+from gcs.core.samples import GpsSample, ImuSample
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 
@@ -80,3 +82,121 @@ def test_second_imu_of_the_fragment(tmp_path):
     """ArduCopter 3.3-3.5: TimeUS, yet the second IMU is its own type (IMU2)."""
     reader = assert_reads_like_dfreader(LOGS / "ardupilot-fragment.bin", imu=1)
     assert reader.counts["IMU2"] == 45
+
+
+def record_starts(data: bytes) -> list[tuple[int, int]]:
+    """(offset, length) of every record of an undamaged log: a 3-byte header (0xA3 0x95, type),
+    the type's length from its FMT record (type 128: Type at byte 3, Length at byte 4)."""
+    lengths, starts, pos = {128: 89}, [], 0
+    while pos < len(data):
+        assert data[pos : pos + 2] == b"\xa3\x95", pos
+        kind = data[pos + 2]
+        if kind == 128:
+            lengths.setdefault(data[pos + 3], data[pos + 4])
+        starts.append((pos, lengths[kind]))
+        pos += lengths[kind]
+    return starts
+
+
+@pytest.mark.parametrize("where", [0.3, 0.999])
+@pytest.mark.parametrize("inside", [1, 20])
+def test_a_cut_log_reads_up_to_the_cut_record(hop_logs, tmp_path, where, inside, capsys):
+    """Cut inside a record's header (1 of its 3 bytes) or body: the records before it are read
+    exactly as DFReader reads them, and one line names the cut record's offset."""
+    folder, _ = hop_logs
+    data = (folder / "new.bin").read_bytes()
+    starts = record_starts(data)
+    at, length = starts[int(len(starts) * where)]
+    path = tmp_path / "cut.bin"
+    path.write_bytes(data[: at + inside])
+    reader = assert_reads_like_dfreader(path)
+    cause = f"log ends inside a record ({inside} of its {3 if inside < 3 else length} bytes)"
+    assert reader.damage == f"{path}: offset {at}: {cause}; records up to there are used"
+    assert main(["replay", str(path), "--fast"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert [line for line in err if "damage" in line] == [f"damage: {reader.damage}"]
+
+
+def test_a_garbled_header_is_skipped_as_dfreader_skips_it(hop_logs, tmp_path):
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    at, length = record_starts(bytes(data))[len(record_starts(bytes(data))) // 2]
+    data[at : at + 2] = b"\x00\x00"
+    path = tmp_path / "garbled.bin"
+    path.write_bytes(bytes(data))
+    reader = assert_reads_like_dfreader(path)
+    assert (
+        reader.damage == f"{path}: offset {at}: bad record header 0x0000; {length} bytes skipped up to the next record"
+    )
+
+
+def test_a_record_of_an_undefined_type_is_skipped_and_reading_goes_on(hop_logs, tmp_path):
+    """DFReader stops at a type no FMT defined; this reader skips it up to the next record, so
+    it reads what DFReader reads from the log without that record."""
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    starts = record_starts(bytes(data))
+    at, length = next(s for s in starts[len(starts) // 2 :] if data[s[0] + 2] != 128)
+    undefined = next(k for k in range(1, 128) if all(data[s + 2] != k for s, _ in starts))
+    data[at + 2] = undefined
+    path, without = tmp_path / "undefined.bin", tmp_path / "without.bin"
+    path.write_bytes(bytes(data))
+    without.write_bytes(bytes(data[:at] + data[at + length :]))
+    reference = DfreaderLog(str(without))
+    expected = list(reference)
+    reader = DataflashLog(str(path))
+    assert_same_samples(list(reader), expected)
+    assert dict(reader.counts) == dict(reference.counts)
+    cause = f"record of type {undefined}, which no FMT defined; {length} bytes skipped up to the next record"
+    assert reader.damage == f"{path}: offset {at}: {cause}"
+
+
+def test_padding_at_the_end_is_no_damage(hop_logs, tmp_path):
+    """A block-based log ends in up to a page of erased bytes: not damage (DFReader's 528-byte rule)."""
+    folder, _ = hop_logs
+    path = tmp_path / "padded.bin"
+    path.write_bytes((folder / "new.bin").read_bytes() + b"\xff" * 300)
+    assert assert_reads_like_dfreader(path).damage is None
+
+
+def fmt_record(data: bytes, name: bytes) -> int:
+    """The offset of the FMT record defining `name` (its Name at bytes 5-8)."""
+    return next(
+        at for at, _ in record_starts(data) if data[at + 2] == 128 and data[at + 5 : at + 9] == name.ljust(4, b"\0")
+    )
+
+
+def test_a_bad_fmt_is_refused_and_its_records_not_read(hop_logs, tmp_path, capsys):
+    """GPS's FMT with a format character no DataFlash logger writes: the GPS records are not
+    decoded (the rest is), one line names the FMT's offset and why."""
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    at = fmt_record(bytes(data), b"GPS")
+    data[at + 9 : at + 10] = b"?"  # the first format character (TimeUS's Q)
+    path = tmp_path / "bad-fmt.bin"
+    path.write_bytes(bytes(data))
+    reader = DataflashLog(str(path))
+    samples = list(reader)
+    assert not any(isinstance(s, GpsSample) for s in samples)
+    assert sum(isinstance(s, ImuSample) for s in samples) == 2450
+    cause = f"FMT for type {data[at + 3]} refused (GPS has unknown format characters '?'); its records are not read"
+    assert reader.damage == f"{path}: offset {at}: {cause}"
+    assert reader.notes == [f"{path}: no GPS records: no GPS aiding"]
+
+
+def test_a_bad_imu_fmt_is_a_clear_error_and_no_output(hop_logs, tmp_path, capsys):
+    """IMU's FMT with a length its format does not have: nothing to estimate from; `gcs
+    estimate` says so in one line naming the FMT's offset, exits 2 and writes no file."""
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    at = fmt_record(bytes(data), b"IMU")
+    data[at + 4] += 1
+    path = tmp_path / "bad-imu.bin"
+    path.write_bytes(bytes(data))
+    out = tmp_path / "out.csv"
+    assert main(["estimate", str(path), "-e", "dcm", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and f"{path}: offset {at}: FMT for type " in err[0], err
+    assert "refused (IMU records of 37 bytes where the format 'QBffffff' has 36)" in err[0]
+    assert "no IMU records of instance 0" in err[0]
+    assert not out.exists()

@@ -66,8 +66,8 @@ def record_index(
     """Offsets of the records, walking their headers with the lengths FMT records give (the
     first definition of a type counts; `lengths` holds FMT's own on entry and every defined
     type's on return), and (stop, why, first_bad, bad_kind, bad_bytes): where and why the walk
-    stopped (CLEAN at the end, CUT at a record that does not end by the end of the file), the
-    first skipped byte that is damage (-1: none), what it was, and how many bytes were skipped."""
+    stopped (CLEAN at the end, CUT at a record or header that the file ends inside), the first
+    skipped byte that is damage (-1: none), what it was, and how many bytes were skipped."""
     end = len(buf)
     offsets = np.empty(end // 3 + 1, dtype=np.int64)
     n, pos, first_bad, bad_kind, bad_bytes = 0, 0, -1, BAD_HEADER, 0
@@ -91,6 +91,8 @@ def record_index(
         offsets[n] = pos
         n += 1
         pos += size
+    if pos < end and buf[pos] == HEAD1 and (pos + 1 == end or buf[pos + 1] == HEAD2):
+        return offsets[:n], pos, CUT, first_bad, bad_kind, bad_bytes  # cut inside a record's header
     return offsets[:n], pos, CLEAN, first_bad, bad_kind, bad_bytes
 
 
@@ -191,7 +193,7 @@ def read_dataflash(path: str, wanted: Collection[str]) -> DataflashContents:
         )
         contents.damage.append(Damage(first_bad, f"{what}; {bad_bytes} bytes skipped up to the next record"))
     if why == CUT:
-        length = int(lengths[buf[end + 2]])
+        length = int(lengths[buf[end + 2]]) if end + 2 < len(buf) else 3
         contents.damage.append(
             Damage(
                 end, f"log ends inside a record ({len(buf) - end} of its {length} bytes); records up to there are used"
