@@ -14,9 +14,12 @@ from dataflash_writer import hop_in_both_formats
 from pyulog_reference import assert_same_samples
 
 from gcs.commands.cli import main
+from gcs.core.estimators import registry
 from gcs.core.samples import GpsSample, ImuSample
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
+from gcs.runtime.replay import whole_table
+from gcs.sessions.sources import ReplaySource, open_source, sample_frames
 
 SHARED_BINS = sorted(p for p in LOGS.iterdir() if p.suffix.lower() == ".bin")
 HOP = LOGS / "arducopter-sitl-hop.BIN"
@@ -200,3 +203,16 @@ def test_a_bad_imu_fmt_is_a_clear_error_and_no_output(hop_logs, tmp_path, capsys
     assert "refused (IMU records of 37 bytes where the format 'QBffffff' has 36)" in err[0]
     assert "no IMU records of instance 0" in err[0]
     assert not out.exists()
+
+
+def test_replay_fast_estimates_as_from_dfreaders_samples():
+    """whole_table (what `gcs replay --fast` prints) over the columns equals it over the input
+    table of DFReader's samples, row for row; the frames are one per sample as before."""
+    reference = DfreaderLog(str(HOP))
+    built = reference.columns()
+    source = open_source(HOP)
+    assert source.frames.t.tolist() == sample_frames(built).t.tolist()
+    assert source.frames.input_end.tolist() == sample_frames(built).input_end.tolist()
+    expected = ReplaySource(str(HOP), "dataflash", sample_frames(built), built, dict(reference.counts), None)
+    names = registry.names()
+    assert whole_table(source, names, {}) == whole_table(expected, names, {})
