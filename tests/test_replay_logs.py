@@ -3,6 +3,7 @@ pyulog's own readers (counts per type, time span); damage is reported with its b
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 
 import pytest
@@ -75,7 +76,19 @@ def test_truncated_dataflash_replays_up_to_the_damage_and_says_where(logs_dir, c
     path = str(logs_dir / "ardupilot-fragment.bin")
     assert open_source(path).damage.startswith(f"{path}: offset 65512: log ends inside a record (24 of its 45 bytes)")
     assert main(["replay", path, "--fast"]) == 0
-    assert "offset 65512" in capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert "offset 65512" in printed.err
+    # the printed speed is end to end: its parts add up to the time it is computed from
+    found = re.search(
+        r"replayed ([0-9.]+) s in ([0-9.]+) s \(([0-9.]+)x real time, end to end: numba's set-up ([0-9.]+) s, "
+        r"decoding ([0-9.]+) s, estimators ([0-9.]+) s\)",
+        printed.out,
+    )
+    assert found, printed.out
+    duration, total, speed, *parts = map(float, found.groups())
+    assert abs(sum(parts) - total) <= 0.02  # each printed to 0.01 s
+    slowest, fastest = (duration - 0.05) / (total + 0.005), (duration + 0.05) / max(total - 0.005, 1e-9)
+    assert slowest - 0.05 <= speed <= fastest + 0.05
 
 
 def test_ulog_counts_and_span_match_pyulog(logs_dir):

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numba
+from numba.core.registry import cpu_target
 
 CORE = Path(__file__).resolve().parents[1]
 
@@ -69,6 +70,14 @@ def cache_dir() -> Path:
 
 
 numba.config.CACHE_DIR = str(cache_dir())  # type: ignore[attr-defined]
+
+
+def set_up() -> None:
+    """numba's own set-up, paid once per process before the first kernel runs or loads from the
+    cache (its typing and lowering registries: ~0.3-0.4 s of CPU, whatever the kernels). Done on
+    purpose, it can be timed apart from the work that follows."""
+    cpu_target.target_context.refresh()
+
 
 #: Compiled in nopython mode, cached on disk; no fastmath: the results must equal the reference's.
 kernel = numba.njit(cache=True, nogil=True)
