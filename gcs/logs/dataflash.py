@@ -177,7 +177,8 @@ class DataflashLog(LogFile):
         untimed = sorted(name for name, s in streams.items() if name != PARAM_TYPE and (s.time_us == UNTIMED).any())
         if untimed:
             self.notes.append(f"{self.path}: {', '.join(untimed)} records carry no time field; not used")
-        imu_instances = sorted({int(i) for name in IMU_TYPES if name in streams for i in streams[name].instance})
+        instances = [streams[n].instance for n in IMU_TYPES if n in streams] or [np.empty(0, dtype=np.int64)]
+        imu_instances: list[int] = np.unique(np.concatenate(instances)).tolist()
         used = {}
         for name, s in streams.items():
             if name == PARAM_TYPE:  # every PARM, timed or not, applied where it stands in the file
@@ -303,15 +304,15 @@ class _Merged:
         params = self.streams.get(PARAM_TYPE)
         if params is not None:  # only declination parameters change anything: the rest are not looked at
             names, name_of = np.unique(np.asarray(params.rows["Name"]), return_inverse=True)
-            text = [field_text(bytes(n)) for n in names.tolist()]
-            wanted = np.array([t in DECLINATION_PARAMS for t in text], dtype=np.bool_)[name_of]
+            ours = {name.encode() for name in DECLINATION_PARAMS}  # ASCII: equal as bytes up to a NUL iff as text
+            wanted = np.array([n.split(b"\0", 1)[0] in ours for n in names.tolist()], dtype=np.bool_)[name_of]
             events |= self._is(PARAM_TYPE) & wanted[np.where(self._is(PARAM_TYPE), self.row, 0)]
             values = params.column("Value")
         gains: list[tuple[int, GainChange]] = []
         for position in np.flatnonzero(events).tolist():
             k = int(self.row[position])
             if self.names[self.which[position]] == PARAM_TYPE:
-                change = declination.parameter(text[name_of[k]], float(values[k]))
+                change = declination.parameter(field_text(names[name_of[k]]), float(values[k]))
                 slot = 2 * position + 1
             elif declination.gps_fix or gps is None:
                 continue
