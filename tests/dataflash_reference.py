@@ -34,21 +34,19 @@ from gcs.core.samples import (
     ms_to_usec,
     usec_to_s,
 )
+from gcs.logs.dataflash import (
+    GPS_EPOCH_UNIX,
+    GPS_LEAP_SECONDS,
+    GPS_TYPES,
+    IMU_TYPES,
+    MAG_TYPES,
+    PARAM_TYPE,
+    REFERENCES,
+    TYPES,
+)
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.magnetometer import with_latest_mag
 
-#: Record types per sensor, the first instance first (new logs use the first name only).
-IMU_TYPES = ("IMU", "IMU2", "IMU3")
-MAG_TYPES = ("MAG", "MAG2", "MAG3")
-GPS_TYPES = ("GPS", "GPS2")
-#: DataFlash reference attitude record → reference name.
-REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
-#: Parameter record (Name, Value; untimed in ArduCopter 3.1-3.2): where COMPASS_DEC comes from.
-PARAM_TYPE = "PARM"
-TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES, PARAM_TYPE)
-#: GPS time (week 0 began 1980-01-06) → UNIX time, and GPS − UTC since 2017 (s).
-GPS_EPOCH_UNIX = 315_964_800
-GPS_LEAP_SECONDS = 18
 #: One decoded record. pymavlink ships no type information and creates each record's fields at
 #: run time, so this is Any to mypy: the dynamic boundary of this reader, named here once.
 DataflashRecord: TypeAlias = DFMessage

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from conftest import LOGS
 from dataflash_reference import DfreaderLog
-from dataflash_writer import hop_in_both_formats
 from pymavlink.DFReader import DFReader_binary
 from pyulog_reference import assert_same_samples
 
@@ -25,16 +24,6 @@ from gcs.sessions.sources import ReplaySource, open_source, sample_frames
 
 SHARED_BINS = sorted(p for p in LOGS.iterdir() if p.suffix.lower() == ".bin")
 HOP = LOGS / "arducopter-sitl-hop.BIN"
-
-
-@pytest.fixture(scope="module")
-def hop_logs(tmp_path_factory):
-    """The hop flight as an ArduCopter 3.2 log (old.bin, TimeMS) and a current one (new.bin, TimeUS)."""
-    folder = tmp_path_factory.mktemp("hop")
-    old, new = hop_in_both_formats(str(HOP))
-    (folder / "old.bin").write_bytes(old.bytes())
-    (folder / "new.bin").write_bytes(new.bytes())
-    return folder, old
 
 
 def reference_table(samples: list) -> InputTable:

@@ -11,7 +11,6 @@ import math
 import numpy as np
 import pytest
 from conftest import LOGS
-from dataflash_writer import hop_in_both_formats
 from pymavlink import mavutil
 from pymavlink.DFReader import DFReader_binary
 from pyulog import ULog
@@ -29,16 +28,6 @@ HOP = LOGS / "arducopter-sitl-hop.BIN"
 #: Magnetic declination at the SITL home (Canberra), as tests/test_dcm.py uses for this flight.
 HOP_DECLINATION = math.radians(12.5)
 ESTIMATORS = ("dcm", "ekf", "kf")
-
-
-@pytest.fixture(scope="module")
-def hop_logs(tmp_path_factory):
-    """The hop flight as an ArduCopter 3.2 log (old.bin) and a current one (new.bin)."""
-    folder = tmp_path_factory.mktemp("hop")
-    old, new = hop_in_both_formats(str(HOP))
-    (folder / "old.bin").write_bytes(old.bytes())
-    (folder / "new.bin").write_bytes(new.bytes())
-    return folder, old
 
 
 def estimate(log, name, out, *extra):

@@ -36,7 +36,7 @@ from gcs.core.estimation import GainChange
 from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, mgauss_to_gauss, ms_to_s, ms_to_usec, usec_to_s
 from gcs.logs.dataflash_format import DataflashContents, RecordFormat, field_text, read_dataflash, scaled
-from gcs.logs.input_table import InputTable
+from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import converted
 
@@ -278,8 +278,7 @@ class _Merged:
         input_kind[is_gps[inputs]] = Kind.GPS_VEL
         kind[: len(inputs)] = input_kind
         kind = kind[order]
-        for _, change in gains:
-            source_names.extend(n for n in (change.estimator, change.name) if n is not None and n not in source_names)
+        gain_estimator, gain_name, gain_value = gain_columns([change for _, change in gains], source_names)
         return InputTable(
             kind=kind,
             imu=np.column_stack([imu_t, *imu_cols, field]),
@@ -288,11 +287,9 @@ class _Merged:
             gps_source=np.ones(len(gps_table), dtype=np.uint16),
             attitude=attitude,
             attitude_source=attitude_source,
-            gain_estimator=np.array(
-                [-1 if c.estimator is None else source_names.index(c.estimator) for _, c in gains], dtype=np.int16
-            ),  # fmt: skip
-            gain_name=np.array([source_names.index(c.name) for _, c in gains], dtype=np.uint16),
-            gain_value=np.array([c.value for _, c in gains], dtype=np.float64),
+            gain_estimator=gain_estimator,
+            gain_name=gain_name,
+            gain_value=gain_value,
             names=tuple(source_names),
         )
 
