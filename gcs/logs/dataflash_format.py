@@ -53,6 +53,9 @@ TYPES = {
 DIVISORS = {"c": 1 / 0.01, "C": 1 / 0.01, "e": 1 / 0.01, "E": 1 / 0.01, "L": 1 / 1.0e-7}
 #: Bytes that are no record this close to the end are a block log's padding (DFReader's rule).
 TAIL_PADDING = 528
+#: Bytes per record to size the offsets for at first (40 in ArduCopter logs; a record is at
+#: least 3, so room for every possible one would take 2.7 times the file's size).
+GUESSED_RECORD_SIZE = 32
 #: record_index's stops
 CLEAN, CUT = 0, 1
 #: record_index's damage kinds
@@ -69,7 +72,7 @@ def record_index(
     stopped (CLEAN at the end, CUT at a record or header that the file ends inside), the first
     skipped byte that is damage (-1: none), what it was, and how many bytes were skipped."""
     end = len(buf)
-    offsets = np.empty(end // 3 + 1, dtype=np.int64)
+    offsets = np.empty(end // GUESSED_RECORD_SIZE + 16, dtype=np.int64)  # grown when records are shorter
     n, pos, first_bad, bad_kind, bad_bytes = 0, 0, -1, BAD_HEADER, 0
     while pos + 3 <= end:
         kind = buf[pos + 2]
@@ -88,6 +91,10 @@ def record_index(
             defines, length = buf[pos + 3], buf[pos + 4]
             if lengths[defines] == 0 and defines != FMT_TYPE:
                 lengths[defines] = length if length >= 3 else -1  # -1: refused, never walked over
+        if n == len(offsets):
+            grown = np.empty(2 * n, dtype=np.int64)
+            grown[:n] = offsets
+            offsets = grown
         offsets[n] = pos
         n += 1
         pos += size
@@ -165,8 +172,8 @@ def _windows(
     buf: npt.NDArray[np.uint8], offsets: npt.NDArray[np.int64], dtype: np.dtype[np.void]
 ) -> npt.NDArray[np.void]:
     """The records at offsets viewed through dtype (one copy of each record's body)."""
-    if len(buf) < dtype.itemsize + 3:
-        return np.empty(0, dtype=dtype)
+    if dtype.itemsize == 0 or len(buf) < dtype.itemsize + 3:  # a record of no fields is its header alone
+        return np.zeros(len(offsets) if dtype.itemsize == 0 else 0, dtype=dtype)
     windows = np.lib.stride_tricks.as_strided(buf, (len(buf) - dtype.itemsize + 1, dtype.itemsize), (1, 1))
     return windows[offsets + 3].view(dtype).reshape(-1)
 
