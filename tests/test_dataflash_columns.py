@@ -6,6 +6,9 @@ badly defined log is read up to the damage with one line naming the offset and t
 
 from __future__ import annotations
 
+import re
+import struct
+
 import numpy as np
 import pytest
 from conftest import LOGS
@@ -16,9 +19,10 @@ from pyulog_reference import assert_same_samples
 from gcs.commands.cli import main
 from gcs.core.estimators import registry
 from gcs.core.samples import GpsSample, ImuSample
-from gcs.logs.dataflash import TYPES, DataflashLog
+from gcs.logs.dataflash import COLUMNS, DataflashLog
 from gcs.logs.dataflash_format import field_text, read_dataflash, scaled
 from gcs.logs.input_table import InputTable, InputTableBuilder
+from gcs.logs.logfile import InputError
 from gcs.runtime.replay import whole_table
 from gcs.sessions.sources import ReplaySource, open_source, sample_frames
 from gcs.sim.dataflash import DataflashWriter
@@ -215,7 +219,7 @@ def test_every_field_of_the_wanted_records_is_dfreaders(hop_logs, name):
     """Every column of every record of the types the reader wants, as DFReader gives it: scaled
     (c/C/e/E, L) and plain numbers equal as float64, text equal."""
     path = hop_logs[0] / name if name in ("old.bin", "new.bin") else LOGS / name
-    contents = read_dataflash(str(path), TYPES)
+    contents = read_dataflash(str(path), COLUMNS)
     log = DFReader_binary(str(path))
     compared = 0
     for kind, rows in contents.records.items():
@@ -245,6 +249,38 @@ def test_records_of_header_only_are_all_found(tmp_path):
         writer.add("TICK")
     path = tmp_path / "ticks.bin"
     path.write_bytes(writer.bytes())
-    contents = read_dataflash(str(path), ["TICK"])
+    contents = read_dataflash(str(path), {"TICK": ()})
     assert len(contents.records["TICK"]) == 200_000 and contents.damage == []
     assert contents.positions["TICK"].tolist() == list(range(2, 200_002))  # after the two FMT records
+
+
+@pytest.mark.parametrize(
+    ("kind", "columns", "lacking"),
+    [("IMU", b"TimeUS,I,GyrX,GyrY,Gyr_,AccX,AccY,AccZ", "GyrZ"), ("PARM", b"TimeUS,Name,Valu", "Value")],
+)
+def test_a_type_without_the_columns_read_is_refused(hop_logs, tmp_path, kind, columns, lacking):
+    """An FMT whose columns lack one the reader uses: refused like any bad FMT (an IMU one leaves
+    nothing to estimate from: one clear line), never a traceback."""
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    at = fmt_record(bytes(data), kind.encode())
+    if kind == "PARM":  # the fixture defines PARM but logs none: one COMPASS_DEC after the FMTs
+        first = next(s for s, _ in record_starts(bytes(data)) if data[s + 2] != 128)
+        data[first:first] = b"\xa3\x95" + bytes([data[at + 3]]) + struct.pack("<Q16sf", 0, b"COMPASS_DEC", 0.2)
+        path = tmp_path / "with-parm.bin"
+        path.write_bytes(bytes(data))
+        reader = DataflashLog(str(path))
+        reader.columns()
+        assert reader.declination.source == "vehicle COMPASS_DEC" and reader.damage is None
+    data[at + 25 : at + 89] = columns.ljust(64, b"\0")
+    path = tmp_path / "lacking.bin"
+    path.write_bytes(bytes(data))
+    reader = DataflashLog(str(path))
+    cause = f"{kind} has no {lacking} of the kind it must be (text or number)"
+    if kind == "IMU":
+        with pytest.raises(InputError, match=rf"offset {at}: FMT for type \d+ refused \({re.escape(cause)}\)"):
+            reader.columns()
+    else:
+        reader.columns()
+        assert reader.damage.startswith(f"{path}: offset {at}: FMT for type ") and cause in reader.damage
+        assert reader.declination.source != "vehicle COMPASS_DEC"

@@ -49,6 +49,14 @@ REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
 #: Parameter record (Name, Value; untimed in ArduCopter 3.1-3.2): where COMPASS_DEC comes from.
 PARAM_TYPE = "PARM"
 TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES, PARAM_TYPE)
+#: The columns each type must have to be read (else its FMT is refused as damage).
+COLUMNS = {
+    **dict.fromkeys(IMU_TYPES, ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ")),
+    **dict.fromkeys(MAG_TYPES, ("MagX", "MagY", "MagZ")),
+    **dict.fromkeys(GPS_TYPES, ("Status", "Lat", "Lng", "Alt", "Spd", "GCrs")),
+    **dict.fromkeys(REFERENCES, ("Roll", "Pitch", "Yaw")),
+    PARAM_TYPE: ("Name", "Value"),
+}
 #: GPS time (week 0 began 1980-01-06) → UNIX time, and GPS − UTC since 2017 (s).
 GPS_EPOCH_UNIX = 315_964_800
 GPS_LEAP_SECONDS = 18
@@ -144,7 +152,7 @@ class DataflashLog(LogFile):
 
     def columns(self) -> InputTable:
         """The inputs as an input table, decoded on whole columns; reports as LogFile says."""
-        contents = read_dataflash(self.path, TYPES)
+        contents = read_dataflash(self.path, COLUMNS)
         if contents.damage:
             first, more = contents.damage[0], len(contents.damage) - 1
             self.damage = f"{self.path}: offset {first.offset}: {first.cause}"

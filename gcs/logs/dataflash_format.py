@@ -27,7 +27,7 @@ padding a block-based log ends with, not for damage. `damage` names each place a
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +49,10 @@ TYPES = {
     "f": "<f4", "d": "<f8", "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2", "e": "<i4",
     "E": "<u4", "L": "<i4", "M": "i1", "q": "<i8", "Q": "<u8",
 }  # fmt: skip
+#: Text format characters (char[4], char[16], char[64]) and the int16[32] array.
+TEXT = "nNZa"
+#: Columns that are text in every record type that has them (PARM's, MSG's).
+TEXT_COLUMNS = ("Name",)
 #: Scaled format characters → the divisor DFReader applies (1 / its multiplier: 0.01, 1e-7).
 DIVISORS = {"c": 1 / 0.01, "C": 1 / 0.01, "e": 1 / 0.01, "E": 1 / 0.01, "L": 1 / 1.0e-7}
 #: Bytes that are no record this close to the end are a block log's padding (DFReader's rule).
@@ -145,8 +149,9 @@ def field_text(raw: bytes) -> str:
     return text.split("\0", 1)[0]
 
 
-def record_format(row: np.void) -> RecordFormat:
-    """An FMT record → the type's format; ValueError saying why it cannot be right."""
+def record_format(row: np.void, required: Collection[str] = ()) -> RecordFormat:
+    """An FMT record → the type's format; ValueError saying why it cannot be right or lacks a
+    column of `required` (numeric, but text for TEXT_COLUMNS)."""
     type_id, length = int(row["Type"]), int(row["Length"])
     name, chars = field_text(bytes(row["Name"])), field_text(bytes(row["Format"]))
     columns = tuple(field_text(bytes(row["Columns"])).split(",")) if row["Columns"] else ()
@@ -155,7 +160,11 @@ def record_format(row: np.void) -> RecordFormat:
         raise ValueError(f"{name} has unknown format characters {''.join(unknown)!r}")
     if len(columns) != len(chars) or len(set(columns)) != len(columns):
         raise ValueError(f"{name} has {len(columns)} column names for {len(chars)} format characters")
-    dtype = np.dtype([(c, TYPES[f]) for c, f in zip(columns, chars, strict=True)])
+    kinds = dict(zip(columns, chars, strict=True))
+    missing = [c for c in required if c not in kinds or (kinds[c] in TEXT) != (c in TEXT_COLUMNS)]
+    if missing:
+        raise ValueError(f"{name} has no {', '.join(missing)} of the kind it must be (text or number)")
+    dtype = np.dtype([(c, TYPES[f]) for c, f in kinds.items()])
     if dtype.itemsize + 3 != length:
         raise ValueError(f"{name} records of {length} bytes where the format {chars!r} has {dtype.itemsize + 3}")
     return RecordFormat(type_id, name, chars, columns, dtype)
@@ -178,9 +187,10 @@ def _windows(
     return windows[offsets + 3].view(dtype).reshape(-1)
 
 
-def read_dataflash(path: str, wanted: Collection[str]) -> DataflashContents:
-    """The record types named in `wanted` and the damage of the .bin at path; InputError when
-    it cannot be read or holds no DataFlash record."""
+def read_dataflash(path: str, wanted: Mapping[str, Collection[str]]) -> DataflashContents:
+    """The record types named in `wanted` (each with the columns it must have, else its FMT is
+    refused: see record_format) and the damage of the .bin at path; InputError when it cannot be read or
+    holds no DataFlash record."""
     try:
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
@@ -216,9 +226,10 @@ def read_dataflash(path: str, wanted: Collection[str]) -> DataflashContents:
                 contents.damage.append(Damage(at, f"FMT redefining type {type_id} refused; its first definition holds"))
             continue
         first[type_id] = body
-        if field_text(bytes(row["Name"])) in wanted:
+        name = field_text(bytes(row["Name"]))
+        if name in wanted:
             try:
-                by_id[type_id] = record_format(row)
+                by_id[type_id] = record_format(row, wanted[name])
             except ValueError as exc:
                 contents.damage.append(Damage(at, f"FMT for type {type_id} refused ({exc}); its records are not read"))
     contents.formats = {fmt.name: fmt for fmt in by_id.values()}
