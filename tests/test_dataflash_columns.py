@@ -25,7 +25,7 @@ from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError
 from gcs.runtime.replay import whole_table
 from gcs.sessions.sources import ReplaySource, open_source, sample_frames
-from gcs.sim.dataflash import DataflashWriter
+from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter, e7, x100
 
 SHARED_BINS = sorted(p for p in LOGS.iterdir() if p.suffix.lower() == ".bin")
 HOP = LOGS / "arducopter-sitl-hop.BIN"
@@ -284,3 +284,19 @@ def test_a_type_without_the_columns_read_is_refused(hop_logs, tmp_path, kind, co
         reader.columns()
         assert reader.damage.startswith(f"{path}: offset {at}: FMT for type ") and cause in reader.damage
         assert reader.declination.source != "vehicle COMPASS_DEC"
+
+
+def test_a_gps_course_that_is_no_number_gives_no_velocity(tmp_path):
+    """A damaged GPS record whose course is infinite: the fix without a velocity (DFReader's
+    reader stopped there on math.cos's ValueError)."""
+    writer = DataflashWriter()
+    for name in ("IMU", "GPS"):
+        writer.define(name, *NEW_FORMATS[name])
+    writer.add("IMU", 1_000_000, 0, 0.1, 0.2, 0.3, 0.0, 0.0, -9.8)
+    for course in (float("inf"), 90.0):
+        writer.add("GPS", 2_000_000, 0, 3, 0, 0, 12, 90, e7(-35.0), e7(149.0), x100(584.0), 2.0, course, -0.5, 0.0)
+    path = tmp_path / "inf.bin"
+    path.write_bytes(writer.bytes())
+    damaged, whole = (s for s in DataflashLog(str(path)) if isinstance(s, GpsSample))
+    assert damaged.vel_ned is None and (damaged.lat, damaged.fix_type) == (-35.0, 3)
+    np.testing.assert_allclose(whole.vel_ned, [0.0, 2.0, -0.5], atol=1e-12)

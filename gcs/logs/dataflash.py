@@ -125,11 +125,12 @@ def gps_rows(gps: Records, t: Floats) -> Floats:
     """GPS / GPS2 → the input table's GPS rows: t s, Lat/Lng degrees, Alt m, Spd m/s, GCrs deg →
     rad, the NED velocity from speed and course with VZ m/s (down; 0 where the format lacks it,
     as GPS_RAW_INT), Status (AP_GPS fix status, whose values are MAVLink's GPS_FIX_TYPE). A few
-    rows a second: the trigonometry is math's, per row, as the live path computes it."""
+    rows a second: the trigonometry is math's, per row, as the live path computes it. A course
+    that is no number (a damaged record's infinity) gives no velocity (NaN: the row has none)."""
     speed, course_deg, vz = gps.column("Spd"), gps.column("GCrs"), gps.column("VZ", 0.0)
     course = [math.radians(c) for c in course_deg.tolist()]
-    north = [s * math.cos(c) for s, c in zip(speed.tolist(), course, strict=True)]
-    east = [s * math.sin(c) for s, c in zip(speed.tolist(), course, strict=True)]
+    north = [s * math.cos(c) if math.isfinite(c) else math.nan for s, c in zip(speed.tolist(), course, strict=True)]
+    east = [s * math.sin(c) if math.isfinite(c) else math.nan for s, c in zip(speed.tolist(), course, strict=True)]
     columns = (gps.column("Lat"), gps.column("Lng"), gps.column("Alt"), speed, course, north, east, vz)
     return np.column_stack([t, *columns, gps.column("Status")])
 
@@ -283,7 +284,7 @@ class _Merged:
         kind = np.full(len(slot), Kind.GAIN, dtype=np.uint8)
         input_kind = np.full(len(inputs), Kind.ATTITUDE, dtype=np.uint8)
         input_kind[is_imu[inputs]] = np.where(has_mag, Kind.IMU_MAG, Kind.IMU)
-        input_kind[is_gps[inputs]] = Kind.GPS_VEL
+        input_kind[is_gps[inputs]] = np.where(np.isfinite(gps_table[:, 6:8]).all(axis=1), Kind.GPS_VEL, Kind.GPS)
         kind[: len(inputs)] = input_kind
         kind = kind[order]
         gain_estimator, gain_name, gain_value = gain_columns([change for _, change in gains], source_names)
