@@ -11,7 +11,7 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import LOGS
+from conftest import DATA, LOGS
 from dataflash_reference import DfreaderLog
 from pymavlink.DFReader import DFReader_binary
 from pyulog_reference import assert_same_samples
@@ -27,7 +27,7 @@ from gcs.runtime.replay import whole_table
 from gcs.sessions.sources import ReplaySource, open_source, sample_frames
 from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter, e7, x100
 
-SHARED_BINS = sorted(p for p in LOGS.iterdir() if p.suffix.lower() == ".bin")
+SHARED_BINS = sorted(p for p in DATA.rglob("*") if p.suffix.lower() == ".bin")  # every one in ../shared/data
 HOP = LOGS / "arducopter-sitl-hop.BIN"
 
 
@@ -60,6 +60,10 @@ def assert_reads_like_dfreader(path, imu: int = 0) -> DataflashLog:
     assert reader.notes == reference.notes
     assert reader.declination.source == reference.declination.source
     return reader
+
+
+def test_the_shared_logs_are_found():
+    assert {p.name for p in SHARED_BINS} >= {"arducopter-sitl-hop.BIN", "ardupilot-fragment.bin"}
 
 
 @pytest.mark.parametrize("path", SHARED_BINS, ids=lambda p: p.name)
@@ -214,11 +218,11 @@ def test_replay_fast_estimates_as_from_dfreaders_samples():
     assert whole_table(source, names, {}) == whole_table(expected, names, {})
 
 
-@pytest.mark.parametrize("name", ["arducopter-sitl-hop.BIN", "ardupilot-fragment.bin", "old.bin", "new.bin"])
+@pytest.mark.parametrize("name", [*(p.name for p in SHARED_BINS), "old.bin", "new.bin"])
 def test_every_field_of_the_wanted_records_is_dfreaders(hop_logs, name):
     """Every column of every record of the types the reader wants, as DFReader gives it: scaled
     (c/C/e/E, L) and plain numbers equal as float64, text equal."""
-    path = hop_logs[0] / name if name in ("old.bin", "new.bin") else LOGS / name
+    path = hop_logs[0] / name if name in ("old.bin", "new.bin") else next(p for p in SHARED_BINS if p.name == name)
     contents = read_dataflash(str(path), COLUMNS)
     log = DFReader_binary(str(path))
     compared = 0
