@@ -304,3 +304,38 @@ def test_a_gps_course_that_is_no_number_gives_no_velocity(tmp_path):
     damaged, whole = (s for s in DataflashLog(str(path)) if isinstance(s, GpsSample))
     assert damaged.vel_ned is None and (damaged.lat, damaged.fix_type) == (-35.0, 3)
     np.testing.assert_allclose(whole.vel_ned, [0.0, 2.0, -0.5], atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_corrupted_logs_read_or_are_refused_in_one_line(tmp_path, seed):
+    """300 random corruptions of the fragment (bytes changed, zeroed, cut out, the file cut, the
+    FMT records hit): each reads to an input table or raises InputError; nothing else escapes."""
+    rng = np.random.default_rng(seed)
+    source = (LOGS / "ardupilot-fragment.bin").read_bytes()
+    fmt_end = max(at + length for at, length in record_starts(source[:20_000]) if source[at + 2] == 128)
+    path = tmp_path / "corrupt.bin"
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(75):
+        data = bytearray(source)
+        at = int(rng.integers(len(data)))
+        match int(rng.integers(5)):
+            case 0:
+                data[at] = int(rng.integers(256))
+            case 1:
+                data[at : at + int(rng.integers(1, 2000))] = b""
+            case 2:
+                data[at : at + 500] = bytes(len(data[at : at + 500]))
+            case 3:
+                data = data[:at]
+            case _:
+                for where in rng.integers(fmt_end, size=3):
+                    data[int(where)] = int(rng.integers(256))
+        path.write_bytes(bytes(data))
+        try:
+            table = DataflashLog(str(path)).columns()
+            list(table.inputs())
+            outcomes["read"] += 1
+        except InputError as exc:
+            assert str(path) in str(exc) and "offset" in str(exc) and "\n" not in str(exc)
+            outcomes["refused"] += 1
+    assert outcomes["read"] > 0
