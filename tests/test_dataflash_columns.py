@@ -339,3 +339,23 @@ def test_corrupted_logs_read_or_are_refused_in_one_line(tmp_path, seed):
             assert str(path) in str(exc) and "offset" in str(exc) and "\n" not in str(exc)
             outcomes["refused"] += 1
     assert outcomes["read"] > 0
+
+
+def test_an_fmt_redefining_a_type_is_refused_and_the_first_holds(hop_logs, tmp_path):
+    """A second FMT for IMU's type id, half way, with another layout: refused (DFReader would
+    walk every IMU record with the new length from the start); the log reads as without it."""
+    folder, _ = hop_logs
+    data = (folder / "new.bin").read_bytes()
+    imu_fmt = fmt_record(data, b"IMU")
+    redefined = bytearray(data[imu_fmt : imu_fmt + 89])
+    redefined[4] -= 4  # 4 bytes shorter
+    redefined[9 : 9 + 16] = b"QBfffff".ljust(16, b"\0")
+    at = record_starts(data)[len(record_starts(data)) // 2][0]
+    path = tmp_path / "redefined.bin"
+    path.write_bytes(data[:at] + bytes(redefined) + data[at:])
+    reader = DataflashLog(str(path))
+    assert_same_samples(list(reader), list(DataflashLog(str(folder / "new.bin"))))
+    assert (
+        reader.damage
+        == f"{path}: offset {at}: FMT redefining type {data[imu_fmt + 3]} refused; its first definition holds"
+    )
