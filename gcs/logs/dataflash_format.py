@@ -37,6 +37,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators.jit import kernel
 from gcs.logs.logfile import InputError
+from gcs.logs.offsets import appended
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 0x80
@@ -97,11 +98,7 @@ def record_index(
             defines, length = buf[pos + 3], buf[pos + 4]
             if lengths[defines] == 0 and defines != FMT_TYPE:
                 lengths[defines] = length if length >= 3 else -1  # -1: refused, never walked over
-        if n == len(offsets):
-            grown = np.empty(2 * n, dtype=np.int64)
-            grown[:n] = offsets
-            offsets = grown
-        offsets[n] = pos
+        offsets = appended(offsets, n, pos)
         n += 1
         pos += size
     if pos < end and buf[pos] == HEAD1 and (pos + 1 == end or buf[pos + 1] == HEAD2):

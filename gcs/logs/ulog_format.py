@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators.jit import kernel
 from gcs.logs.logfile import InputError
+from gcs.logs.offsets import appended
 
 MAGIC = b"ULog\x01\x12\x35"
 SYNC = b"\x2f\x73\x13\x20\x25\x0c\xbb\x12"
@@ -78,11 +79,7 @@ def message_index(
             return offsets[:n], pos, BAD_HEADER
         if pos + 3 + size > end:
             return offsets[:n], pos, CUT
-        if n == len(offsets):
-            grown = np.empty(2 * n, dtype=np.int64)
-            grown[:n] = offsets
-            offsets = grown
-        offsets[n] = pos
+        offsets = appended(offsets, n, pos)
         n += 1
         pos += 3 + size
     return offsets[:n], pos, CLEAN
