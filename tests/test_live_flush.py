@@ -57,14 +57,17 @@ def test_data_arriving_within_the_interval_is_held_and_sent_in_one_frame():
     assert second.points["onboard"][0] == (1.005, 1.01) and second.points["dcm"][0] == (1.0,)
 
 
-def test_the_interval_keeps_the_fan_out_within_its_send_budget():
-    hub = LiveHub(seconds=10, frame_interval=0.004, sends_per_s=2000)
+def test_the_interval_keeps_the_fan_out_within_its_send_budget_up_to_the_longest():
+    hub = LiveHub(seconds=10, frame_interval=0.004, sends_per_s=1000, max_frame_interval=0.010)
     assert hub.flush_interval() == 0.004
     feeds = [hub.connect(str(k)) for k in range(40)]
-    assert hub.flush_interval() == 40 / 2000  # 20 ms: each client 50 sends/s
+    assert hub.flush_interval() == 0.010  # never longer: 40 clients, 4000 sends/s
     for feed in feeds[8:]:
         hub.disconnect(feed)
-    assert hub.flush_interval() == 0.004  # 8 clients: 2000 sends/s at the shortest interval
+    assert hub.flush_interval() == 8 / 1000  # 8 clients, 1000 sends/s
+    for feed in feeds[2:8]:
+        hub.disconnect(feed)
+    assert hub.flush_interval() == 0.004  # 2 clients: 500 sends/s at the shortest interval
 
 
 def test_without_clients_nothing_is_encoded_and_the_store_keeps_everything():

@@ -12,10 +12,11 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   oldest frames, counted for it alone; the others and the link never wait, and nothing is
   decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~35 µs of CPU, a third of it the system call), and never under
-`frame_interval`: 4 ms for up to 8 viewers, 10 ms for 20. A sample waits for the flush half an
-interval on average, so few viewers get their samples sooner, and many cost no more CPU than
-at a fixed 10 ms. Figures: docs/benchmarks.md; data flow: docs/design.md
+client costs the loop ~35 µs of CPU, a third of it the system call), between `frame_interval`
+and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. A sample
+waits for the flush half an interval on average, so few viewers get their samples sooner; the
+fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core),
+and nothing more from 10 viewers on. Figures: docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations
@@ -155,12 +156,14 @@ class LiveHub:
         max_rate: float = 400.0,
         frame_interval: float = 0.004,
         client_max_frames: int = 1000,
-        sends_per_s: float = 2000.0,
+        sends_per_s: float = 1000.0,
+        max_frame_interval: float = 0.010,
     ) -> None:
         self.capacity = int(seconds * max_rate)
         self.seconds = seconds
         self.frame_interval = frame_interval
         self.sends_per_s = sends_per_s
+        self.max_frame_interval = max_frame_interval
         self.client_max_frames = client_max_frames
         self.store: dict[str, SeriesRing] = {}
         self.clients: dict[int, ClientFeed] = {}
@@ -209,8 +212,9 @@ class LiveHub:
             client.offer(frame, 0)
 
     def flush_interval(self) -> float:
-        """Seconds between flushes: the fan-out within `sends_per_s`, never under `frame_interval`."""
-        return max(self.frame_interval, len(self.clients) / self.sends_per_s)
+        """Seconds between flushes: the fan-out within `sends_per_s`, between `frame_interval`
+        and `max_frame_interval`."""
+        return min(self.max_frame_interval, max(self.frame_interval, len(self.clients) / self.sends_per_s))
 
     def _flush(self) -> None:
         self._flush_handle = None

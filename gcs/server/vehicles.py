@@ -69,6 +69,7 @@ def serve_vehicles(
                 frame_interval=hub.frame_interval,
                 client_max_frames=hub.client_max_frames,
                 sends_per_s=hub.sends_per_s,
+                max_frame_interval=hub.max_frame_interval,
             )
             app.state.hubs[id(entry.station)] = vehicle_hub
             follow(entry.station, vehicle_hub)
