@@ -1,16 +1,18 @@
 """When the live hub flushes its pending frame (gcs.server.live): new data goes out in the loop's
 next turn once the last flush is old enough, data arriving sooner is held and sent in one frame,
 the interval keeps the fan-out within its send budget, and no sample is lost or sent twice on
-the way, whatever the bursts. No timing is asserted: only what was sent, and in which turn."""
+the way, whatever the bursts; a viewer's counters as GET /api/status lists them. No timing is
+asserted: only what was sent, and in which turn."""
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import random
 
 from gcs.core.estimation import AttitudePoint
 from gcs.server import wire
-from gcs.server.live import ClientFeed, LiveHub
+from gcs.server.live import ClientFeed, ClientSnapshot, LiveHub
 
 
 def point(t: float, source: str = "onboard") -> AttitudePoint:
@@ -130,3 +132,19 @@ def test_every_sample_reaches_a_reading_client_once_and_in_order():
     assert sum(map(len, sent.values())) > 1000
     for source in sources:
         assert got[source] == sent[source], source
+
+
+def test_a_viewers_counters_as_the_status_lists_them():
+    async def run() -> list[tuple[ClientSnapshot, dict]]:
+        hub = LiveHub(seconds=10, client_max_frames=2)
+        reading, stuck = hub.connect("127.0.0.1:1"), hub.connect("127.0.0.1:2")
+        for k in range(3):
+            hub.broadcast({"type": "gain", "k": k})
+        await reading.next_message()
+        reading.sent(0)
+        return [(c.snapshot(), c.snapshot().as_dict()) for c in (reading, stuck)]
+
+    (reading_snapshot, reading), (stuck_snapshot, stuck) = asyncio.run(run())
+    assert reading == dataclasses.asdict(reading_snapshot) and stuck == dataclasses.asdict(stuck_snapshot)
+    assert reading["sent_messages"] == 1 and reading["queued_frames"] == 0
+    assert stuck["dropped_frames"] == 1 and stuck["queued_frames"] == 2 and stuck["address"] == "127.0.0.1:2"

