@@ -43,7 +43,7 @@ import numpy as np
 import psutil
 
 from bench.sched import Sched, process_sched, thread_sched
-from bench.serve_cpu import http_json, wait_until_serving
+from bench.serve_cpu import http_json, stream_message, wait_until_serving
 from gcs.runtime.priority import RAISED_NICE
 from gcs.transport.address import free_port
 
@@ -57,7 +57,7 @@ CONFIGURATIONS = ((1, False, 0), (20, False, 0), (20, True, 0), (20, True, RAISE
 def send(port: int, seconds: float) -> list[tuple[int, float]]:
     """The source: the stream for `seconds`, each message at its time; returns every ATTITUDE's
     (time_boot_ms, CLOCK_MONOTONIC s just after its sendto)."""
-    from gcs.mavlink.dialect import Encoder, mavlink  # the source's process only
+    from gcs.mavlink.dialect import Encoder  # the source's process only
 
     enc = Encoder(1, 1)
     schedule: list[tuple[float, str, int]] = []
@@ -71,17 +71,7 @@ def send(port: int, seconds: float) -> list[tuple[int, float]]:
         delay = start + at - time.monotonic()
         if delay > 0:
             time.sleep(delay)
-        if name == "HIGHRES_IMU":
-            msg = mavlink.MAVLink_highres_imu_message(
-                us, 0.05, -0.03, -9.8, 0.01, -0.02, 0.005, 0.21, 0.02, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
-            )
-        elif name == "ATTITUDE":
-            msg = mavlink.MAVLink_attitude_message(us // 1000, 0.01, -0.02, 0.3, 0.01, -0.02, 0.005)
-        elif name == "GPS_RAW_INT":
-            msg = mavlink.MAVLink_gps_raw_int_message(us, 3, 523000000, 134000000, 50000, 100, 100, 500, 9000, 12)
-        else:
-            msg = mavlink.MAVLink_heartbeat_message(2, 12, 81, 0, 4, 3)
-        sock.sendto(enc.encode(msg), ("127.0.0.1", port))
+        sock.sendto(enc.encode(stream_message(name, us)), ("127.0.0.1", port))
         if name == "ATTITUDE":
             sent.append((us // 1000, time.monotonic()))
     return sent
