@@ -224,7 +224,7 @@ class Comparison:
         w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
         estimates.append((t, (float(w), float(x), float(y), float(z))))
         lag = self.running_lag
-        if not lag.estimates or t >= lag.estimates[-1][0] + self.lag_step:  # the lag's resolution
+        if t >= lag.last_estimate() + self.lag_step:  # the lag's resolution
             roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
             lag.add_estimate(t, roll, pitch)
         start = t - self.history

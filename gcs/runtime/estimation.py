@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
+from gcs.core import lag
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
@@ -28,6 +29,12 @@ BATCH = 16
 #: than it waited for its frame before: the frame goes out right after the tick's points arrive.
 #: A batch already waiting (BATCH or more) is estimated at once: the estimation is behind.
 TICK = 0.010
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the estimators' and the running lag's kernels."""
+    registry.warm()
+    lag.warm()
 
 
 class LiveEstimation:
@@ -60,7 +67,7 @@ class LiveEstimation:
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
-            await asyncio.to_thread(registry.warm)
+            await asyncio.to_thread(warm)
             heap.freeze()  # the kernels' objects are here for good: no collection walks them
             loop = asyncio.get_running_loop()
             next_tick = loop.time()
