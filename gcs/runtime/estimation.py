@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
-from gcs.core import lag
+from gcs.core import comparison
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
@@ -32,9 +32,9 @@ TICK = 0.010
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) the estimators' and the running lag's kernels."""
+    """Compile (or load from the disk cache) the estimators' and the comparison's kernels."""
     registry.warm()
-    lag.warm()
+    comparison.warm()
 
 
 class LiveEstimation:

@@ -478,3 +478,19 @@ quat_rows = kernel(rotation.quat_rows)
 euler_quat = kernel(rotation.euler_quat)
 quat_to_euler = kernel(rotation.quat_to_euler)
 quat_slerp = kernel(rotation.quat_slerp)
+
+
+@kernel
+def attitude_error(
+    q0: tuple[float, float, float, float], q1: tuple[float, float, float, float], u: float, roll: float, pitch: float,
+    yaw: float,
+) -> tuple[float, float, float]:  # fmt: skip
+    """comparison.attitude_error compiled: the live comparison scores every reference with it and
+    the whole-run errors every row (equal to the Python function bit for bit,
+    tests/test_comparison_incremental.py)."""
+    est_roll, est_pitch, est_yaw = quat_to_euler(quat_slerp(q0, q1, u))
+    return (
+        math.degrees(wrap_pi(est_roll - roll)),
+        math.degrees(wrap_pi(est_pitch - pitch)),
+        math.degrees(wrap_pi(est_yaw - yaw)),
+    )
