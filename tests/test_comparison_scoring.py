@@ -1,6 +1,7 @@
-"""The live comparison scores a reference with the compiled error function and finds the two
-estimates around it from the newest back: the same numbers as the readable `attitude_error`
-over a bisection, bit for bit, however far back the reference lies."""
+"""The live pipeline reads an estimator's attitude in one compiled call, and the comparison
+scores a reference with the compiled error function and finds the two estimates around it from
+the newest back: the same numbers as the readable `quat_to_euler` and `attitude_error` over a
+bisection, bit for bit, however far back the reference lies."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ import math
 import numpy as np
 
 from gcs.core.comparison import SCAN_BACK, Comparison, attitude_error
+from gcs.core.estimators import registry
+from gcs.core.estimators.kernels import Q
 from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
-from gcs.core.rotation import euler_quat
-from gcs.core.samples import AttitudeSample
+from gcs.core.rotation import euler_quat, quat_to_euler
+from gcs.core.samples import AttitudeSample, ImuSample
 
 
 def unit(v: np.ndarray) -> tuple[float, float, float, float]:
@@ -56,3 +59,17 @@ def test_a_late_reference_is_scored_against_the_estimates_around_it():
         assert c.stats["onboard"].recent[-1] == (t, *want), back
     c.add_reference(AttitudeSample(times[-1], 0.1, -0.2, 0.3, "onboard"))
     assert c.stats["onboard"].recent[-1][1:] == attitude_error(quats[-1], quats[-1], 0.0, 0.1, -0.2, 0.3)
+
+
+def test_an_estimators_compiled_attitude_equals_its_quaternion_and_the_python_angles():
+    rng = np.random.default_rng(11)
+    est = registry.create("ekf")
+    gyro, accel, mag = np.array([0.3, -0.2, 0.5]), np.array([0.5, -0.3, -9.7]), np.array([0.2, 0.05, 0.4])
+    for k in range(2000):
+        est.update_imu(ImuSample(0.0025 * k, gyro + rng.normal(0, 0.5, 3), accel + rng.normal(0, 0.5, 3), mag))
+        q, euler = est.attitude()
+        assert q == tuple(est.quaternion.tolist())
+        assert euler == quat_to_euler(q)
+    for q in ((1.0, 0.0, 0.0, 0.0), unit(np.array([0.5, 0.5, 0.5, 0.5])), unit(np.array([0.7, 0.0, 0.7, 1e-9]))):
+        est.s[Q : Q + 4] = q
+        assert est.attitude() == (q, quat_to_euler(q))

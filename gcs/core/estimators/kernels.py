@@ -198,6 +198,10 @@ class Compiled:
         """The attitude (w, x, y, z), a copy."""
         return self._quat_view.copy()
 
+    def attitude(self) -> tuple[rotation.Quat, Vec3]:
+        """AttitudeEstimator.attitude in one compiled call (the same angles, bit for bit)."""
+        return attitude_of(self.s)
+
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         """What update_imu does after the kernel's step returned code: whether the attitude is
         valid, after re-initialising from the sample when the code asks for it."""
@@ -494,3 +498,10 @@ def attitude_error(
         math.degrees(wrap_pi(est_pitch - pitch)),
         math.degrees(wrap_pi(est_yaw - yaw)),
     )
+
+
+@kernel
+def attitude_of(s: State) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+    """The state's quaternion and its Z-Y-X angles (rotation.quat_to_euler), as plain floats."""
+    q = (s[Q], s[Q + 1], s[Q + 2], s[Q + 3])
+    return q, quat_to_euler(q)
