@@ -10,8 +10,11 @@ from live import wait_for
 
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.bus import Message
-from gcs.runtime.estimation import BATCH, LiveEstimation
+from gcs.runtime.estimation import BATCH, TICK, LiveEstimation
 from gcs.runtime.link import Link
+from gcs.runtime.station import Station, StationConfig
+from gcs.server.app import follow
+from gcs.server.live import LiveHub
 
 
 def imu(encoder: Encoder, k: int) -> Message:
@@ -72,3 +75,17 @@ def test_messages_arriving_within_a_tick_are_estimated_together():
     fed, emitted = asyncio.run(scenario())
     assert fed == [1] * 8  # none estimated on its own turn
     assert len(emitted) == 2 and emitted[1] == 8 * 3  # the first alone, then the 8 in one call (3 estimators)
+
+
+def test_the_dashboard_paces_the_estimation_by_its_frame_interval():
+    """The tick follows the live hub's frame interval, which follows its number of viewers: the
+    estimation neither delays a frame nor turns more often than frames go out."""
+    station = Station(StationConfig(connect="udpin:127.0.0.1:9", request_streams=False))
+    hub = LiveHub()
+    assert station.estimation is not None and station.estimation.tick() == TICK
+    follow(station, hub)
+    feeds = [hub.connect(f"viewer {k}") for k in range(20)]
+    assert station.estimation.tick() == hub.flush_interval() == hub.max_frame_interval
+    for feed in feeds[1:]:
+        hub.disconnect(feed)
+    assert station.estimation.tick() == hub.flush_interval() == hub.frame_interval < TICK

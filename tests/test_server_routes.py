@@ -127,6 +127,9 @@ class FakeStation:
     def estimator_names(self) -> list[str]:
         return list(self.estimators)
 
+    def pace_points(self, interval) -> None:
+        self.pace = interval
+
     def estimator(self, name: str) -> AttitudeEstimator:
         if name not in self.estimators:
             raise KeyError(f"unknown estimator {name!r}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 from gcs.core import comparison
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
@@ -22,12 +23,13 @@ from gcs.runtime.signal import Signal
 #: About 2 ms of estimation at the live pipeline's ~100-150 µs per IMU message: at 20,000 msg/s a turn
 #: brings ~50 datagrams, fewer than the link reads in one (gcs.transport.pipes.UDP_READ_BATCH).
 BATCH = 16
-#: Messages that arrive within this long of the last turn that estimated are estimated together,
-#: at its end: a turn per tick instead of one per datagram (each wakes the loop alone), so the
+#: Messages that arrive within a tick of the last turn that estimated are estimated together, at
+#: its end: a turn per tick instead of one per datagram (each wakes the loop alone), so the
 #: per-turn costs (the task's wake-up, the listeners' calls, the live hub's scheduling) are paid
-#: per tick. The live hub sends a frame every 10 ms (gcs.server.live), so a sample waits no longer
-#: than it waited for its frame before: the frame goes out right after the tick's points arrive.
-#: A batch already waiting (BATCH or more) is estimated at once: the estimation is behind.
+#: per tick. The dashboard sets the tick to its live hub's frame interval (`pace`), so a sample
+#: waits no longer than it waited for its frame: the frame goes out right after the tick's points
+#: arrive. This is the tick without a dashboard (the hub's longest interval). A batch already
+#: waiting (BATCH or more) is estimated at once: the estimation is behind.
 TICK = 0.010
 
 
@@ -47,7 +49,7 @@ class LiveEstimation:
 
     def __init__(self, link: Link, pipeline: EstimationPipeline | None = None, tick: float = TICK) -> None:
         self.link = link
-        self.tick = tick
+        self.tick: Callable[[], float] = lambda: tick
         self.pipeline = pipeline or EstimationPipeline()
         self.inputs = MessageInputs()
         self.messages_fed = 0
@@ -57,6 +59,11 @@ class LiveEstimation:
         self.gps_locked: Signal[[]] = Signal()
         #: the declination's source or value changed: (source, rad or None)
         self.declination_changed: Signal[[str, float | None]] = Signal()
+
+    def pace(self, interval: Callable[[], float]) -> None:
+        """Estimate at most once per interval() s (the live hub's frame interval, which follows
+        its number of viewers) while not behind."""
+        self.tick = interval
 
     @property
     def imu_type(self) -> str | None:
@@ -76,7 +83,7 @@ class LiveEstimation:
                 delay = next_tick - loop.time()
                 if delay > 0 and len(sub.queue) < BATCH:  # the rest of the tick's messages come too
                     await asyncio.sleep(delay)
-                next_tick = loop.time() + self.tick
+                next_tick = loop.time() + self.tick()
                 self._feed(sub.drain(BATCH))
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)

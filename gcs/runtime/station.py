@@ -263,6 +263,12 @@ class Station:
     def estimator_names(self) -> list[str]:
         return [] if self.estimation is None else list(self.estimation.pipeline.estimators)
 
+    def pace_points(self, interval: Callable[[], float]) -> None:
+        """The live points are wanted at most every interval() s (the dashboard's frame interval):
+        the estimation gathers what arrives meanwhile into one turn (runtime.estimation.TICK)."""
+        if self.estimation is not None:
+            self.estimation.pace(interval)
+
     def set_gain(self, estimator: str, gain: str, value: float, client: str) -> tuple[float, float]:
         """Apply one gain now and record the change (old, new, client); GainError for a bad
         value or name, KeyError for an unknown estimator."""

@@ -111,8 +111,9 @@ def record_refusal(station: StationFacade, refusal: Refusal) -> None:
 
 
 def follow(station: StationFacade, hub: LiveHub) -> None:
-    """The hub gets the station's live points and its gain changes."""
+    """The hub gets the station's live points, paced by its frame interval, and its gain changes."""
     station.points.connect(hub.on_points)
+    station.pace_points(hub.flush_interval)
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
 
 
