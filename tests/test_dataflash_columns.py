@@ -11,7 +11,7 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import LOGS
+from conftest import DATA, LOGS
 from dataflash_reference import DfreaderLog
 from pymavlink.DFReader import DFReader_binary
 from pyulog_reference import assert_same_samples
@@ -27,7 +27,7 @@ from gcs.runtime.replay import whole_table
 from gcs.sessions.sources import ReplaySource, open_source, sample_frames
 from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter, e7, x100
 
-SHARED_BINS = sorted(p for p in LOGS.iterdir() if p.suffix.lower() == ".bin")
+SHARED_BINS = sorted(p for p in DATA.rglob("*") if p.suffix.lower() == ".bin")  # every one in ../shared/data
 HOP = LOGS / "arducopter-sitl-hop.BIN"
 
 
@@ -60,6 +60,10 @@ def assert_reads_like_dfreader(path, imu: int = 0) -> DataflashLog:
     assert reader.notes == reference.notes
     assert reader.declination.source == reference.declination.source
     return reader
+
+
+def test_the_shared_logs_are_found():
+    assert {p.name for p in SHARED_BINS} >= {"arducopter-sitl-hop.BIN", "ardupilot-fragment.bin"}
 
 
 @pytest.mark.parametrize("path", SHARED_BINS, ids=lambda p: p.name)
@@ -214,11 +218,11 @@ def test_replay_fast_estimates_as_from_dfreaders_samples():
     assert whole_table(source, names, {}) == whole_table(expected, names, {})
 
 
-@pytest.mark.parametrize("name", ["arducopter-sitl-hop.BIN", "ardupilot-fragment.bin", "old.bin", "new.bin"])
+@pytest.mark.parametrize("name", [*(p.name for p in SHARED_BINS), "old.bin", "new.bin"])
 def test_every_field_of_the_wanted_records_is_dfreaders(hop_logs, name):
     """Every column of every record of the types the reader wants, as DFReader gives it: scaled
     (c/C/e/E, L) and plain numbers equal as float64, text equal."""
-    path = hop_logs[0] / name if name in ("old.bin", "new.bin") else LOGS / name
+    path = hop_logs[0] / name if name in ("old.bin", "new.bin") else next(p for p in SHARED_BINS if p.name == name)
     contents = read_dataflash(str(path), COLUMNS)
     log = DFReader_binary(str(path))
     compared = 0
@@ -300,3 +304,58 @@ def test_a_gps_course_that_is_no_number_gives_no_velocity(tmp_path):
     damaged, whole = (s for s in DataflashLog(str(path)) if isinstance(s, GpsSample))
     assert damaged.vel_ned is None and (damaged.lat, damaged.fix_type) == (-35.0, 3)
     np.testing.assert_allclose(whole.vel_ned, [0.0, 2.0, -0.5], atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_corrupted_logs_read_or_are_refused_in_one_line(tmp_path, seed):
+    """300 random corruptions of the fragment (bytes changed, zeroed, cut out, the file cut, the
+    FMT records hit): each reads to an input table or raises InputError; nothing else escapes."""
+    rng = np.random.default_rng(seed)
+    source = (LOGS / "ardupilot-fragment.bin").read_bytes()
+    fmt_end = max(at + length for at, length in record_starts(source[:20_000]) if source[at + 2] == 128)
+    path = tmp_path / "corrupt.bin"
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(75):
+        data = bytearray(source)
+        at = int(rng.integers(len(data)))
+        match int(rng.integers(5)):
+            case 0:
+                data[at] = int(rng.integers(256))
+            case 1:
+                data[at : at + int(rng.integers(1, 2000))] = b""
+            case 2:
+                data[at : at + 500] = bytes(len(data[at : at + 500]))
+            case 3:
+                data = data[:at]
+            case _:
+                for where in rng.integers(fmt_end, size=3):
+                    data[int(where)] = int(rng.integers(256))
+        path.write_bytes(bytes(data))
+        try:
+            table = DataflashLog(str(path)).columns()
+            list(table.inputs())
+            outcomes["read"] += 1
+        except InputError as exc:
+            assert str(path) in str(exc) and "offset" in str(exc) and "\n" not in str(exc)
+            outcomes["refused"] += 1
+    assert outcomes["read"] > 0
+
+
+def test_an_fmt_redefining_a_type_is_refused_and_the_first_holds(hop_logs, tmp_path):
+    """A second FMT for IMU's type id, half way, with another layout: refused (DFReader would
+    walk every IMU record with the new length from the start); the log reads as without it."""
+    folder, _ = hop_logs
+    data = (folder / "new.bin").read_bytes()
+    imu_fmt = fmt_record(data, b"IMU")
+    redefined = bytearray(data[imu_fmt : imu_fmt + 89])
+    redefined[4] -= 4  # 4 bytes shorter
+    redefined[9 : 9 + 16] = b"QBfffff".ljust(16, b"\0")
+    at = record_starts(data)[len(record_starts(data)) // 2][0]
+    path = tmp_path / "redefined.bin"
+    path.write_bytes(data[:at] + bytes(redefined) + data[at:])
+    reader = DataflashLog(str(path))
+    assert_same_samples(list(reader), list(DataflashLog(str(folder / "new.bin"))))
+    assert (
+        reader.damage
+        == f"{path}: offset {at}: FMT redefining type {data[imu_fmt + 3]} refused; its first definition holds"
+    )

@@ -7,11 +7,14 @@ import asyncio
 import time
 
 import httpx
+import pytest
 from live import running_station, wait_for
 
 from gcs.commands.status import format_report
 from gcs.mavlink.radio import frame_bytes, link_capacity, predict
+from gcs.runtime.fleet import Fleet
 from gcs.runtime.logdownload import LogDownloader
+from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import STREAM_GROUPS, StreamPlan
 from gcs.server.app import create_app
 from gcs.sim import SimVehicle
@@ -105,6 +108,42 @@ def test_station_backs_off_when_the_radio_buffer_fills(udp_port):
     r = snapshot.radio
     print(f"\n{r.choice}; RAW_IMU requested {r.streams['RAW_IMU'].requested_hz}")
     assert r.scale < 1.0 and r.streams["RAW_IMU"].requested_hz < 50  # the station lowered its requests
+
+
+def test_two_vehicles_behind_one_radio_share_its_budget(udp_port):
+    """Two APM 2.5s behind one SiK radio (a multipoint network): each vehicle's plan takes half of
+    the radio's budget, so together they fit it, and the radio settles with nothing lost."""
+    address = f"udpin:127.0.0.1:{udp_port}"
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=address, estimate=False, baud=57600), [address])
+        sims = [SimVehicle(profile="apm25", sysid=sysid, script="bench") for sysid in (1, 2)]
+        radio = fit_radio(sims[0], 57600)
+        assert fit_radio(sims[1], radio=radio) is radio
+        await fleet.start()
+        tasks = [asyncio.create_task(sim.run(f"udpout:127.0.0.1:{udp_port}")) for sim in sims]
+        try:
+            await wait_for(
+                lambda: len(fleet.vehicles()) == 2 and all(e.station.radio.present for e in fleet.vehicles()),
+                30,
+                "both vehicles and the radio heard",
+            )
+            await wait_for(SteadyRadio(radio, 10.0), 120, "10 s of the shared radio losing nothing")
+            return [e.station.publish().radio for e in fleet.vehicles()], radio
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await fleet.stop()
+
+    snapshots, radio = asyncio.run(scenario())
+    wanted = {k: v for k, v in StreamPlan().for_autopilot("ArduPilot").items() if k not in ("SCALED_IMU2", "AHRS2")}
+    alone = predict(wanted, 1, 0.8 * link_capacity(57600), background_bps=300, groups=STREAM_GROUPS)
+    for snap in snapshots:
+        print(f"\n{snap.choice}; RAW_IMU {snap.streams['RAW_IMU'].predicted_hz} Hz (alone {alone.rates['RAW_IMU']})")
+        assert snap.shared_by == 2 and snap.budget_bps == pytest.approx(0.4 * radio.capacity_bps, abs=0.1)
+        assert 0 < snap.streams["RAW_IMU"].predicted_hz < alone.rates["RAW_IMU"]  # each plans on its half
+    assert sum(snap.used_bps for snap in snapshots) < radio.capacity_bps
 
 
 def test_log_download_over_the_57600_radio_completes(tmp_path, udp_port):

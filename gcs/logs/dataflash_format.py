@@ -19,8 +19,10 @@ multiplier from them, and neither does this reader.
 Damage: a record header that is not 0xA3 0x95, or whose type no FMT defined, is skipped byte by
 byte up to the next header of a defined type (DFReader's resynchronisation, which stops at an
 undefined type instead); a file cut inside a record is read up to that record; an FMT that cannot
-be right (length under 3, redefining FMT itself, a format whose size is not its length, unknown
-format characters, columns not one per character) is refused and its records are not decoded.
+be right (length under 3, a format whose size is not its length, unknown format characters,
+columns not one per character, a column the caller needs missing or of the wrong kind) is refused
+and its records are not decoded; a later FMT that defines a type (FMT itself included) otherwise
+than its first one is refused and the first holds.
 As DFReader does, bytes that are no record within the last 528 bytes of a file are taken for the
 padding a block-based log ends with, not for damage. `damage` names each place and what was done.
 """
@@ -35,6 +37,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators.jit import kernel
 from gcs.logs.logfile import InputError
+from gcs.logs.offsets import appended
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 0x80
@@ -95,11 +98,7 @@ def record_index(
             defines, length = buf[pos + 3], buf[pos + 4]
             if lengths[defines] == 0 and defines != FMT_TYPE:
                 lengths[defines] = length if length >= 3 else -1  # -1: refused, never walked over
-        if n == len(offsets):
-            grown = np.empty(2 * n, dtype=np.int64)
-            grown[:n] = offsets
-            offsets = grown
-        offsets[n] = pos
+        offsets = appended(offsets, n, pos)
         n += 1
         pos += size
     if pos < end and buf[pos] == HEAD1 and (pos + 1 == end or buf[pos + 1] == HEAD2):
@@ -189,8 +188,8 @@ def _windows(
 
 def read_dataflash(path: str, wanted: Mapping[str, Collection[str]]) -> DataflashContents:
     """The record types named in `wanted` (each with the columns it must have, else its FMT is
-    refused: see record_format) and the damage of the .bin at path; InputError when it cannot be read or
-    holds no DataFlash record."""
+    refused: see record_format) and the damage of the .bin at path; InputError when it cannot be
+    read or holds no DataFlash record."""
     try:
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
