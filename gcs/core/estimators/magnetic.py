@@ -47,6 +47,18 @@ MAG_TIME_SIGMA = 0.05
 #: held within half the tolerances for this long (s): the tilt (hence the dip) of a filter
 #: initialised away from the truth has to settle first.
 MAG_WARMUP = 1.0
+#: A learned hard-iron offset carries its timing window's error (the field's changes from place to
+#: place, the heading error meanwhile: about 1 µT, degrees of heading under a strong magnet), while
+#: the gyro, its bias learned at rest, drifts in heading mostly as it turns (BROAD at 47.6 Hz: about
+#: 3° per 5000° of turn). So after each learned offset the heading corrections from the field get
+#: `weight` 0 until the sensor has turned MAG_OFFSET_HOLD_TURN (rad) or MAG_OFFSET_HOLD s have passed
+#: (VQF's magMaxRejectionTime: it coasts as long on a rejected field), whichever is first, and come
+#: back to 1 over as much turn again or MAG_OFFSET_RAMP s.
+MAG_OFFSET_HOLD_TURN = math.radians(2000.0)
+MAG_OFFSET_HOLD = 60.0
+MAG_OFFSET_RAMP = 20.0
+#: The least weight a Kalman heading update divides its noise by (weight 0 would divide by zero).
+MAG_WEIGHT_MIN = 1e-6
 
 #: MAG_GAINS values that switch the test off (the thesis presets).
 MAG_OFF = {"mag_norm_tol": 10.0, "mag_dip_tol": math.pi, "mag_heading_tol": math.pi}
@@ -80,6 +92,9 @@ class MagneticHeading:
         self.offset_time = 0.0
         self.offset_turn = 0.0
         self.heading_trusted = False
+        self.weight = 1.0  # weight of the heading from the field: 0 → 1 after a learned offset
+        self.offset_age = math.inf  # time since the offset was learned (s)
+        self.offset_age_turn = math.inf  # turn since the offset was learned (rad)
         self.disturbed = False
         self.yaw_error = 0.0  # heading correction the last field asked for (rad)
         self.offsets_learned = 0
@@ -97,6 +112,11 @@ class MagneticHeading:
         """m − b if it may be used for heading now, else None. rows: R (sensor → NED) by rows,
         spin: |ω| (rad/s), g: the estimator's gains (MAG_GAINS and `declination`); settling: the
         estimator knows its tilt is not yet right (the reference is then not kept)."""
+        self.offset_age += dt
+        self.offset_age_turn += spin * dt
+        after_time = (self.offset_age - MAG_OFFSET_HOLD) / MAG_OFFSET_RAMP
+        after_turn = (self.offset_age_turn - MAG_OFFSET_HOLD_TURN) / MAG_OFFSET_HOLD_TURN
+        self.weight = min(max(after_time, after_turn, 0.0), 1.0)
         bx, by, bz = self.offset
         mc = (m[0] - bx, m[1] - by, m[2] - bz)
         X, Y, Z = rows
@@ -139,6 +159,7 @@ class MagneticHeading:
         self.disturbed = True
         if self._hard_iron(m, rows, dt, spin, g):
             self.now = None
+            self.offset_age, self.offset_age_turn, self.weight = 0.0, 0.0, 0.0
             self.offsets_learned += 1
             self._accept()
             bx, by, bz = self.offset
