@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 import urllib.request
+from typing import Any
 
 import psutil
 
@@ -41,9 +42,24 @@ PAGES = 5
 MIX = (("HIGHRES_IMU", 400), ("ATTITUDE", 100), ("GPS_RAW_INT", 5), ("HEARTBEAT", 1))
 
 
+def stream_message(name: str, us: int) -> Any:
+    """One message of the mix at vehicle time `us` (µs): a still vehicle's figures."""
+    from gcs.mavlink.dialect import mavlink
+
+    if name == "HIGHRES_IMU":
+        return mavlink.MAVLink_highres_imu_message(
+            us, 0.05, -0.03, -9.8, 0.01, -0.02, 0.005, 0.21, 0.02, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
+        )
+    if name == "ATTITUDE":
+        return mavlink.MAVLink_attitude_message(us // 1000, 0.01, -0.02, 0.3, 0.01, -0.02, 0.005)
+    if name == "GPS_RAW_INT":
+        return mavlink.MAVLink_gps_raw_int_message(us, 3, 523000000, 134000000, 50000, 100, 100, 500, 9000, 12)
+    return mavlink.MAVLink_heartbeat_message(2, 12, 81, 0, 4, 3)
+
+
 def packets(rate: int, seconds: float) -> list[tuple[float, bytes]]:
     """(send time from start, packet) for `seconds` of the mix at `rate` msg/s in all."""
-    from gcs.mavlink.dialect import Encoder, mavlink
+    from gcs.mavlink.dialect import Encoder
 
     enc = Encoder(1, 1)
     scale = rate / sum(hz for _, hz in MIX)
@@ -51,19 +67,8 @@ def packets(rate: int, seconds: float) -> list[tuple[float, bytes]]:
     for name, hz in MIX:
         period = 1.0 / (hz * scale)
         for k in range(int(seconds / period)):
-            t = k * period
             us = int(k * 1e6 / hz)  # the vehicle's own clock at the mix's nominal rate
-            if name == "HIGHRES_IMU":
-                msg = mavlink.MAVLink_highres_imu_message(
-                    us, 0.05, -0.03, -9.8, 0.01, -0.02, 0.005, 0.21, 0.02, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
-                )
-            elif name == "ATTITUDE":
-                msg = mavlink.MAVLink_attitude_message(us // 1000, 0.01, -0.02, 0.3, 0.01, -0.02, 0.005)
-            elif name == "GPS_RAW_INT":
-                msg = mavlink.MAVLink_gps_raw_int_message(us, 3, 523000000, 134000000, 50000, 100, 100, 500, 9000, 12)
-            else:
-                msg = mavlink.MAVLink_heartbeat_message(2, 12, 81, 0, 4, 3)
-            out.append((t, enc.encode(msg)))
+            out.append((k * period, enc.encode(stream_message(name, us))))
     out.sort(key=lambda p: p[0])
     return out
 

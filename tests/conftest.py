@@ -1,4 +1,5 @@
-"""Shared fixtures: paths to the real data in ../shared/data, free ports."""
+"""Shared fixtures: paths to the real data in ../shared/data, the hop flight in both DataFlash
+generations, free ports."""
 
 from __future__ import annotations
 
@@ -6,8 +7,10 @@ import socket
 from pathlib import Path
 
 import pytest
+from dataflash_writer import hop_in_both_formats
 
 from gcs.core.estimators import registry
+from gcs.sim.dataflash import DataflashWriter
 from gcs.transport.address import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,6 +43,17 @@ def logs_dir() -> Path:
     if not LOGS.is_dir():
         pytest.fail(f"real recordings missing: {LOGS} (shared/ must sit beside the project)")
     return LOGS
+
+
+@pytest.fixture(scope="session")
+def hop_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, DataflashWriter]:
+    """The SITL hop flight as an ArduCopter 3.2 log (old.bin, TimeMS) and a current one
+    (new.bin, TimeUS) in a folder, and the old log's writer (where each record ends)."""
+    folder = tmp_path_factory.mktemp("hop")
+    old, new = hop_in_both_formats(str(LOGS / "arducopter-sitl-hop.BIN"))
+    (folder / "old.bin").write_bytes(old.bytes())
+    (folder / "new.bin").write_bytes(new.bytes())
+    return folder, old
 
 
 @pytest.fixture(scope="session")

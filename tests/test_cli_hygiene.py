@@ -67,6 +67,24 @@ def test_every_help_has_a_description_and_every_option_a_meaning():
                 assert action.help and action.help != argparse.SUPPRESS, (name, action.dest)
 
 
+def test_an_offline_command_imports_neither_the_server_nor_the_references():
+    """`gcs replay`, `estimate` and `export` start without the server's web stack, filterpy (the
+    kf reference: it imports scipy.stats) or the MATLAB writer: about 2 s of CPU at every start."""
+    probe = (
+        "import sys\n"
+        "from gcs.commands.cli import main\n"
+        "for command in ('replay', 'estimate', 'export'):\n"
+        "    try:\n"
+        "        main([command, '--help'])\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "heavy = ('fastapi', 'uvicorn', 'viser', 'filterpy', 'scipy.io', 'gcs.server.app')\n"
+        "print('LOADED', [m for m in heavy if m in sys.modules])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True)
+    assert "LOADED []" in out.stdout, out.stdout[-500:]
+
+
 def test_help_texts_name_what_the_commands_read_and_write():
     found = dict(parsers(build_parser()))
     estimate = found["gcs estimate"].format_help()

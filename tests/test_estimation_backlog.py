@@ -44,3 +44,31 @@ def test_a_backlog_is_estimated_a_batch_per_turn_of_the_loop():
     turns = asyncio.run(scenario())
     assert turns[0] == 1 + BATCH  # the first turn took one batch, not the whole backlog
     assert len(turns) >= 10 and turns[-1] == 1 + 10 * BATCH
+
+
+def test_messages_arriving_within_a_tick_are_estimated_together():
+    """Datagrams each wake the loop alone; those that arrive within a tick of the last estimated
+    turn wait for it and are estimated in one turn, with one call of the points' listeners."""
+
+    async def scenario():
+        link = Link("udpin:127.0.0.1:9")  # never run: the test publishes on its bus
+        estimation = LiveEstimation(link, tick=1.0)  # far longer than the test's turns take
+        emitted: list[int] = []
+        estimation.points.connect(lambda points: emitted.append(len(points)))
+        task = asyncio.create_task(estimation.run())
+        encoder = Encoder(1, 1)
+        await wait_for(lambda: link.bus.wants("HIGHRES_IMU"), 10, "the estimation's subscription")
+        link.bus.publish(imu(encoder, 1))
+        await wait_for(lambda: estimation.messages_fed == 1, 120, "the kernels loaded, the first message")
+        fed = []
+        for k in range(8):  # one message per turn of the loop, as datagrams arrive
+            link.bus.publish(imu(encoder, k + 2))
+            await asyncio.sleep(0)
+            fed.append(estimation.messages_fed)
+        await wait_for(lambda: estimation.messages_fed == 9, 30, "the tick's messages")
+        task.cancel()
+        return fed, emitted
+
+    fed, emitted = asyncio.run(scenario())
+    assert fed == [1] * 8  # none estimated on its own turn
+    assert len(emitted) == 2 and emitted[1] == 8 * 3  # the first alone, then the 8 in one call (3 estimators)

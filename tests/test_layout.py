@@ -48,6 +48,8 @@ JS_LAYOUT = """(selectors) => {
   const pose = document.getElementById("pose").getBoundingClientRect();
   return { boxes: boxes.length, overlaps, scrollWidth: document.documentElement.scrollWidth, width: innerWidth,
            beyond: boxes.filter((b) => b.x < -1 || b.x + b.w > innerWidth + 1).map((b) => b.sel),
+           charts_below_fold: [...document.querySelectorAll(".chart")]
+             .filter((el) => el.getBoundingClientRect().bottom > innerHeight + 1).length,
            pose_fraction: (pose.width * pose.height) / (innerWidth * innerHeight) };
 }"""
 
@@ -89,6 +91,9 @@ def test_layout_laptop_and_phone(udp_port, artifacts_dir):
         assert r["beyond"] == [], (name, r["beyond"])
         assert r["boxes"] >= len(BLOCKS) + 5, (name, r)  # six charts and every panel were measured
     assert report["laptop"]["pose_fraction"] >= 0.25, report["laptop"]
+    assert report["laptop"]["charts_below_fold"] == 0, report["laptop"]  # roll, pitch and yaw in sight
+    readout = report["laptop"]["readout"]  # the values under the cursor, in the chart's title
+    assert readout.startswith("t ") and "onboard" in readout and "dcm" in readout and "°" in readout, readout
     for name, r in report.items():
         assert r["pose_frame"]["over_vehicle"] == [], (name, r["pose_frame"])
     assert report["phone"]["pose_frame"]["overlays"] == [], report["phone"]["pose_frame"]
@@ -112,8 +117,19 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                     "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
                 ):
                     await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
-                await page.wait_for_timeout(3000)  # a few draws and a track point or two
+                draws = await page.evaluate("gcsPlots.draws")  # then a few more draws with data in every panel
+                await page.wait_for_function(f"gcsPlots.draws >= {draws + 5}", polling=POLL_MS, timeout=120_000)
                 report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
+                over = await page.query_selector(".chart .u-over")
+                assert over is not None
+                await over.hover()
+                await page.wait_for_function(
+                    "document.querySelector('.chart .readout').textContent.includes('onboard')",
+                    polling=POLL_MS,
+                    timeout=60_000,
+                )
+                report[name]["readout"] = await page.eval_on_selector(".chart .readout", "el => el.textContent")
+                await page.mouse.move(0, 0)
                 pose = await (await page.wait_for_selector("#pose")).content_frame()
                 assert pose is not None
                 await pose.wait_for_selector("canvas", timeout=120_000)

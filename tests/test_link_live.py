@@ -40,7 +40,12 @@ def test_profile_over_transport_decodes_cleanly_at_requested_rates(profile, kind
             link = station.link
             assert await link.wait_connected(10), f"no heartbeat over {kind}"
             await wait_for(lambda: station.streams.requested, 10, "stream requests")
-            await asyncio.sleep(link.stats.window + 1.5)  # a full rate window after the request
+            rates = link.stats.rates
+            await wait_for(  # the rate window filled after the request (the assertions below say which missed)
+                lambda: all(abs(rates().get(name, 0.0) - hz) <= 0.1 * hz for name, hz in CRITICAL[profile].items()),
+                30,
+                f"the requested rates over {kind}",
+            )
             return dataclasses.asdict(station.publish())
 
     status = asyncio.run(scenario())

@@ -510,3 +510,35 @@ def test_sysid_not_heard_on_a_silent_link_is_one_line() -> None:
         )
         said = f"gcs {command}: no heartbeat from vehicle sysid 5 on {where} within 2 s (vehicles heard: none)\n"
         assert done.returncode == 1 and done.stderr == said, (command, done.stderr)
+
+
+def test_station_heartbeat_reaches_both_mavlink_versions_on_one_link(udp_port: int) -> None:
+    """A Pixhawk (MAVLink 2) heard first, then an APM 2.5 (MAVLink 1 only: it drops MAVLink 2
+    frames) on the same UDP port: both vehicles hear the station's heartbeat."""
+    address = f"udpin:127.0.0.1:{udp_port}"
+
+    async def scenario() -> tuple[int, int]:
+        fleet = Fleet(StationConfig(connect=address, estimate=False), [address])
+        pixhawk = SimVehicle(profile="pixhawk", sysid=2, script="bench")
+        apm25 = SimVehicle(profile="apm25", sysid=1, script="bench")
+        await fleet.start()
+        tasks = [asyncio.create_task(pixhawk.run(f"udpout:127.0.0.1:{udp_port}"))]
+        try:
+            await wait_for(lambda: [e.sysid for e in fleet.vehicles()] == [2], 30, "the Pixhawk heard first")
+            tasks.append(asyncio.create_task(apm25.run(f"udpout:127.0.0.1:{udp_port}")))
+            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "the APM 2.5 heard too")
+            heard = pixhawk.received.get("HEARTBEAT", 0)
+            await wait_for(
+                lambda: apm25.received.get("HEARTBEAT", 0) >= 3 and pixhawk.received.get("HEARTBEAT", 0) >= heard + 3,
+                30,
+                "three station heartbeats at each vehicle",
+            )
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await fleet.stop()
+        return apm25.received["HEARTBEAT"], pixhawk.received["HEARTBEAT"]
+
+    apm25_heard, pixhawk_heard = asyncio.run(scenario())
+    assert apm25_heard >= 3 and pixhawk_heard >= 3

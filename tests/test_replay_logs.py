@@ -3,6 +3,7 @@ pyulog's own readers (counts per type, time span); damage is reported with its b
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 
 import pytest
@@ -73,9 +74,21 @@ def test_dataflash_counts_and_span_match_pymavlink(logs_dir, name):
 
 def test_truncated_dataflash_replays_up_to_the_damage_and_says_where(logs_dir, capsys):
     path = str(logs_dir / "ardupilot-fragment.bin")
-    assert open_source(path).damage.startswith(f"{path}: offset 65515:")
+    assert open_source(path).damage.startswith(f"{path}: offset 65512: log ends inside a record (24 of its 45 bytes)")
     assert main(["replay", path, "--fast"]) == 0
-    assert "offset 65515" in capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert "offset 65512" in printed.err
+    # the printed speed is end to end: its parts add up to the time it is computed from
+    found = re.search(
+        r"replayed ([0-9.]+) s in ([0-9.]+) s \(([0-9.]+)x real time, end to end: numba's set-up ([0-9.]+) s, "
+        r"decoding ([0-9.]+) s, estimators ([0-9.]+) s\)",
+        printed.out,
+    )
+    assert found, printed.out
+    duration, total, speed, *parts = map(float, found.groups())
+    assert abs(sum(parts) - total) <= 0.02  # each printed to 0.01 s
+    slowest, fastest = (duration - 0.05) / (total + 0.005), (duration + 0.05) / max(total - 0.005, 1e-9)
+    assert slowest - 0.05 <= speed <= fastest + 0.05
 
 
 def test_ulog_counts_and_span_match_pyulog(logs_dir):
@@ -152,13 +165,17 @@ def test_truncated_ulog_replays_up_to_the_damage_and_says_where(logs_dir, tmp_pa
 
 
 def test_dataflash_with_a_garbled_header_says_where_in_one_line(logs_dir, tmp_path, capfd):
-    """DFReader's fast indexer prints every bad byte on file descriptor 2 itself (capfd sees it)."""
+    """One line for the damage, on file descriptor 2 too (capfd: nothing else is printed there)."""
     data = bytearray((logs_dir / "arducopter-sitl-hop.BIN").read_bytes())
     at = data.index(b"\xa3\x95", len(data) // 2)  # a record's header, half way through
+    size = data.index(b"\xa3\x95", at + 2) - at
     data[at : at + 2] = b"\x00\x00"
     path = tmp_path / "garbled.bin"
     path.write_bytes(bytes(data))
-    assert open_source(path).damage == f"{path}: offset {at}: damaged data skipped (bad header 0x0000)"
+    cause = f"bad record header 0x0000; {size} bytes skipped up to the next record"
+    assert open_source(path).damage == f"{path}: offset {at}: {cause} (1 more damaged places)"  # and the cut end
     assert main(["replay", str(path), "--fast"]) == 0
     err = capfd.readouterr().err
-    assert f"offset {at}" in err and "bad header 0x0000 at" not in err  # DFReader's own lines are not passed on
+    assert [line for line in err.splitlines() if "offset" in line] == [
+        f"damage: {path}: offset {at}: {cause} (1 more damaged places)"
+    ]

@@ -7,9 +7,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from gcs.core import samples
+from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample
 from gcs.logs import dataflash, ulog
 from gcs.mavlink import sampling
+from gcs.sim.dataflash import NEW_FORMATS, OLD_FORMATS, DataflashWriter, e7, x100
 
 
 def wire(msg, system=1):
@@ -125,24 +127,31 @@ def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
     assert [(s.source, s.t) for s in released] == [("ahrs2", pytest.approx(1.040344))]
 
 
-class Record:  # DataFlash rows are plain attribute bags with a type name; this is one, not a mock of one
-    def __init__(self, kind, **kw):
-        self.kind = kind
-        self.__dict__.update(kw)
+def dataflash_samples(tmp_path, formats, records, imu=0):
+    """The samples DataflashLog reads from a .bin of these record layouts and records (without
+    the declination changes: a 3D fix gives one)."""
+    writer = DataflashWriter()
+    for name in dict.fromkeys(name for name, _ in records):
+        writer.define(name, *formats[name])
+    for name, values in records:
+        writer.add(name, *values)
+    path = tmp_path / "records.bin"
+    path.write_bytes(writer.bytes())
+    return [s for s in dataflash.DataflashLog(str(path), imu) if not isinstance(s, GainChange)]
 
-    def get_type(self):
-        return self.kind
 
-
-def test_log_records():
-    s = dataflash.imu_from_dataflash(
-        Record("IMU", TimeUS=1_500_000, I=0, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8)
+def test_log_records(tmp_path):
+    imu, gps = dataflash_samples(
+        tmp_path,
+        NEW_FORMATS,
+        [
+            ("IMU", (1_500_000, 0, 0.1, 0.2, 0.3, 0.0, 0.0, -9.8)),
+            ("GPS", (2_000_000, 0, 3, 0, 0, 12, 90, e7(-35.0), e7(149.0), x100(584.0), 2.0, 180.0, -0.5, 0.0)),
+        ],
     )
-    assert s.t == 1.5 and s.gyro.tolist() == [0.1, 0.2, 0.3] and s.mag is None
-    g = dataflash.gps_from_dataflash(
-        Record("GPS", TimeUS=2_000_000, I=0, Lat=-35.0, Lng=149.0, Alt=584.0, Spd=2.0, GCrs=180.0, VZ=-0.5, Status=3)
-    )
-    np.testing.assert_allclose(g.vel_ned, [-2.0, 0.0, -0.5], atol=1e-12)
+    assert imu.t == 1.5 and imu.gyro.tolist() == np.float32([0.1, 0.2, 0.3]).tolist() and imu.mag is None
+    assert (gps.t, gps.lat, gps.lon, gps.alt, gps.fix_type) == (2.0, -35.0, 149.0, 584.0, 3)
+    np.testing.assert_allclose(gps.vel_ned, [-2.0, 0.0, -0.5], atol=1e-12)
     combined = {"timestamp": np.array([3_000_000], dtype=np.uint64)}
     for i, (gyro, accel) in enumerate(zip([0.0, 0.1, 0.0], [0.0, 0.0, -9.81], strict=True)):
         combined[f"gyro_rad[{i}]"], combined[f"accelerometer_m_s2[{i}]"] = np.float32([gyro]), np.float32([accel])
@@ -151,26 +160,36 @@ def test_log_records():
     np.testing.assert_array_equal(u[0, 1:], np.float32([0.0, 0.1, 0.0, 0.0, 0.0, -9.81]))
 
 
-def test_old_dataflash_records_timems_and_instance_by_type():
-    """ArduCopter 3.2: TimeMS in ms, the second IMU is its own type IMU2, MAG in milligauss."""
+def test_old_dataflash_records_timems_and_instance_by_type(tmp_path):
+    """ArduCopter 3.2: TimeMS in ms, the second IMU is its own type IMU2 (carrying the first
+    compass, MAG, as the autopilot uses it), MAG in milligauss, GPS
+    TimeMS the GPS time of week and T the boot time (ms), angles in centidegrees; 3.1's GPS
+    (no T) takes the time of the record before it, 3.1's ATT (no time at all) is not used."""
     assert samples.ms_to_usec(1234) == 1_234_000
-    mag = dataflash.mag_from_dataflash(Record("MAG2", TimeMS=1_000, MagX=224, MagY=80, MagZ=-528))
-    assert mag.t == 1.0 and mag.source == "MAG[1]"
-    np.testing.assert_allclose(mag.field, [0.224, 0.080, -0.528])
-    assert dataflash.mag_from_dataflash(Record("MAG", TimeMS=1_000, MagX=0, MagY=0, MagZ=0)) is None
-    s = dataflash.imu_from_dataflash(
-        Record("IMU2", TimeMS=1_500, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0.0, AccY=0.0, AccZ=-9.8), mag
-    )
-    assert s.t == 1.5 and s.source == "IMU[1]" and s.mag is mag.field
-    fix = {"Lat": -35.0, "Lng": 149.0, "Alt": 584.0, "Spd": 2.0, "GCrs": 90.0, "VZ": 0.5, "Status": 3}
-    # 3.2's GPS: TimeMS is the GPS time of week, T the boot time (ms)
-    g = dataflash.gps_from_dataflash(Record("GPS", TimeMS=130_040_903, Week=1769, T=2_000, **fix))
+    gps = (3, 130_040_903, 1769, 12, 90, e7(-35.0), e7(149.0), 0, x100(584.0), x100(2.0), x100(90.0), 0.5)
+    formats = {**OLD_FORMATS, "GPS1": ("BIHBcLLeeEef", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs,VZ")}
+    formats["ATT1"] = ("ccccCC", "DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw")
+    records = [
+        ("MAG", (1_000, 224, 80, -528, 0, 0, 0, 0, 0, 0)),
+        ("IMU2", (1_500, 0.1, 0.2, 0.3, 0.0, 0.0, -9.8)),
+        ("GPS", (*gps, 2_000)),
+        ("ATT", (2_500, 0, -718, 0, 258, 0, 33710)),
+        ("MAG", (2_600, 0, 0, 0, 0, 0, 0, 0, 0, 0)),
+        ("IMU2", (2_700, 0.1, 0.2, 0.3, 0.0, 0.0, -9.8)),
+    ]
+    imu, g, att, no_mag = dataflash_samples(tmp_path, formats, records, imu=1)
+    assert imu.t == 1.5 and imu.source == "IMU[1]"
+    np.testing.assert_allclose(imu.mag, [0.224, 0.080, -0.528])
+    assert no_mag.mag is None  # an all-zero field: no compass
     assert g.t == 2.0 and g.fix_type == 3 and g.course == pytest.approx(math.pi / 2)
     np.testing.assert_allclose(g.vel_ned, [0.0, 2.0, 0.5], atol=1e-12)
-    att = dataflash.attitude_from_dataflash(Record("ATT", TimeMS=2_500, Roll=-7.18, Pitch=2.58, Yaw=337.1), "onboard")
-    assert att.t == 2.5 and att.yaw == pytest.approx(math.radians(337.1 - 360))
-    assert dataflash.record_time_us(Record("ATT", Roll=0.0)) is None  # ArduCopter 3.1's ATT has no time
-    assert dataflash.record_time_us(Record("GPS", TimeMS=130_040_903, Week=1769, **fix)) is None  # 3.1's GPS
+    assert att.t == 2.5 and att.roll == pytest.approx(math.radians(-7.18))
+    assert att.yaw == pytest.approx(math.radians(337.1 - 360))
+    # ArduCopter 3.1 (the record layouts renamed only so one file can hold both)
+    formats = {"IMU": OLD_FORMATS["IMU"], "GPS": formats["GPS1"], "ATT": formats["ATT1"]}
+    records = [("IMU", (1_500, 0.1, 0.2, 0.3, 0.0, 0.0, -9.8)), ("GPS", gps), ("ATT", (0, -718, 0, 258, 0, 33710))]
+    imu, g = dataflash_samples(tmp_path, formats, records)
+    assert g.t == 1.5 and g.lat == -35.0
 
 
 @pytest.mark.parametrize("modern", [True, False])

@@ -213,6 +213,20 @@ def test_reading_resumes_at_a_sync_marker_after_damage(tmp_path):
     )
 
 
+def test_many_short_messages_are_all_walked(tmp_path):
+    """200,000 one-byte messages of a type the format does not know (a newer logger's) in the
+    middle of the flight: more messages than the index is first sized for. They are skipped, every
+    sample on both sides is read, and nothing is damage."""
+    data = PX4.read_bytes()
+    starts = message_starts(data)
+    k = len(starts) // 2
+    path = tmp_path / "short-messages.ulg"
+    path.write_bytes(data[: starts[k]] + struct.pack("<HBB", 1, ord("x"), 0) * 200_000 + data[starts[k] :])
+    reader = UlogFile(str(path))
+    assert_same_samples(list(reader), pyulog_reference.read(str(PX4)).samples)
+    assert reader.damage is None
+
+
 def test_data_of_an_undeclared_message_id_is_skipped_as_pyulog_skips_it(tmp_path):
     """One sensor_combined message's id changed to one no subscription declared: that sample is
     gone, every other one is pyulog's (which skips it too), and the damage line names it."""

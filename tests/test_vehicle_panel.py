@@ -6,6 +6,7 @@ table shows the same RMS as /api/estimates to the displayed precision."""
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process, wait_for
@@ -83,21 +84,32 @@ async def scenario(udp_port: int, artifacts_dir) -> None:
                     timeout=120_000,
                 )
                 await page.locator("#vehicle").screenshot(path=str(artifacts_dir / "vehicle-panel.png"))
-            # The vehicle has stopped: the numbers hold still; the page's table equals the API's.
-            await asyncio.sleep(3.0)  # one station snapshot and one page poll after the last sample
-            await page.wait_for_timeout(2500)
-            table = await page.evaluate(
-                """() => Object.fromEntries([...document.querySelectorAll('#numbers-table tr[data-estimator]')]
-                    .map((r) => [`${r.dataset.estimator}|${r.dataset.reference}`,
-                                 [r.querySelector('.rms-window').textContent,
-                                  r.querySelector('.rms-session').textContent]]))"""
-            )
-            api = await page.evaluate("fetch('/api/estimates').then((r) => r.json())")
-            for est in ("dcm", "kf", "ekf"):
-                for ref in ("onboard", "truth"):
-                    stats = api["sources"][est]["errors"][ref]
-                    expect = [" / ".join(shown(x) for x in stats[k]) for k in ("window_rms_deg", "session_rms_deg")]
-                    assert table[f"{est}|{ref}"] == expect, (est, ref, table[f"{est}|{ref}"], expect)
+            # The vehicle has stopped: the numbers hold still, and once a station snapshot and a page
+            # poll have followed the last sample the page's table equals the API's.
+            table_js = """() => Object.fromEntries([...document.querySelectorAll('#numbers-table tr[data-estimator]')]
+                .map((r) => [`${r.dataset.estimator}|${r.dataset.reference}`,
+                             [r.querySelector('.rms-window').textContent,
+                              r.querySelector('.rms-session').textContent]]))"""
+
+            async def page_and_api():
+                table = await page.evaluate(table_js)
+                api = await page.evaluate("fetch('/api/estimates').then((r) => r.json())")
+                expect = {
+                    f"{est}|{ref}": [
+                        " / ".join(shown(x) for x in api["sources"][est]["errors"][ref][k])
+                        for k in ("window_rms_deg", "session_rms_deg")
+                    ]
+                    for est in ("dcm", "kf", "ekf")
+                    for ref in ("onboard", "truth")
+                }
+                return {key: table.get(key) for key in expect}, expect
+
+            deadline = time.monotonic() + 60
+            shown_rows, expect = await page_and_api()
+            while shown_rows != expect and time.monotonic() < deadline:
+                await page.wait_for_timeout(POLL_MS)
+                shown_rows, expect = await page_and_api()
+            assert shown_rows == expect
             now = await page.text_content("#now-table")
             assert "onboard" in now and "ekf" in now
             await page.locator("#plots").screenshot(path=str(artifacts_dir / "numbers.png"))

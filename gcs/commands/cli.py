@@ -7,10 +7,12 @@ import argparse
 import importlib
 import signal
 import sys
+from collections.abc import Collection
 
 from gcs.provenance import provenance
 
-#: subcommand -> (module, one-line help). Modules are imported only when their command runs.
+#: subcommand -> (module, one-line help). A command's module is imported only when that command is
+#: asked for: `gcs replay` does not pay for the server's imports (FastAPI, viser, uvicorn: ~1 s).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("gcs.commands.demo", "start the simulated vehicle and the ground station together (no hardware needed)"),
     "status": (
@@ -56,7 +58,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(commands: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with `commands`, only those commands' options (the others are
+    listed with their help, so `gcs --help` and a mistyped command read as before)."""
     parser = argparse.ArgumentParser(
         prog="gcs",
         description="MAVLink ground station and telemetry server for flight tests.",
@@ -66,12 +70,15 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (module, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module)
-        importlib.import_module(module).add_arguments(p)
+        if commands is None or name in commands:
+            importlib.import_module(module).add_arguments(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((arg for arg in argv if not arg.startswith("-")), None)
+    parser = build_parser(() if command is None else (command,))
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()

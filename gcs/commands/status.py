@@ -114,11 +114,13 @@ def format_radio(snap: StationSnapshot) -> list[str]:
     if radio is None or not radio.present or radio.status is None:
         return []
     s = radio.status
+    shared = f", shared by {radio.shared_by} vehicles" if radio.shared_by > 1 else ""
     lines = [
         f"radio      rssi {s.rssi}/{s.remrssi} (remote)  noise {s.noise}/{s.remnoise}  txbuf {s.txbuf} % free  "
         f"rxerrors {s.rxerrors}  fixed {s.fixed}",
-        f"  budget   {radio.used_bps:.0f} B/s used of {radio.capacity_bps:.0f} B/s (plan {radio.budget_bps:.0f})  "
-        f"streams at {radio.scale:.0%} of wanted (predicted {radio.predicted_scale:.0%}): {radio.choice}",
+        f"  budget   {radio.used_bps:.0f} B/s used of {radio.capacity_bps:.0f} B/s "
+        f"(plan {radio.budget_bps:.0f}{shared})  streams at {radio.scale:.0%} of wanted "
+        f"(predicted {radio.predicted_scale:.0%}): {radio.choice}",
     ]
     for name, row in radio.streams.items():
         lines.append(

@@ -23,6 +23,8 @@ from typing import TypedDict
 import numpy as np
 import numpy.typing as npt
 
+from gcs.core import lag as running_lag
+from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
 from gcs.core.lag import RunningLag
 from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
 from gcs.core.samples import AttitudeSample
@@ -179,6 +181,8 @@ class _Stats:
         }
 
 
+#: Estimates `Comparison._bracket` steps back through before it bisects (a deque's middle is slow to reach).
+SCAN_BACK = 32
 #: References the lag keeps over its history at most (30 s of 50 Hz ATTITUDE is 1500; more add nothing).
 LAG_POINTS = 500
 
@@ -224,7 +228,7 @@ class Comparison:
         w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
         estimates.append((t, (float(w), float(x), float(y), float(z))))
         lag = self.running_lag
-        if not lag.estimates or t >= lag.estimates[-1][0] + self.lag_step:  # the lag's resolution
+        if t >= lag.last_estimate() + self.lag_step:  # the lag's resolution
             roll, pitch, _ = euler if euler is not None else quat_to_euler((w, x, y, z))
             lag.add_estimate(t, roll, pitch)
         start = t - self.history
@@ -253,24 +257,40 @@ class Comparison:
         if not est or ref.t < est[0][0]:
             self.dropped += 1
             return
-        lo, hi = 0, len(est) - 1
-        if ref.t >= est[hi][0]:
-            lo = hi
-        while hi - lo > 1:  # binary search for est[lo].t <= t < est[hi].t
-            mid = (lo + hi) // 2
-            if est[mid][0] <= ref.t:
-                lo = mid
-            else:
-                hi = mid
-        (t0, q0), (t1, q1) = est[lo], est[hi]
+        (t0, q0), (t1, q1) = self._bracket(ref.t)
         u = (ref.t - t0) / (t1 - t0) if t1 > t0 else 0.0
-        err = attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
+        err = compiled_attitude_error(q0, q1, u, ref.roll, ref.pitch, ref.yaw)
         stats = self.stats.get(ref.source)
         if stats is None:
             stats = self.stats[ref.source] = _Stats(self.window)
         stats.add(ref.t, err)
         if ref.source == "onboard":
             self.running_lag.add_reference(ref.t, ref.roll, ref.pitch)
+
+    def _bracket(self, t: float) -> tuple[tuple[float, Quat], tuple[float, Quat]]:
+        """The estimates at est[lo].t <= t < est[hi].t (both the last one when t is at or past it;
+        est[0].t <= t). The times strictly increase, so the pair is unique: a reference is scored
+        as soon as the estimator passes it, within a few estimates of the newest, so it is looked
+        for from the newest back, and by bisection beyond `SCAN_BACK` of them."""
+        est = self.estimates
+        hi = len(est) - 1
+        if t >= est[hi][0]:
+            return est[hi], est[hi]
+        newer = est[hi]
+        for k, e in enumerate(reversed(est)):
+            if e[0] <= t:
+                return e, newer
+            if k == SCAN_BACK:
+                break
+            newer = e
+        lo = 0
+        while hi - lo > 1:  # bisection for est[lo].t <= t < est[hi].t
+            mid = (lo + hi) // 2
+            if est[mid][0] <= t:
+                lo = mid
+            else:
+                hi = mid
+        return est[lo], est[hi]
 
     def imu_rate(self) -> float:
         """Estimator output (= raw IMU) rate over the last `window` seconds, Hz."""
@@ -305,3 +325,9 @@ class Comparison:
             "dropped": self.dropped,
             "references": {source: s.summary() for source, s in sorted(self.stats.items())},
         }
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the comparison's kernels now, off the live loop."""
+    running_lag.warm()
+    compiled_attitude_error((1.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 0.5, 0.0, 0.0, 0.0)

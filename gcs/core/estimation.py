@@ -18,7 +18,6 @@ from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.gains import PresetFile
 from gcs.core.plausibility import refusal
-from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 
@@ -136,12 +135,11 @@ class EstimationPipeline:
             except Exception as exc:  # one estimator's fault: it restarts, the others go on
                 self._restart(name, est, f"{type(exc).__name__}: {exc}")
                 continue
-            q = est.quaternion.tolist()  # plain floats from here on: numpy scalars are slow
+            q, euler = est.attitude()  # plain floats from here on: numpy scalars are slow
             w, x, y, z = q
             if not isfinite(w + x + y + z):  # a NaN or an infinity anywhere (|q| = 1 otherwise)
                 self._restart(name, est, f"non-finite state at t={t:.3f} s")
                 continue
-            euler = quat_to_euler(q)
             comparisons[name].add_estimate(t, q, euler)
             if valid:
                 latest[name] = point = AttitudePoint(t, name, *euler)

@@ -104,6 +104,18 @@ class InputTableBuilder:
         )
 
 
+def gain_columns(
+    changes: list[GainChange], names: list[str]
+) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.uint16], Floats]:
+    """An input table's gain columns (estimator code or -1, gain name code, value) for changes,
+    their names interned into `names` (appended where new), for readers that build tables whole."""
+    for change in changes:
+        names.extend(n for n in (change.estimator, change.name) if n is not None and n not in names)
+    estimator = np.array([-1 if c.estimator is None else names.index(c.estimator) for c in changes], dtype=np.int16)
+    name = np.array([names.index(c.name) for c in changes], dtype=np.uint16)
+    return estimator, name, np.array([c.value for c in changes], dtype=np.float64)
+
+
 @dataclass(frozen=True, eq=False)
 class InputTable:
     """Inputs in their original order: `kind[i]` says which table holds input i; each table's

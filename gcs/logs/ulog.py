@@ -25,7 +25,7 @@ from gcs.core.estimation import GainChange
 from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.estimators.whole import euler_of
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, degE7_to_deg, mm_to_m, usec_to_s
-from gcs.logs.input_table import InputTable
+from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog_format import read_ulog
 
@@ -192,8 +192,7 @@ class UlogFile(LogFile):
             codes[kind == GPS] = np.where(np.asarray(streams[GPS][1]["vel_ned_valid"]) != 0, Kind.GPS_VEL, Kind.GPS)
         codes[kind == ATTITUDE] = Kind.ATTITUDE
         names = [IMU_TOPIC, "onboard", streams[GPS][0] if GPS in streams else GPS_TOPICS[0]]
-        for _, change in gains:
-            names.extend(n for n in (change.estimator, change.name) if n is not None and n not in names)
+        gain_estimator, gain_name, gain_value = gain_columns([change for _, change in gains], names)
         attitude = attitude_rows(streams[ATTITUDE][1]) if ATTITUDE in streams else np.empty((0, 4))
         return InputTable(
             kind=codes,
@@ -203,11 +202,9 @@ class UlogFile(LogFile):
             gps_source=np.full(len(gps), 2, dtype=np.uint16),
             attitude=attitude,
             attitude_source=np.ones(len(attitude), dtype=np.uint16),
-            gain_estimator=np.array(
-                [-1 if c.estimator is None else names.index(c.estimator) for _, c in gains], dtype=np.int16
-            ),  # fmt: skip
-            gain_name=np.array([names.index(change.name) for _, change in gains], dtype=np.uint16),
-            gain_value=np.array([change.value for _, change in gains], dtype=np.float64),
+            gain_estimator=gain_estimator,
+            gain_name=gain_name,
+            gain_value=gain_value,
             names=tuple(names),
         )
 

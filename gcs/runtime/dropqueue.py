@@ -34,7 +34,13 @@ class DropOldestQueue(Generic[T]):
         """Until something is queued (True), or `timeout` s pass first (False).
 
         `asyncio.timeout`, not `wait_for`: on Python 3.11 `wait_for` can swallow a cancellation
-        that arrives as the item does, and a stopping station would hang."""
+        that arrives as the item does, and a stopping station would hang. Without a timeout none
+        is set up: a viewer's sender waits here once per frame."""
+        if timeout is None:
+            while not self.items:
+                self._ready.clear()
+                await self._ready.wait()
+            return True
         try:
             async with asyncio.timeout(timeout):
                 while not self.items:

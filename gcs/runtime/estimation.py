@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
+from gcs.core import comparison
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
@@ -21,6 +22,19 @@ from gcs.runtime.signal import Signal
 #: About 2 ms of estimation at the live pipeline's ~100-150 µs per IMU message: at 20,000 msg/s a turn
 #: brings ~50 datagrams, fewer than the link reads in one (gcs.transport.pipes.UDP_READ_BATCH).
 BATCH = 16
+#: Messages that arrive within this long of the last turn that estimated are estimated together,
+#: at its end: a turn per tick instead of one per datagram (each wakes the loop alone), so the
+#: per-turn costs (the task's wake-up, the listeners' calls, the live hub's scheduling) are paid
+#: per tick. The live hub sends a frame every 10 ms (gcs.server.live), so a sample waits no longer
+#: than it waited for its frame before: the frame goes out right after the tick's points arrive.
+#: A batch already waiting (BATCH or more) is estimated at once: the estimation is behind.
+TICK = 0.010
+
+
+def warm() -> None:
+    """Compile (or load from the disk cache) the estimators' and the comparison's kernels."""
+    registry.warm()
+    comparison.warm()
 
 
 class LiveEstimation:
@@ -31,8 +45,9 @@ class LiveEstimation:
     gain change is recorded, so that a replay re-applies it exactly where it was applied live.
     """
 
-    def __init__(self, link: Link, pipeline: EstimationPipeline | None = None) -> None:
+    def __init__(self, link: Link, pipeline: EstimationPipeline | None = None, tick: float = TICK) -> None:
         self.link = link
+        self.tick = tick
         self.pipeline = pipeline or EstimationPipeline()
         self.inputs = MessageInputs()
         self.messages_fed = 0
@@ -52,10 +67,17 @@ class LiveEstimation:
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
-            await asyncio.to_thread(registry.warm)
+            await asyncio.to_thread(warm)
             heap.freeze()  # the kernels' objects are here for good: no collection walks them
+            loop = asyncio.get_running_loop()
+            next_tick = loop.time()
             while True:
-                self._feed([await sub.next(), *sub.drain(BATCH - 1)])
+                await sub.queue.wait()
+                delay = next_tick - loop.time()
+                if delay > 0 and len(sub.queue) < BATCH:  # the rest of the tick's messages come too
+                    await asyncio.sleep(delay)
+                next_tick = loop.time() + self.tick
+                self._feed(sub.drain(BATCH))
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)
         finally:

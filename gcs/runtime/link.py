@@ -125,6 +125,7 @@ class Link:
         self.target_component: int | None = None
         self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
         self.last_heartbeat: float | None = None  # host monotonic s
+        self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
         self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         #: MAVLink 2 signing (gcs.mavlink.signing): what we send is signed, what arrives checked
@@ -266,11 +267,12 @@ class Link:
     def _on_heartbeat(self, msg, sysid: int, compid: int, now: float) -> None:
         if not is_vehicle_heartbeat(msg):
             return  # another ground station, a gimbal, a companion: not the vehicle
+        version = 2 if msg.get_msgbuf()[0] == MARKER_V2 else 1
+        self.vehicles_heard[sysid] = version
         if self.target_system is None:
             self.target_system, self.target_component = sysid, compid
         elif (sysid, compid) != (self.target_system, self.target_component):
             return
-        version = 2 if msg.get_msgbuf()[0] == MARKER_V2 else 1
         if version != self.vehicle_mavlink:
             self.vehicle_mavlink = version
             self._encoder.mavlink1 = version == 1 and self.signing is None
@@ -285,8 +287,22 @@ class Link:
         )
         period = 1.0 / self.heartbeat_rate
         while True:
-            self.send(msg)
+            for mavlink1 in self._heartbeat_versions():
+                self.send(msg, mavlink1)
             await asyncio.sleep(period)
+
+    @property
+    def sharing(self) -> int:
+        """How many vehicles share this link's air time (a radio's budget is split between them)."""
+        return max(1, len(self.vehicles_heard))
+
+    def _heartbeat_versions(self) -> tuple[bool | None, ...]:
+        """The station's heartbeat goes out in every MAVLink version the vehicles on this link
+        speak: an APM 2.5 drops MAVLink 2 frames (it would never hear the station), and a MAVLink 2
+        vehicle should not be offered MAVLink 1 alone. A signed link speaks MAVLink 2 only."""
+        if self.signing is None and len(set(self.vehicles_heard.values())) > 1:
+            return (True, False)
+        return (None,)  # the version of the vehicle this link follows
 
     async def _watchdog_loop(self) -> None:
         next_sample = 0.0

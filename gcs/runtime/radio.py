@@ -4,7 +4,8 @@ station that backs off when the radio's buffer fills instead of flooding it.
 
 A radio is taken to be there once a RADIO_STATUS arrives (SiK radios inject one a second). Then:
 1. predict: the wanted rates scaled so that streams + the other traffic fit BUDGET_SHARE of the
-   link's capacity (gcs.mavlink.radio); those are requested (StreamRequester.rate_cap);
+   link's capacity (gcs.mavlink.radio), split evenly between the vehicles heard on the link (two
+   vehicles behind one radio each plan on half); those are requested (StreamRequester.rate_cap);
 2. follow txbuf (percent of the radio's buffer free): below LOW_TXBUF the station lowers its fast
    streams by BACK_OFF and asks again, at most once per ADJUST_INTERVAL; after CALM_INTERVALS
    checks above HIGH_TXBUF it climbs back by STEP_UP towards the prediction, never above it nor,
@@ -45,7 +46,6 @@ class RadioGovernor:
     def __init__(self, link: Link, streams: StreamRequester, events: EventLog, baud: int = 57600) -> None:
         self.link, self.streams, self.events = link, streams, events
         self.capacity_bps = link_capacity(baud)
-        self.budget_bps = self.capacity_bps * BUDGET_SHARE
         self.status: RadioStatus | None = None
         self._status_at: float | None = None
         self.wanted: dict[str, float] = {}
@@ -55,6 +55,11 @@ class RadioGovernor:
         self._calm = 0
         self._ceiling = 1.0 / BACK_OFF  # the scale that last filled the buffer (none yet)
         self._ceiling_at = 0.0
+
+    @property
+    def budget_bps(self) -> float:
+        """This vehicle's share of what the streams may plan on."""
+        return self.capacity_bps * BUDGET_SHARE / self.link.sharing
 
     @property
     def present(self) -> bool:
@@ -173,6 +178,7 @@ class RadioGovernor:
             status=status,
             capacity_bps=round(self.capacity_bps, 1),
             budget_bps=round(self.budget_bps, 1),
+            shared_by=self.link.sharing,
             used_bps=round(self.link.stats.bytes_per_second(), 1),
             predicted_scale=self.prediction.scale if self.prediction is not None else 1.0,
             scale=round(self.scale, 3),

@@ -236,7 +236,8 @@ class RadioSnapshot:
     present: bool
     status: RadioStatus | None
     capacity_bps: float
-    budget_bps: float
+    budget_bps: float  # this vehicle's share of BUDGET_SHARE × capacity
+    shared_by: int  # vehicles heard on the link, splitting its budget
     used_bps: float
     predicted_scale: float
     scale: float

@@ -94,6 +94,10 @@ class VehicleLink(Link):
     def is_open(self) -> bool:
         return self.link is not None and self.link.is_open
 
+    @property
+    def sharing(self) -> int:
+        return self.link.sharing if self.link is not None else 1
+
     def snapshot(self) -> LinkSnapshot:
         own = super().snapshot()
         if self.link is None:

@@ -10,8 +10,6 @@ replaces it), is encoded anew on the next request.
 
 from __future__ import annotations
 
-import dataclasses
-
 from gcs.core import strict_json
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.snapshots import StationSnapshot
@@ -41,7 +39,7 @@ class StatusBodies:
         own = encode(
             {
                 "data_age_ms": None if age is None else round(age * 1000, 1),
-                "clients": [dataclasses.asdict(c.snapshot()) for c in hub.clients.values()],
+                "clients": [c.snapshot().as_dict() for c in hub.clients.values()],
                 "viser_port": viser_port,
                 "authorised": authorised,
             }

@@ -31,8 +31,6 @@ import pyarrow.parquet as pq
 
 from gcs.core.protocol import ProtocolTables
 from gcs.sessions.contents import Contents, open_contents
-from gcs.sessions.matfile import write_mat
-from gcs.sessions.mcapfile import write_mcap
 from gcs.sessions.protocol import csv_table
 from gcs.sessions.sources import ReplaySource, open_source
 
@@ -74,8 +72,12 @@ def write_table(table: pa.Table, fmt: str, out: str | os.PathLike) -> None:
 def write_contents(contents: Contents, fmt: str, out: str | os.PathLike) -> int:
     """Write `contents` in `fmt` to `out` (in place); returns what UNITS[fmt] counts."""
     if fmt == "mat":
+        from gcs.sessions.matfile import write_mat  # noqa: PLC0415 - scipy.io: ~0.2 s at every replay's start
+
         return write_mat(contents, out)
     if fmt == "mcap":
+        from gcs.sessions.mcapfile import write_mcap  # noqa: PLC0415 - only MCAP exports need it
+
         return write_mcap(contents, out)
     if fmt not in FORMATS:
         raise ValueError(f"format {fmt!r}: use one of {', '.join(FORMATS)}")

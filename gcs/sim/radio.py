@@ -153,11 +153,12 @@ class RadioEndpoint:
         self.endpoint.close()
 
 
-def fit_radio(sim, baud: int = 57600, seed: int = 0) -> SikRadio:
-    """Put a radio between `sim` (a SimVehicle) and the station. Its logger then sends as
+def fit_radio(sim, baud: int = 57600, seed: int = 0, radio: SikRadio | None = None) -> SikRadio:
+    """Put a radio between `sim` (a SimVehicle) and the station: a new one, or `radio` shared with
+    other vehicles (a multipoint network: one air time, one buffer). Its logger then sends as
     ArduPilot does on a serial port without flow control: one LOG_DATA per send loop, only when
     the UART has room."""
-    radio = SikRadio(baud, mavlink1=sim.profile.mavlink1, seed=seed)
+    radio = radio or SikRadio(baud, mavlink1=sim.profile.mavlink1, seed=seed)
     sim.radio = radio
     sim.log_server.sends_per_loop = 1
     sim.log_server.has_room = radio.uart_has_room

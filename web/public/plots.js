@@ -156,29 +156,44 @@ function wrapGaps(u, si, i0, i1, nullGaps) {
   return gaps.sort((a, b) => a[0] - b[0]);
 }
 
-// One uPlot chart of one axis for a list of series.
+// One uPlot chart of one axis for a list of series. No uPlot legend (it took half of each
+// chart's height): the colours are the table's, and the values under the cursor are one line in
+// the chart's title.
 class Chart {
-  constructor(parent, title, lines, axis, hooks, yLabel) {
+  constructor(parent, title, lines, axis, hooks) {
     this.lines = lines; this.axis = axis; this.key = "";
     const box = document.createElement("div"); box.className = "chart";
-    box.innerHTML = `<h3>${title}</h3>`; parent.appendChild(box);
+    const h3 = document.createElement("h3"); h3.textContent = title;
+    this.readout = document.createElement("span"); this.readout.className = "readout";
+    h3.appendChild(this.readout); box.appendChild(h3); parent.appendChild(box);
     this.box = box;
     const opts = {
       width: this.widthFor(), height: Plots.chartHeight(),
       scales: { x: { time: false } },
       cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
-      legend: { live: true },
-      series: [{ label: "vehicle t (s)", value: (u, v) => v == null ? "–" : v.toFixed(3) },
-        ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: true,
-                               gaps: axis === 2 ? wrapGaps : undefined,
-                               points: { show: false }, value: (u, v) => v == null ? "–" : v.toFixed(2) + "°" }))],
-      axes: [{ label: "vehicle time (s)", labelSize: 14, size: 30 },
-        { size: 50, label: yLabel, labelSize: 14, values: (u, ticks) => ticks.map((t) => t + "°") }],
-      hooks: { setSelect: [(u) => hooks.select(u)] },
+      legend: { show: false },
+      series: [{}, ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: true,
+                                           gaps: axis === 2 ? wrapGaps : undefined, points: { show: false } }))],
+      axes: [{ size: 22 }, { size: 46, values: (u, ticks) => ticks.map((t) => t + "°") }],
+      hooks: { setSelect: [(u) => hooks.select(u)], setCursor: [(u) => this.showCursor(u)] },
     };
     this.u = new uPlot(opts, [[], ...lines.map(() => [])], box);
     this.u.over.addEventListener("dblclick", hooks.live);
     this.binners = lines.map((l) => new Binner(l.series, axis, 8192));
+  }
+  // The values under the cursor: "t 12.34 s  onboard 17.39°  dcm 17.46° ...", each in its colour.
+  showCursor(u) {
+    const i = u.cursor.idx, parts = [];
+    if (i != null && u.data[0][i] != null) {
+      parts.push(`t ${u.data[0][i].toFixed(2)} s`);
+      this.lines.forEach((l, k) => {
+        const v = u.data[k + 1][i];
+        if (v == null) return;
+        const span = document.createElement("span"); span.style.color = l.color;
+        span.textContent = `${l.label} ${v.toFixed(2)}°`; parts.push(span);
+      });
+    }
+    this.readout.replaceChildren(...parts.flatMap((x, k) => (k ? [" ", x] : [x])));
   }
   widthFor() { return Math.max(150, this.box.clientWidth - 2); }
   draw(t0, t1, live) {
@@ -217,11 +232,11 @@ class Plots {
   build() {
     this.parent.innerHTML = "";
     const hooks = { select: (u) => this.zoom(u), live: () => this.goLive() };
-    const srcLines = Object.keys(this.sources).map((s) => ({ label: `${s} (°)`, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
-    const errLines = this.errors.map((x) => ({ label: `${x.name} (°)`, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
+    const srcLines = Object.keys(this.sources).map((s) => ({ label: s, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
+    const errLines = this.errors.map((x) => ({ label: x.name, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
     this.charts = [
-      ...AXES.map((a, i) => new Chart(this.parent, `${a} (degrees)`, srcLines, i, hooks, `${a} (°)`)),
-      ...AXES.map((a, i) => new Chart(this.parent, `${a} error, degrees (estimator − reference; solid: − onboard, dashed: − truth)`, errLines, i, hooks, `${a} error (°)`)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} (°)`, srcLines, i, hooks)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} error (°): solid − onboard, dashed − truth`, errLines, i, hooks)),
     ];
   }
   newest() { let t = -Infinity; for (const s of Object.values(this.sources)) t = Math.max(t, s.last()); return t; }

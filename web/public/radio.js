@@ -21,7 +21,9 @@
       `<tr><td>${escapeHtml(name)}</td><td>${hz(x.wanted_hz)}</td><td>${hz(x.predicted_hz)}</td>`
       + `<td>${hz(x.requested_hz)}</td><td>${hz(x.achieved_hz)}</td><td>${Math.round(x.cost_bps)}</td></tr>`);
     section.innerHTML = `<h2>Radio</h2><p class="hint">rssi ${s.rssi}/${s.remrssi}, noise ${s.noise}/${s.remnoise}, `
-      + `txbuf ${s.txbuf} % free; ${Math.round(radio.used_bps)} of ${Math.round(radio.capacity_bps)} B/s used. `
+      + `txbuf ${s.txbuf} % free; ${Math.round(radio.used_bps)} of ${Math.round(radio.capacity_bps)} B/s used`
+      + (radio.shared_by > 1 ? ` (shared by ${radio.shared_by} vehicles: this one plans on ${Math.round(radio.budget_bps)})` : "")
+      + `. `
       + `${escapeHtml(radio.choice)}</p><table><tr><th>stream</th><th>wanted</th><th>predicted</th>`
       + `<th>requested</th><th>achieved Hz</th><th>B/s</th></tr>${rows.join("")}</table>`;
   }

@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.core.gains import Gain, GainSet
+from gcs.core.rotation import Quat, Vec3, quat_to_euler
 from gcs.core.samples import G0, GpsSample, ImuSample
 
 #: Settings every estimator declares (append them to your own GAINS).
@@ -146,6 +147,13 @@ class AttitudeEstimator(ABC):
     @abstractmethod
     def quaternion(self) -> npt.NDArray[np.float64]:
         """Current attitude, unit quaternion (w, x, y, z), sensor/body → earth NED."""
+
+    def attitude(self) -> tuple[Quat, Vec3]:
+        """The quaternion as plain floats and its Z-Y-X angles (rad), as the live pipeline reads
+        them after every sample (non-finite when the state is)."""
+        q = self.quaternion.tolist()
+        w, x, y, z = q
+        return (w, x, y, z), quat_to_euler(q)
 
     @abstractmethod
     def health(self) -> dict[str, HealthValue]:

@@ -204,6 +204,10 @@ class Compiled:
         """The attitude (w, x, y, z), a copy."""
         return self._quat_view.copy()
 
+    def attitude(self) -> tuple[rotation.Quat, Vec3]:
+        """AttitudeEstimator.attitude in one compiled call (the same angles, bit for bit)."""
+        return attitude_of(self.s)
+
     def _after_step(self, code: int, sample: ImuSample) -> bool:
         """What update_imu does after the kernel's step returned code: whether the attitude is
         valid, after re-initialising from the sample when the code asks for it."""
@@ -490,3 +494,26 @@ quat_rows = kernel(rotation.quat_rows)
 euler_quat = kernel(rotation.euler_quat)
 quat_to_euler = kernel(rotation.quat_to_euler)
 quat_slerp = kernel(rotation.quat_slerp)
+
+
+@kernel
+def attitude_error(
+    q0: tuple[float, float, float, float], q1: tuple[float, float, float, float], u: float, roll: float, pitch: float,
+    yaw: float,
+) -> tuple[float, float, float]:  # fmt: skip
+    """comparison.attitude_error compiled: the live comparison scores every reference with it and
+    the whole-run errors every row (equal to the Python function bit for bit,
+    tests/test_comparison_incremental.py)."""
+    est_roll, est_pitch, est_yaw = quat_to_euler(quat_slerp(q0, q1, u))
+    return (
+        math.degrees(wrap_pi(est_roll - roll)),
+        math.degrees(wrap_pi(est_pitch - pitch)),
+        math.degrees(wrap_pi(est_yaw - yaw)),
+    )
+
+
+@kernel
+def attitude_of(s: State) -> tuple[tuple[float, float, float, float], tuple[float, float, float]]:
+    """The state's quaternion and its Z-Y-X angles (rotation.quat_to_euler), as plain floats."""
+    q = (s[Q], s[Q + 1], s[Q + 2], s[Q + 3])
+    return q, quat_to_euler(q)

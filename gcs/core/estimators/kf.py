@@ -3,11 +3,12 @@ fed raw IMU instead of PX4's own attitude."""
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from filterpy.kalman import KalmanFilter
 
 from gcs.core.estimators.base import (
     COMMON_GAINS,
@@ -38,6 +39,9 @@ from gcs.core.rotation import (
     wrap_pi,
 )
 from gcs.core.samples import G0, GpsSample, ImuSample
+
+if TYPE_CHECKING:
+    from filterpy.kalman import KalmanFilter
 
 _ANGLES = ("roll", "pitch", "yaw")
 _RATES = ("p", "q", "r")
@@ -195,7 +199,6 @@ class KalmanAttitudeFilter(AttitudeEstimator):
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         super().__init__(preset, **gains)
-        self.kf = KalmanFilter(dim_x=6, dim_z=6, dim_u=3)
         self.rates_prev = (0.0, 0.0, 0.0)
         self.gyro_prev = (0.0, 0.0, 0.0)
         self.bias = (0.0, 0.0, 0.0)  # gyro bias (rad/s, sensor frame), learned from the corrections
@@ -218,6 +221,14 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self._H6, self._H5 = np.eye(6), np.eye(6)[_ROWS5]
         self._R6, self._R5 = np.zeros((6, 6)), np.zeros((5, 5))
         self._z6, self._z5 = np.zeros((6, 1)), np.zeros((5, 1))
+
+    @functools.cached_property
+    def kf(self) -> KalmanFilter:
+        """filterpy's filter, made on first use: filterpy imports scipy.stats (~1 s at every start),
+        which the compiled path (the same class's gains and outputs, not this filter) never needs."""
+        from filterpy.kalman import KalmanFilter  # noqa: PLC0415
+
+        return KalmanFilter(dim_x=6, dim_z=6, dim_u=3)
 
     def _q(self, dt: float) -> npt.NDArray[np.float64]:
         g = self.gains

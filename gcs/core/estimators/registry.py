@@ -49,3 +49,4 @@ def warm() -> None:
         estimator.update_gps(GpsSample(0.02, 0.0, 0.0, 0.0, 5.0, 0.1, np.array([5.0, 0.5, 0.0])))
         estimator.update_imu(ImuSample(0.03, gyro, accel, mag))
         estimator.update_imu(ImuSample(0.03, gyro, accel, mag))
+        estimator.attitude()

@@ -11,7 +11,6 @@ velocity history growing.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from enum import IntEnum
@@ -209,11 +208,8 @@ def _attitude_errors(t: Floats, q: Floats, ref: Floats, lo: npt.NDArray[np.int64
         u = (rt - t[i]) / span if span > 0 else 0.0
         q0 = (q[i, 0], q[i, 1], q[i, 2], q[i, 3])
         q1 = (q[j, 0], q[j, 1], q[j, 2], q[j, 3])
-        roll, pitch, yaw = k.quat_to_euler(k.quat_slerp(q0, q1, u))
         out[m, 0] = rt
-        out[m, 1] = math.degrees(k.wrap_pi(roll - ref[m, 1]))
-        out[m, 2] = math.degrees(k.wrap_pi(pitch - ref[m, 2]))
-        out[m, 3] = math.degrees(k.wrap_pi(yaw - ref[m, 3]))
+        out[m, 1], out[m, 2], out[m, 3] = k.attitude_error(q0, q1, u, ref[m, 1], ref[m, 2], ref[m, 3])
     return out
 
 

@@ -14,7 +14,6 @@ Messages on /ws/live:
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
@@ -81,4 +80,4 @@ async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
         now = time.monotonic()
         if now - last_stats >= CLIENT_STATS_PERIOD:
             last_stats = now
-            await ws.send_text(strict_json.dumps({"type": "client", **dataclasses.asdict(feed.snapshot())}))
+            await ws.send_text(strict_json.dumps({"type": "client", **feed.snapshot().as_dict()}))

@@ -1,0 +1,150 @@
+"""When the live hub flushes its pending frame (gcs.server.live): new data goes out in the loop's
+next turn once the last flush is old enough, data arriving sooner is held and sent in one frame,
+the interval keeps the fan-out within its send budget, and no sample is lost or sent twice on
+the way, whatever the bursts; a viewer's counters as GET /api/status lists them. No timing is
+asserted: only what was sent, and in which turn."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import random
+
+from gcs.core.estimation import AttitudePoint
+from gcs.server import wire
+from gcs.server.live import ClientFeed, ClientSnapshot, LiveHub
+
+
+def point(t: float, source: str = "onboard") -> AttitudePoint:
+    return AttitudePoint(t, source, 0.1, -0.2, 0.3)
+
+
+def decoded(feed: ClientFeed) -> list[wire.PointsFrame]:
+    frames = feed.frames.drain()
+    return [f for data, _ in frames for f in wire.decode(data) if isinstance(f, wire.PointsFrame)]
+
+
+def test_new_data_goes_out_in_the_next_turn_when_the_last_flush_is_old():
+    async def run() -> tuple[int, list[wire.PointsFrame]]:
+        hub = LiveHub(seconds=10)
+        feed = hub.connect("test")
+        hub.on_points([point(1.0)])
+        await asyncio.sleep(0)  # one turn of the loop
+        return hub.frames_out, decoded(feed)
+
+    frames_out, frames = asyncio.run(run())
+    assert frames_out == 1
+    assert [f.points["onboard"][0] for f in frames] == [(1.0,)]
+
+
+def test_data_arriving_within_the_interval_is_held_and_sent_in_one_frame():
+    async def run() -> tuple[int, list[wire.PointsFrame]]:
+        hub = LiveHub(seconds=10, frame_interval=0.2)
+        feed = hub.connect("test")
+        hub.on_points([point(1.0)])
+        await asyncio.sleep(0)
+        hub.on_points([point(1.005)])
+        hub.on_points([point(1.01), point(1.0, "dcm")])
+        await asyncio.sleep(0)
+        held = hub.frames_out  # the first frame only: the rest waits for the interval
+        first = decoded(feed)
+        async with asyncio.timeout(30):
+            await feed.frames.wait()
+        return held, first + decoded(feed)
+
+    held, frames = asyncio.run(run())
+    assert held == 1
+    first, second = frames
+    assert first.points["onboard"][0] == (1.0,)
+    assert second.points["onboard"][0] == (1.005, 1.01) and second.points["dcm"][0] == (1.0,)
+
+
+def test_the_interval_keeps_the_fan_out_within_its_send_budget_up_to_the_longest():
+    hub = LiveHub(seconds=10, frame_interval=0.004, sends_per_s=1000, max_frame_interval=0.010)
+    assert hub.flush_interval() == 0.004
+    feeds = [hub.connect(str(k)) for k in range(40)]
+    assert hub.flush_interval() == 0.010  # never longer: 40 clients, 4000 sends/s
+    for feed in feeds[8:]:
+        hub.disconnect(feed)
+    assert hub.flush_interval() == 8 / 1000  # 8 clients, 1000 sends/s
+    for feed in feeds[2:8]:
+        hub.disconnect(feed)
+    assert hub.flush_interval() == 0.004  # 2 clients: 500 sends/s at the shortest interval
+
+
+def test_without_clients_nothing_is_encoded_and_the_store_keeps_everything():
+    async def run() -> tuple[int, int, list[wire.PointsFrame]]:
+        hub = LiveHub(seconds=10, frame_interval=0.0)
+        hub.on_points([point(1.0), point(1.005)])
+        await asyncio.sleep(0)
+        before = hub.frames_out
+        feed = hub.connect("late")
+        hub.on_points([point(1.01)])
+        async with asyncio.timeout(30):
+            await feed.frames.wait()
+        return before, hub.store["onboard"].count, decoded(feed)
+
+    before, stored, frames = asyncio.run(run())
+    assert before == 0 and stored == 3
+    assert [f.points["onboard"][0] for f in frames] == [(1.01,)]  # the earlier ones are history's
+
+
+def test_every_sample_reaches_a_reading_client_once_and_in_order():
+    rng = random.Random(17)
+    sources = ("onboard", "dcm", "kf", "ekf")
+    sent: dict[str, list[float]] = {s: [] for s in sources}
+
+    async def run() -> tuple[dict[str, list[float]], int]:
+        hub = LiveHub(seconds=60, frame_interval=0.002)
+        feed = hub.connect("reader")
+        got: dict[str, list[float]] = {s: [] for s in sources}
+        total = 0
+
+        async def read() -> None:
+            received = 0
+            while received < total:
+                message, points = await feed.next_message()
+                received += points
+                for frame in wire.decode(message):
+                    assert isinstance(frame, wire.PointsFrame)
+                    for source, cols in frame.points.items():
+                        got[source] += cols[0]
+
+        t = 10.0
+        for _ in range(400):  # bursts of 0-12 points, the loop turning 0-2 times between them
+            burst = []
+            for _ in range(rng.randrange(13)):
+                t += 0.0025
+                source = rng.choice(sources)
+                sent[source].append(round(t, 6))
+                burst.append(point(t, source))
+            total += len(burst)
+            if burst:
+                hub.on_points(burst)
+            for _ in range(rng.randrange(3)):
+                await asyncio.sleep(0)
+        async with asyncio.timeout(60):
+            await read()
+        return got, feed.dropped_points
+
+    got, dropped = asyncio.run(run())
+    assert dropped == 0
+    assert sum(map(len, sent.values())) > 1000
+    for source in sources:
+        assert got[source] == sent[source], source
+
+
+def test_a_viewers_counters_as_the_status_lists_them():
+    async def run() -> list[tuple[ClientSnapshot, dict]]:
+        hub = LiveHub(seconds=10, client_max_frames=2)
+        reading, stuck = hub.connect("127.0.0.1:1"), hub.connect("127.0.0.1:2")
+        for k in range(3):
+            hub.broadcast({"type": "gain", "k": k})
+        await reading.next_message()
+        reading.sent(0)
+        return [(c.snapshot(), c.snapshot().as_dict()) for c in (reading, stuck)]
+
+    (reading_snapshot, reading), (stuck_snapshot, stuck) = asyncio.run(run())
+    assert reading == dataclasses.asdict(reading_snapshot) and stuck == dataclasses.asdict(stuck_snapshot)
+    assert reading["sent_messages"] == 1 and reading["queued_frames"] == 0
+    assert stuck["dropped_frames"] == 1 and stuck["queued_frames"] == 2 and stuck["address"] == "127.0.0.1:2"
