@@ -79,6 +79,9 @@ class MagneticHeading:
       `mag_offset_tol`·|m_E| for `mag_offset_time` s and MAG_OFFSET_TURN of turning becomes b;
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
+
+    After a learned offset `weight` (what the estimators scale their heading correction by) is 0
+    for MAG_OFFSET_HOLD_TURN of turn or MAG_OFFSET_HOLD s, then back to 1: the gyro holds the heading.
     """
 
     def __init__(self) -> None:
