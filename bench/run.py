@@ -13,6 +13,7 @@ BENCHMARKS = {
     "stress": "bench.stress",
     "replay": "bench.replay",
     "ws_latency": "bench.ws_latency",
+    "ws_fanout": "bench.ws_fanout",
     "soak": "bench.soak",
     "status": "bench.status",
     "replay_memory": "bench.replay_memory",

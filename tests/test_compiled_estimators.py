@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from broad import BROAD
 
+from bench.stress import MAGNET_AXIS
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.dcm import DcmEstimator
@@ -82,6 +83,21 @@ def test_broad_trials(name, trial):
 def test_other_presets_on_the_magnet_trial(name, preset):
     trial = next(BROAD.glob("30_*.hdf5"))
     assert assert_same(name, broad_inputs(trial, count=1500), preset) == 1500
+
+
+@pytest.mark.parametrize("name", REFERENCES)
+def test_body_fixed_magnet(name):
+    """A 100 µT magnet fixed to the sensor from the 1000th sample on: the hard-iron offset is
+    learned, and the heading's weight comes back after it (magnetic.py), alike in both."""
+    samples = broad_inputs(next(BROAD.glob("02_*.hdf5")))
+    offset = 100.0 * MAGNET_AXIS
+    inputs = [*samples[:1000], *(ImuSample(x.t, x.gyro, x.accel, x.mag + offset) for x in samples[1000:])]
+    assert assert_same(name, inputs) == 2000
+    fast = registry.create(name)
+    for x in inputs:
+        fast.update_imu(x)
+    learned = np.asarray(fast.health()["mag_offset"])
+    assert np.linalg.norm(learned - offset) < 10.0, learned
 
 
 @pytest.mark.parametrize("name", REFERENCES)

@@ -6,15 +6,19 @@ from __future__ import annotations
 
 import asyncio
 
-from live import wait_for
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+from live import running_station, wait_for
 
-from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.bus import Message
 from gcs.runtime.estimation import BATCH, TICK, LiveEstimation
 from gcs.runtime.link import Link
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.app import follow
 from gcs.server.live import LiveHub
+from gcs.sessions import layout
 
 
 def imu(encoder: Encoder, k: int) -> Message:
@@ -23,6 +27,10 @@ def imu(encoder: Encoder, k: int) -> Message:
     )
     encoder.encode(msg)
     return Message.of(msg, 0.0, 0.0)
+
+
+def msgid(packet: bytes) -> int:
+    return packet[7] | packet[8] << 8 | packet[9] << 16 if packet[0] == MARKER_V2 else packet[5]
 
 
 def test_a_backlog_is_estimated_a_batch_per_turn_of_the_loop():
@@ -89,3 +97,32 @@ def test_the_dashboard_paces_the_estimation_by_its_frame_interval():
     for feed in feeds[1:]:
         hub.disconnect(feed)
     assert station.estimation.tick() == hub.flush_interval() == hub.frame_interval < TICK
+
+
+def test_a_stopped_session_holds_the_estimates_of_every_input_it_recorded(tmp_path, udp_port):
+    """Inputs recorded in the session's tlog but still waiting for the estimation's next tick
+    when the recording stops are estimated into that session: `gcs estimate` on its tlog and the
+    live attitude it holds then cover the same samples."""
+
+    async def scenario():
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station:
+            estimation = station.estimation
+            assert estimation is not None
+            estimation.pace(lambda: 5.0)  # far longer than the test: what arrives after the first turn waits
+            encoder = Encoder(1, 1)
+            await wait_for(lambda: station.bus.wants("HIGHRES_IMU"), 10, "the estimation's subscription")
+            station.bus.publish(imu(encoder, 1))
+            await wait_for(lambda: estimation.messages_fed == 1, 120, "the kernels loaded, the first message")
+            for k in range(40):
+                station.bus.publish(imu(encoder, k + 2))
+                await asyncio.sleep(0)
+            waiting = 41 - estimation.messages_fed
+            await station.stop_recording("test")
+            return waiting, [p for p in tmp_path.iterdir() if layout.is_session(p)]
+
+    waiting, (folder,) = asyncio.run(scenario())
+    assert waiting == 40  # all of them were waiting for the tick when the recording stopped
+    recorded = sum(1 for _, packet in read_tlog_records(folder / layout.TLOG) if msgid(packet) == 105)  # HIGHRES_IMU
+    attitude = pq.read_table(folder / "attitude.parquet")
+    dcm = attitude.filter(pc.equal(attitude["source"], "dcm")).num_rows
+    assert recorded == 41 and dcm == recorded

@@ -36,13 +36,12 @@ def test_all_six_trials_are_there():
 #: Known shortfalls against the issue's targets, held to what was measured (a regression bound,
 #: stated, not hidden; the target stays the bound for every other case). Remove when met.
 MAGNET_SHORTFALLS = {
-    # target 5°, measured 6.40° (dcm) and 5.81° (kf): the heading in fast translation, where the
-    # field points 2-6° off north in the volume the trial moves through, and the offset is learned
-    # at that heading error. 5.17° and under 5° while neither learned the gyro's bias at rest: the
-    # heading then lagged by bias/gain, which happened to cancel part of the field's error
-    # (docs/benchmarks.md, sixth pass)
-    ("15", "dcm"): 6.7,
-    ("15", "kf"): 6.1,
+    # target 5°, measured 5.31°: dcm's heading in fast translation, where the field points 2-6°
+    # off north in the volume the trial moves through. Since the learned offset is followed by
+    # coasting on the gyro (magnetic.py, MAG_OFFSET_HOLD_SPIN2) the offset's own error no longer
+    # adds to it (6.40° before; kf 5.81° -> 4.64°); what is left is the heading error dcm already
+    # had at the switch, which the gyro then holds (docs/benchmarks.md, seventh pass)
+    ("15", "dcm"): 5.5,
 }
 
 
@@ -56,6 +55,20 @@ def test_magnet_fixed_to_the_sensor(stem, name):
     stressed = magnet(trial, 100.0, t_on)
     err = score(stressed, run_estimator(name, stressed), t_on)
     assert err["heading"] < MAGNET_SHORTFALLS.get((stem[:2], name), 5.0), err
+
+
+@pytest.mark.parametrize("offset", [20.0, 50.0])
+@pytest.mark.parametrize("name", NAMES)
+def test_magnet_in_slow_translation(name, offset):
+    """Trial 10 (slow translation) with a 20 or 50 µT body-fixed magnet: heading within 2× VQF's
+    (VQF 0.9°: it rejects the field and coasts on its gyro, which beats this trial's field). It was
+    2.2-2.7× while ours went back to the field as soon as the offset was learned; they now coast
+    on the gyro first (magnetic.py: 1.0-1.3× on the test segment)."""
+    trial, t_on = segment(next(s for s in TRIALS if s.startswith("10")))
+    stressed = magnet(trial, offset, t_on)
+    ours = score(stressed, run_estimator(name, stressed), t_on)["heading"]
+    vqf = score(stressed, run_vqf(stressed), t_on)["heading"]
+    assert ours < 2.0 * vqf, (ours, vqf)
 
 
 @pytest.mark.parametrize("name", NAMES)

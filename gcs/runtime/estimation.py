@@ -11,7 +11,7 @@ from gcs.core.estimators import registry
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime import heap
-from gcs.runtime.bus import Message
+from gcs.runtime.bus import Message, Subscription
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 
@@ -59,6 +59,7 @@ class LiveEstimation:
         self.gps_locked: Signal[[]] = Signal()
         #: the declination's source or value changed: (source, rad or None)
         self.declination_changed: Signal[[str, float | None]] = Signal()
+        self._sub: Subscription | None = None
 
     def pace(self, interval: Callable[[], float]) -> None:
         """Estimate at most once per interval() s (the live hub's frame interval, which follows
@@ -70,7 +71,7 @@ class LiveEstimation:
         return self.inputs.sampler.imu_type
 
     async def run(self) -> None:
-        sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        sub = self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
@@ -92,7 +93,14 @@ class LiveEstimation:
             # live outputs hold the same inputs (the station stops the link first).
             self._feed(sub.drain())
             sub.close()
+            self._sub = None
             heap.release()
+
+    def catch_up(self) -> None:
+        """Estimate now every message the link has delivered (those waiting for the next tick or
+        batch): a session that stops then holds the estimates of every input its tlog holds."""
+        if self._sub is not None:
+            self._feed(self._sub.drain())
 
     def _feed(self, items: list[Message]) -> None:
         points: list[AttitudePoint] = []

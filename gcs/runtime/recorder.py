@@ -237,6 +237,8 @@ class SessionRecorder:
         session = self.session
         if session is None:
             return None
+        if self.station.estimation is not None:  # inputs delivered but not yet estimated: now, into this session
+            self.station.estimation.catch_up()
         self.station.events.record("recording", client, event="stop", folder=str(session.folder))
         self._drain()
         self.session = None

@@ -13,10 +13,12 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
 client costs the loop ~35 µs of CPU, a third of it the system call), between `frame_interval`
-and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. A sample
-waits for the flush half an interval on average, so few viewers get their samples sooner; the
-fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core),
-and nothing more from 10 viewers on. Figures: docs/benchmarks.md; data flow: docs/design.md
+and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. Points that
+come more often than that wait half an interval on average, and fewer viewers wait less; the
+fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core). The
+live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
+its points come in one batch per interval and go out right after it. Figures:
+docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations

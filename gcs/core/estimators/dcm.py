@@ -270,7 +270,7 @@ class DcmEstimator(AttitudeEstimator):
             mx, my, mz = (float(v) for v in sample.mag)
             if self.mag.field((mx, my, mz), (X, Y, Z), dt, spin, self.gains.values) is not None:
                 self.yaw_source = "mag"
-                return math.sin(self.mag.yaw_error)
+                return self.mag.weight * math.sin(self.mag.yaw_error)
             self.yaw_source = "mag_rejected"
             self.mag_rejected += 1
         course = self.gps.course_at(sample.t, self.gains["gps_speed_min"])

@@ -163,7 +163,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         ok, _, _, _ = k.mag_field(s, mag[0], mag[1], mag[2], X, Y, Z, dt, spin, gm, False)
         if ok:
             source = 1.0
-            ez = math.sin(s[k.YAW_ERROR])
+            ez = s[k.WEIGHT] * math.sin(s[k.YAW_ERROR])
             use_course = False
         else:
             source = 2.0

@@ -28,7 +28,7 @@ from gcs.core.estimators.base import (
     Shock,
     initial_attitude,
 )
-from gcs.core.estimators.magnetic import MAG_GAINS, MAG_TIME_SIGMA, MagneticHeading
+from gcs.core.estimators.magnetic import MAG_GAINS, MAG_TIME_SIGMA, MAG_WEIGHT_MIN, MagneticHeading
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -373,7 +373,7 @@ class EkfEstimator(AttitudeEstimator):
         sigma = g["mag_noise"] * m_norm / m_h
         # a field sample is rarely simultaneous with the gyro's: worth |ω|·σ_t of heading in a turn
         turn = math.dist(gyro, (bx, by, bz)) * g["mag_time_sigma"]
-        r = sigma * sigma / dt + turn * turn * max(1.0, MAG_TIME_DT / dt)
+        r = (sigma * sigma / dt + turn * turn * max(1.0, MAG_TIME_DT / dt)) / max(self.mag.weight, MAG_WEIGHT_MIN)
         y = self.mag.yaw_error
         # K = k e_3 (heading only, see the module docstring); Joseph form P − K pᵀ − p Kᵀ + s K Kᵀ
         P = self.P

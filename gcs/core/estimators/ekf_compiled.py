@@ -15,6 +15,7 @@ from gcs.core.estimators.base import HealthValue, initial_attitude
 from gcs.core.estimators.ekf import MAG_SETTLE_TILT, MAG_TIME_DT, EkfEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
+from gcs.core.estimators.magnetic import MAG_WEIGHT_MIN
 from gcs.core.rotation import Vec3, matrix_to_quat
 from gcs.core.samples import G0, GpsSample, ImuSample
 
@@ -340,7 +341,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
             else:
                 sigma = g[MAG_NOISE] * m_norm / m_h
                 tt = turn * g[MAG_TIME_SIGMA]
-                r = sigma * sigma / dt + tt * tt * max(1.0, MAG_TIME_DT / dt)
+                r = (sigma * sigma / dt + tt * tt * max(1.0, MAG_TIME_DT / dt)) / max(s[k.WEIGHT], MAG_WEIGHT_MIN)
                 y = s[k.YAW_ERROR]
                 p = s[W_DX : W_DX + 9]
                 for i in range(9):

@@ -24,6 +24,9 @@ from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.magnetic import (
     MAG_CURRENT_TAU,
     MAG_NEW_MIN_GYR,
+    MAG_OFFSET_HOLD,
+    MAG_OFFSET_HOLD_SPIN2,
+    MAG_OFFSET_RAMP,
     MAG_OFFSET_TURN,
     MAG_REF_TAU,
     MAG_TIME_SIGMA,
@@ -52,7 +55,8 @@ GPS_T, GPS_A, GPS_SPEED, GPS_COURSE, GPS_TIMEOUT = 37, 38, 41, 42, 43
 # -- the attitude quaternion (w, x, y, z), sensor → NED, written by every step -----------------
 Q = 44
 GPS_VEL = 48
-BASE = 51
+WEIGHT, OFFSET_AGE, OFFSET_AGE_SPIN2 = 51, 52, 53  # MagneticHeading.weight, .offset_age, .offset_age_spin2
+BASE = 54
 
 
 def new_state(size: int) -> State:
@@ -71,6 +75,8 @@ def reset_mag(s: State) -> None:
     s[NOW_SET:AGE] = 0.0
     s[AGE] = 0.0
     s[DECL] = math.nan
+    s[WEIGHT] = 1.0
+    s[OFFSET_AGE] = s[OFFSET_AGE_SPIN2] = math.inf
 
 
 def reset_shock(s: State) -> None:
@@ -360,6 +366,11 @@ def mag_field(
     """MagneticHeading.field: (usable, m − b). gm = (norm_tol, dip_tol, heading_tol, relearn,
     offset_time, offset_tol, declination)."""
     tol_n, tol_d, tol_h, relearn, off_time, off_tol, decl = gm
+    s[OFFSET_AGE] += dt
+    s[OFFSET_AGE_SPIN2] += spin * spin * dt
+    after_time = (s[OFFSET_AGE] - MAG_OFFSET_HOLD) / MAG_OFFSET_RAMP
+    after_spin = (s[OFFSET_AGE_SPIN2] - MAG_OFFSET_HOLD_SPIN2) / MAG_OFFSET_HOLD_SPIN2
+    s[WEIGHT] = min(max(after_time, after_spin, 0.0), 1.0)
     bx, by, bz = s[OFFSET], s[OFFSET + 1], s[OFFSET + 2]
     mc0, mc1, mc2 = m0 - bx, m1 - by, m2 - bz
     hn = X[0] * mc0 + X[1] * mc1 + X[2] * mc2
@@ -423,6 +434,7 @@ def mag_field(
             learned = True
     if learned:
         s[NOW_SET] = 0.0
+        s[OFFSET_AGE], s[OFFSET_AGE_SPIN2], s[WEIGHT] = 0.0, 0.0, 0.0
         s[LEARNED] += 1.0
         _accept(s)
         return True, m0 - s[OFFSET], m1 - s[OFFSET + 1], m2 - s[OFFSET + 2]

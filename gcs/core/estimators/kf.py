@@ -20,7 +20,7 @@ from gcs.core.estimators.base import (
     HealthValue,
     Shock,
 )
-from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MagneticHeading
+from gcs.core.estimators.magnetic import MAG_GAINS, MAG_OFF, MAG_WEIGHT_MIN, MagneticHeading
 from gcs.core.estimators.rest import REST_GAINS, REST_OFF, RestBias
 from gcs.core.gains import Gain
 from gcs.core.rotation import (
@@ -391,6 +391,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             r[2] += (spin * g["mag_time_sigma"]) ** 2
             if dt < g["mag_dt"]:  # heading errors are correlated over mag_dt: more samples add no information
                 r[2] *= g["mag_dt"] / dt
+            if self.heading_source == "mag":  # a freshly learned hard-iron offset: less weight
+                r[2] /= max(self.mag.weight, MAG_WEIGHT_MIN)
             H, R, zc = self._H6, self._R6, self._z6
             zc[:, 0] = (z0, pitch, x[2] + wrap_pi(yaw - x[2]), *rates)
             R[_DIAG6] = r

@@ -24,6 +24,7 @@ from gcs.core.estimators.kf import (
     euler_rates,
     mag_heading,
 )
+from gcs.core.estimators.magnetic import MAG_WEIGHT_MIN
 from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import Vec3, euler_quat
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -315,6 +316,8 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
         r[2] += (spin * g[MAG_TIME_SIGMA]) ** 2
         if dt < g[MAG_DT]:
             r[2] *= g[MAG_DT] / dt
+        if source == 1.0:
+            r[2] /= max(s[k.WEIGHT], MAG_WEIGHT_MIN)
         z[2] = xs2 + k.wrap_pi(yaw - xs2)
         skip = 6
     _update(s, skip, z, r)

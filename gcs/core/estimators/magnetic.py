@@ -47,6 +47,19 @@ MAG_TIME_SIGMA = 0.05
 #: held within half the tolerances for this long (s): the tilt (hence the dip) of a filter
 #: initialised away from the truth has to settle first.
 MAG_WARMUP = 1.0
+#: A learned hard-iron offset carries its timing window's error (the field's changes from place to
+#: place, the heading error meanwhile: about 1 µT, degrees of heading under a strong magnet), while
+#: the gyro, its bias learned at rest, drifts in heading mostly in fast turns (integrating picked
+#: samples, an error that grows as |ω|²: BROAD at 47.6 Hz, 3° in 12 s at 450°/s). So after each
+#: learned offset the heading corrections from the field get `weight` 0 until ∫|ω|² dt reaches
+#: MAG_OFFSET_HOLD_SPIN2 (rad²/s: 17 s of BROAD's fast translation, 3 s of its fast rotation near a
+#: magnet) or MAG_OFFSET_HOLD s have passed (VQF's magMaxRejectionTime: it coasts as long on a
+#: rejected field), whichever is first, and come back to 1 over as much again or MAG_OFFSET_RAMP s.
+MAG_OFFSET_HOLD_SPIN2 = 150.0
+MAG_OFFSET_HOLD = 60.0
+MAG_OFFSET_RAMP = 20.0
+#: The least weight a Kalman heading update divides its noise by (weight 0 would divide by zero).
+MAG_WEIGHT_MIN = 1e-6
 
 #: MAG_GAINS values that switch the test off (the thesis presets).
 MAG_OFF = {"mag_norm_tol": 10.0, "mag_dip_tol": math.pi, "mag_heading_tol": math.pi}
@@ -67,6 +80,10 @@ class MagneticHeading:
       `mag_offset_tol`·|m_E| for `mag_offset_time` s and MAG_OFFSET_TURN of turning becomes b;
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
+
+    After a learned offset `weight` (what the estimators scale their heading correction by) is 0
+    until ∫|ω|² dt reaches MAG_OFFSET_HOLD_SPIN2 or MAG_OFFSET_HOLD s pass, then back to 1: the gyro
+    holds the heading.
     """
 
     def __init__(self) -> None:
@@ -80,6 +97,9 @@ class MagneticHeading:
         self.offset_time = 0.0
         self.offset_turn = 0.0
         self.heading_trusted = False
+        self.weight = 1.0  # weight of the heading from the field: 0 → 1 after a learned offset
+        self.offset_age = math.inf  # time since the offset was learned (s)
+        self.offset_age_spin2 = math.inf  # ∫|ω|² dt since the offset was learned (rad²/s)
         self.disturbed = False
         self.yaw_error = 0.0  # heading correction the last field asked for (rad)
         self.offsets_learned = 0
@@ -97,6 +117,11 @@ class MagneticHeading:
         """m − b if it may be used for heading now, else None. rows: R (sensor → NED) by rows,
         spin: |ω| (rad/s), g: the estimator's gains (MAG_GAINS and `declination`); settling: the
         estimator knows its tilt is not yet right (the reference is then not kept)."""
+        self.offset_age += dt
+        self.offset_age_spin2 += spin * spin * dt
+        after_time = (self.offset_age - MAG_OFFSET_HOLD) / MAG_OFFSET_RAMP
+        after_spin = (self.offset_age_spin2 - MAG_OFFSET_HOLD_SPIN2) / MAG_OFFSET_HOLD_SPIN2
+        self.weight = min(max(after_time, after_spin, 0.0), 1.0)
         bx, by, bz = self.offset
         mc = (m[0] - bx, m[1] - by, m[2] - bz)
         X, Y, Z = rows
@@ -139,6 +164,7 @@ class MagneticHeading:
         self.disturbed = True
         if self._hard_iron(m, rows, dt, spin, g):
             self.now = None
+            self.offset_age, self.offset_age_spin2, self.weight = 0.0, 0.0, 0.0
             self.offsets_learned += 1
             self._accept()
             bx, by, bz = self.offset
