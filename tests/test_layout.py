@@ -117,8 +117,7 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                     "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
                 ):
                     await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
-                draws = await page.evaluate("gcsPlots.draws")  # then a few more draws with data in every panel
-                await page.wait_for_function(f"gcsPlots.draws >= {draws + 5}", polling=POLL_MS, timeout=120_000)
+                await page.wait_for_timeout(3000)  # a few draws and a track point or two
                 report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
                 over = await page.query_selector(".chart .u-over")
                 assert over is not None
