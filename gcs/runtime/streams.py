@@ -142,9 +142,6 @@ class StreamRequester:
     loop_rate_hz: float | None = None
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
-    #: messages seen arriving since they were last asked for: one that then stops has been forgotten
-    #: (one never seen the vehicle lacks, and is not asked for again)
-    _arrived: set[str] = field(default_factory=set)
     _no_intervals: bool = False  # the vehicle does not know SET_MESSAGE_INTERVAL
 
     @property
@@ -318,7 +315,6 @@ class StreamRequester:
             )
             self.requests_sent += 1
             self._last_request[name] = time.monotonic()
-            self._arrived.discard(name)
             deadline = time.monotonic() + self.ack_timeout
             while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
                 if item.type == "COMMAND_ACK" and item.msg.command == command:
@@ -346,7 +342,6 @@ class StreamRequester:
         now = time.monotonic()
         for name in wanted:
             self._last_request[name] = now
-            self._arrived.discard(name)
 
     async def _monitor_until_woken(self) -> None:
         """Every `check_interval`, re-request messages far below their accepted rate, rate-limited."""
@@ -361,14 +356,13 @@ class StreamRequester:
                 continue
             achieved = self.link.stats.rates()
             now = time.monotonic()
-            self._arrived.update(name for name in self.negotiated if achieved.get(name, 0.0) > 0.0)
             if self._all_silent(achieved, now):
                 return  # ask for everything again, as after a reconnect
             starved = {
                 name: n
                 for name, n in self.negotiated.items()
                 if n.accepted_hz
-                and self._starved(name, achieved.get(name, 0.0), n.accepted_hz)
+                and 0.0 < achieved.get(name, 0.0) < 0.5 * n.accepted_hz  # never sent at all: the vehicle lacks it
                 and now - self._last_request.get(name, 0.0) >= self.retry_interval
             }
             if not starved:
@@ -383,12 +377,6 @@ class StreamRequester:
                         await self._set_interval(name, n.accepted_hz, sub, attempts=1)
             finally:
                 sub.close()
-
-    def _starved(self, name: str, achieved_hz: float, accepted_hz: float) -> bool:
-        """Far below its accepted rate, or stopped after it had arrived (another ground station
-        reset it, or a quick reboot was asked for other streams since); never arrived at all: the
-        vehicle lacks it."""
-        return 0.0 < achieved_hz < 0.5 * accepted_hz or (achieved_hz == 0.0 and name in self._arrived)
 
     def _all_silent(self, achieved: dict[str, float], now: float) -> bool:
         """Every stream the vehicle accepted has stopped while its heartbeats go on, and none was
