@@ -27,6 +27,13 @@ MAG_NEW_MIN_GYR = math.radians(20.0)
 #: Turn (integrated |ω| dt) a sensor-frame offset must stay steady through before it is learned:
 #: without turning, a heading error and a body-fixed offset look the same.
 MAG_OFFSET_TURN = math.radians(90.0)
+#: Net rotation (largest angle between the attitude at the window's start and any since) the sensor
+#: must show too: turning back and forth in place integrates to MAG_OFFSET_TURN while an offset
+#: fixed to the place (a steel floor, a magnet on the bench) still looks fixed to the sensor. Turned
+#: by θ, a place-fixed d moves in the sensor frame by 2|d|sin(θ/2), past `mag_offset_tol` for the
+#: disturbances that matter. Kept as the least trace of R₀Rᵀ, 1 + 2 cos θ.
+MAG_OFFSET_ROTATION = math.radians(30.0)
+MAG_OFFSET_TRACE = 1.0 + 2.0 * math.cos(MAG_OFFSET_ROTATION)
 
 #: The test's settings, declared once; every estimator using MagneticHeading appends them.
 MAG_GAINS: tuple[Gain, ...] = (
@@ -77,7 +84,8 @@ class MagneticHeading:
     rejected field is timed two ways:
 
     * hard iron: o = m − Rᵀ m_E (m_E from the reference at the gyro-held heading) steady within
-      `mag_offset_tol`·|m_E| for `mag_offset_time` s and MAG_OFFSET_TURN of turning becomes b;
+      `mag_offset_tol`·|m_E| for `mag_offset_time` s, MAG_OFFSET_TURN of turning and
+      MAG_OFFSET_ROTATION of net rotation becomes b;
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
 
@@ -96,6 +104,8 @@ class MagneticHeading:
         self.offset_n = 0
         self.offset_time = 0.0
         self.offset_turn = 0.0
+        self.offset_rows: Rows = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # R at its start
+        self.offset_trace = 3.0  # least trace of R₀Rᵀ since the offset window began
         self.heading_trusted = False
         self.weight = 1.0  # weight of the heading from the field: 0 → 1 after a learned offset
         self.offset_age = math.inf  # time since the offset was learned (s)
@@ -206,13 +216,18 @@ class MagneticHeading:
         c = self.offset_cand
         if c is None or math.dist(o, c) > g["mag_offset_tol"] * n0:
             self.offset_cand, self.offset_n, self.offset_time, self.offset_turn = o, 1, 0.0, 0.0
+            self.offset_rows, self.offset_trace = rows, 3.0
             return False
+        X0, Y0, Z0 = self.offset_rows
+        trace = sum(a * b for a, b in zip(X0 + Y0 + Z0, X + Y + Z, strict=True))
+        self.offset_trace = min(self.offset_trace, trace)
         self.offset_n += 1
         k = 1.0 / self.offset_n
         self.offset_cand = (c[0] + k * (o[0] - c[0]), c[1] + k * (o[1] - c[1]), c[2] + k * (o[2] - c[2]))
         self.offset_time += dt
         self.offset_turn += spin * dt
-        if self.offset_time >= g["mag_offset_time"] and self.offset_turn >= MAG_OFFSET_TURN:
+        turned = self.offset_turn >= MAG_OFFSET_TURN and self.offset_trace <= MAG_OFFSET_TRACE
+        if self.offset_time >= g["mag_offset_time"] and turned:
             self.offset = self.offset_cand
             return True
         return False
