@@ -111,7 +111,7 @@ def test_floor_magnet_is_not_hard_iron(name):
     dipole), whole trial at 47.6 Hz: heading within 2× VQF's. The sensor starts at rest over the
     magnet and then moves away; with little net rotation the changed field looked fixed to the
     sensor and was learned as a 15 µT hard-iron offset that kept the start's 50° heading error
-    (2.3-2.8× VQF). An offset now needs 30° of net rotation (magnetic.py, MAG_OFFSET_ROTATION)."""
+    (2.3-2.8× VQF). An offset now has to swing first (magnetic.py, MAG_OFFSET_SWING)."""
     trial = load_trial(BROAD / f"{next(s for s in TRIALS if s.startswith('10'))}.hdf5", EVERY)
     stressed = floor_magnet(trial)
     ours = score(stressed, run_estimator(name, stressed))["heading"]
