@@ -25,9 +25,10 @@ import numpy.typing as npt
 
 from gcs.core import lag as running_lag
 from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
+from gcs.core.estimators.stepping import BatchAttitudes
 from gcs.core.lag import RunningLag
 from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
-from gcs.core.samples import AttitudeSample
+from gcs.core.samples import AttitudeSample, ImuSample
 
 DEG = 180.0 / math.pi
 #: A measured rate this close to the requested one counts as the requested one: over a 10 s window
@@ -212,7 +213,7 @@ class Comparison:
         self._window_t: deque[float] = deque()  # estimate times of the last `window` s: the IMU rate
 
     def add_estimate(
-        self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: tuple[float, float, float] | None = None
+        self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: Sequence[float] | None = None
     ) -> None:
         """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
         estimates = self.estimates  # per estimate of every estimator: attributes read once
@@ -242,6 +243,19 @@ class Comparison:
         pending = self.pending
         while pending and pending[0].t <= t:
             self._score(pending.popleft())
+
+    def add_batch(self, items: Sequence[ImuSample | AttitudeSample], times: list[float], out: BatchAttitudes) -> None:
+        """In order: `add_estimate` for each IMU sample of items that gave an estimate (`out`, the
+        estimator's outputs over them; `times`, theirs) and `add_reference` for each reference."""
+        q, euler, stepped = out.q.tolist(), out.euler.tolist(), out.stepped.tolist()
+        r = 0
+        for item in items:
+            if isinstance(item, AttitudeSample):
+                self.add_reference(item)
+                continue
+            if stepped[r]:
+                self.add_estimate(times[r], q[r], euler[r])
+            r += 1
 
     def add_reference(self, ref: AttitudeSample) -> None:
         if self.estimates and ref.t <= self.estimates[-1][0]:

@@ -19,10 +19,11 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.core.estimation import GainChange
-from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled, registry
+from gcs.core.estimators import ekf_compiled, registry
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.jit import kernel
+from gcs.core.estimators.stepping import step_any
 from gcs.core.plausibility import MAX_ACCEL, MAX_FIELD, MAX_RATE, MAX_SPEED
 from gcs.core.samples import ImuSample
 
@@ -81,15 +82,6 @@ def gps_accepted(kind: npt.NDArray[np.generic], gps: Floats) -> npt.NDArray[np.b
 
 
 @kernel
-def _step(which: int, s: Floats, hist: Floats, g: Floats, row: Floats, has_mag: bool) -> int:
-    if which == k.DCM:
-        return dcm_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
-    if which == k.KF:
-        return kf_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
-    return ekf_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
-
-
-@kernel
 def _gps(which: int, s: Floats, hist: Floats, g: Floats, row: Floats, has_vel: bool) -> None:
     if which == k.EKF:
         ekf_compiled.gps_input(s, hist, g, row[0], row[9], row[6:9], has_vel, row[4], row[5])
@@ -113,7 +105,7 @@ def run_inputs(
             if imu_ok[r_imu]:
                 if hist_n_slot >= 0 and s[hist_n_slot] >= hist.shape[0] - 1:
                     return i, r_imu, r_gps, GROW
-                code = _step(which, s, hist, g, imu[r_imu], kd == 1)
+                code = step_any(which, s, hist, g, imu[r_imu], kd == 1)
                 if code == k.STEP:
                     out_valid[r_imu] = True
                 elif code == k.DUPLICATE:
