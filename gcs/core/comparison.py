@@ -28,7 +28,7 @@ from gcs.core.estimators.kernels import attitude_error as compiled_attitude_erro
 from gcs.core.estimators.stepping import BatchAttitudes
 from gcs.core.lag import RunningLag
 from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
-from gcs.core.samples import AttitudeSample, ImuSample
+from gcs.core.samples import AttitudeSample
 
 DEG = 180.0 / math.pi
 #: A measured rate this close to the requested one counts as the requested one: over a 10 s window
@@ -38,6 +38,8 @@ RATE_TOLERANCE = 0.95
 
 
 Quat = tuple[float, float, float, float]
+#: A batch of inputs in arrival order, as runs: the IMU rows lo..hi, then a reference (None: none).
+BatchRuns = list[tuple[int, int, AttitudeSample | None]]
 
 
 def attitude_error(q0: Quat, q1: Quat, u: float, roll: float, pitch: float, yaw: float) -> tuple[float, float, float]:
@@ -220,21 +222,16 @@ class Comparison:
         quat = (float(w), float(x), float(y), float(z))
         self._add_estimates([t], [quat], [euler if euler is not None else quat_to_euler(quat)], [True], 0, 1)
 
-    def add_batch(self, items: Sequence[ImuSample | AttitudeSample], times: list[float], out: BatchAttitudes) -> None:
-        """In order: `add_estimate` for each IMU sample of items that gave an estimate (`out`, the
-        estimator's outputs over them; `times`, theirs) and `add_reference` for each reference."""
+    def add_batch(self, runs: BatchRuns, times: list[float], out: BatchAttitudes) -> None:
+        """A batch in arrival order (`BatchRuns`): `add_estimate` for each IMU row that gave an
+        estimate (`out`, the estimator's outputs over the rows; `times`, theirs), `add_reference`
+        for each reference."""
         q, euler, stepped = out.q.tolist(), out.euler.tolist(), out.stepped.tolist()
-        r = lo = 0
-        for item in items:
-            if isinstance(item, AttitudeSample):
-                if r > lo:
-                    self._add_estimates(times, q, euler, stepped, lo, r)
-                    lo = r
-                self.add_reference(item)
-            else:
-                r += 1
-        if r > lo:
-            self._add_estimates(times, q, euler, stepped, lo, r)
+        for lo, hi, ref in runs:
+            if hi > lo:
+                self._add_estimates(times, q, euler, stepped, lo, hi)
+            if ref is not None:
+                self.add_reference(ref)
 
     def _add_estimates(
         self, times: Sequence[float], quats: Sequence[Sequence[float]], eulers: Sequence[Sequence[float]],

@@ -13,13 +13,13 @@ from collections.abc import Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, TypedDict
 
-from gcs.core.comparison import Comparison, ComparisonSummary
+from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.estimators.kernels import Compiled
 from gcs.core.estimators.stepping import BatchAttitudes, Fault, ImuBatch, step_batch, step_samples
 from gcs.core.gains import PresetFile
-from gcs.core.plausibility import refusal
+from gcs.core.plausibility import imu_rows_accepted, refusal
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 
@@ -127,10 +127,6 @@ class EstimationPipeline:
                     points += self._segment(segment)
                     segment = []
                 points += self.feed(item)
-                continue
-            reason = refusal(item)
-            if reason is not None:
-                self.refused[reason] += 1
             else:
                 segment.append(item)
         if segment:
@@ -138,31 +134,50 @@ class EstimationPipeline:
         return points
 
     def _segment(self, items: list[ImuSample | AttitudeSample]) -> list[AttitudePoint]:
-        """IMU samples and references (plausible, in arrival order) → the points `feed` gives."""
-        imu = [item for item in items if isinstance(item, ImuSample)]
-        batch = ImuBatch.of(imu)
-        self.imu_samples += len(imu)
+        """IMU samples and references in arrival order → the points `feed` gives."""
+        batch = ImuBatch.of([item for item in items if isinstance(item, ImuSample)])
+        accepted = imu_rows_accepted(batch.rows, batch.has_mag)
+        if not accepted.all():
+            batch = batch.take(accepted)
+        # the plausible inputs as runs of IMU rows, each followed by a reference (None: the last)
+        runs: BatchRuns = []
+        plausible = accepted.tolist()
+        r = lo = kept = 0
+        for item in items:
+            if isinstance(item, ImuSample):
+                if plausible[r]:
+                    kept += 1
+                else:  # the same rule, for its reason
+                    self.refused[refusal(item) or "imu"] += 1
+                r += 1
+                continue
+            reason = refusal(item)
+            if reason is not None:
+                self.refused[reason] += 1
+                continue
+            runs.append((lo, kept, item))
+            lo = kept
+        runs.append((lo, kept, None))
+        self.imu_samples += kept
         outputs = {name: self._step(name, batch) for name in list(self.estimators)}
         times = batch.rows[:, 0].tolist()
         for name, out in outputs.items():
-            self.comparisons[name].add_batch(items, times, out)
+            self.comparisons[name].add_batch(runs, times, out)
         # the points, in the order feed gives them: per sample every estimator with a valid
         # attitude, references where they arrived
         points: list[AttitudePoint] = []
         latest = self.latest
         shown = [(name, (out.valid & out.stepped).tolist(), out.euler.tolist()) for name, out in outputs.items()]
-        r = 0
-        for item in items:
-            if isinstance(item, ImuSample):
+        for lo, hi, ref in runs:
+            for r in range(lo, hi):
                 t = times[r]
                 for name, valid, euler in shown:
                     if valid[r]:
                         roll, pitch, yaw = euler[r]
                         latest[name] = point = AttitudePoint(t, name, roll, pitch, yaw)
                         points.append(point)
-                r += 1
-            else:
-                latest[item.source] = point = AttitudePoint(item.t, item.source, item.roll, item.pitch, item.yaw)
+            if ref is not None:
+                latest[ref.source] = point = AttitudePoint(ref.t, ref.source, ref.roll, ref.pitch, ref.yaw)
                 points.append(point)
         return points
 

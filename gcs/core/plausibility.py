@@ -11,6 +11,9 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+import numpy as np
+import numpy.typing as npt
+
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 #: Largest magnitudes accepted: 4000 °/s (twice the usual 2000 °/s full scale), 160 g. The
@@ -54,3 +57,15 @@ def refusal(item: ImuSample | GpsSample | AttitudeSample) -> str | None:
     if not _bounded((item.roll, item.pitch, item.yaw), 2 * math.pi):
         return "attitude:angles"
     return None
+
+
+def imu_rows_accepted(rows: npt.NDArray[np.float64], has_mag: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """`refusal(...) is None` for every IMU row (t, gyro xyz, accel xyz, mag xyz; has_mag: whether
+    the row has a field) on whole columns: the whole-run tables and the live estimation's batch."""
+    t = rows[:, 0]
+    ok = np.isfinite(t) & (t >= 0)
+    ok &= np.all(np.abs(rows[:, 1:4]) <= MAX_RATE, axis=1)
+    ok &= np.all(np.abs(rows[:, 4:7]) <= MAX_ACCEL, axis=1)
+    ok &= ~has_mag | np.all(np.abs(rows[:, 7:10]) <= MAX_FIELD, axis=1)
+    accepted: npt.NDArray[np.bool_] = ok
+    return accepted

@@ -32,6 +32,8 @@ Bools = npt.NDArray[np.bool_]
 
 #: step_rows' stops besides a step's re-initialisation codes
 END, GROW, NON_FINITE = -1, -3, -4
+#: a row's field where its sample has none (update_imu passes the kernels zeros)
+NO_FIELD = np.zeros(3)
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,17 +46,19 @@ class ImuBatch:
 
     @classmethod
     def of(cls, samples: Sequence[ImuSample]) -> ImuBatch:
-        rows = np.zeros((len(samples), 10))
-        has_mag = np.zeros(len(samples), dtype=np.bool_)
-        for i, sample in enumerate(samples):
-            row = rows[i]
-            row[0] = sample.t
-            row[1:4] = sample.gyro
-            row[4:7] = sample.accel
-            if sample.mag is not None:
-                row[7:10] = sample.mag
-                has_mag[i] = True
-        return cls(rows, has_mag)
+        rows = np.empty((len(samples), 10))
+        if not samples:  # references only
+            return cls(rows, np.zeros(0, dtype=np.bool_))
+        rows[:, 0] = [sample.t for sample in samples]
+        rows[:, 1:4] = [sample.gyro for sample in samples]
+        rows[:, 4:7] = [sample.accel for sample in samples]
+        mags = [sample.mag for sample in samples]
+        rows[:, 7:10] = [NO_FIELD if mag is None else mag for mag in mags]
+        return cls(rows, np.array([mag is not None for mag in mags], dtype=np.bool_))
+
+    def take(self, rows: Bools) -> ImuBatch:
+        """The rows where `rows` is True."""
+        return ImuBatch(self.rows[rows], self.has_mag[rows])
 
     def __len__(self) -> int:
         return len(self.rows)

@@ -24,7 +24,7 @@ from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.stepping import step_any
-from gcs.core.plausibility import MAX_ACCEL, MAX_FIELD, MAX_RATE, MAX_SPEED
+from gcs.core.plausibility import MAX_SPEED, imu_rows_accepted
 from gcs.core.samples import ImuSample
 
 Floats = npt.NDArray[np.float64]
@@ -59,14 +59,7 @@ class WholeRun:
 
 def imu_accepted(kind: npt.NDArray[np.generic], imu: Floats) -> npt.NDArray[np.bool_]:
     """plausibility.refusal(...) is None for every IMU row, on whole columns."""
-    mag = kind[(kind == InputKind.IMU) | (kind == InputKind.IMU_MAG)] == InputKind.IMU_MAG
-    t = imu[:, 0]
-    ok = np.isfinite(t) & (t >= 0)
-    ok &= np.all(np.abs(imu[:, 1:4]) <= MAX_RATE, axis=1)
-    ok &= np.all(np.abs(imu[:, 4:7]) <= MAX_ACCEL, axis=1)
-    ok &= ~mag | np.all(np.abs(imu[:, 7:10]) <= MAX_FIELD, axis=1)
-    accepted: npt.NDArray[np.bool_] = ok
-    return accepted
+    return imu_rows_accepted(imu, kind[(kind == InputKind.IMU) | (kind == InputKind.IMU_MAG)] == InputKind.IMU_MAG)
 
 
 def gps_accepted(kind: npt.NDArray[np.generic], gps: Floats) -> npt.NDArray[np.bool_]:
