@@ -38,6 +38,7 @@ from typing import Any
 
 from bench.serve_cpu import pollers, run_sender, wait_until_serving
 from gcs.commands.cli import main as gcs_main
+from gcs.runtime import event_loop
 from gcs.transport.address import free_port
 
 SLOW_MS = 5.0
@@ -238,6 +239,9 @@ def child(report_path: str, serve_args: list[str]) -> None:
     """The server process: the probe, then `gcs serve` until SIGINT; the report on the way out."""
     probe = Probe()
     probe.install()
+    # the probe times asyncio's Handle._run: uvloop's callbacks are not Python Handles, so the
+    # server runs here on asyncio's own loop (the loop-answer probe would work on either)
+    event_loop.loop_factory = lambda: None  # type: ignore[assignment]
     signal.signal(signal.SIGUSR1, probe.reset)
     signal.signal(signal.SIGUSR2, probe.look_at_heap)
     try:

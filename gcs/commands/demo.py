@@ -11,6 +11,7 @@ from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
 from gcs.commands.sim import PROFILES
 from gcs.core.gains import PresetFile
+from gcs.runtime import event_loop
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.station import Station, StationConfig
 from gcs.sim import SimVehicle
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if presets is None:
         return 2
     try:
-        asyncio.run(_demo(args, presets))
+        event_loop.run(_demo(args, presets))
     except KeyboardInterrupt:
         pass
     return 0

@@ -13,6 +13,7 @@ from gcs.commands.common import load_preset_file
 from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
 from gcs.core.estimation import pipeline_from
 from gcs.core.gains import GainError, PresetFile
+from gcs.runtime import event_loop
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.priority import raise_priority
 from gcs.server.dashboard import DashboardServer
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     if args.nice:
         print(f"gcs serve: {raise_priority(args.nice)}", flush=True)
     try:
-        asyncio.run(_serve(config, args))
+        event_loop.run(_serve(config, args))
     except OSError as exc:
         print(f"gcs serve: {exc}", file=sys.stderr)
         return 1

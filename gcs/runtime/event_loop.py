@@ -1,0 +1,29 @@
+"""The event loop the station's commands run on: uvloop where it is installed (uvicorn[standard]
+brings it on Linux and macOS), asyncio's own loop elsewhere.
+
+Why: the station's loop wakes for every burst of datagrams and every WebSocket send; libuv's loop
+and its socket transports take a fraction of the CPU of asyncio's pure-Python ones per wake-up
+(docs/benchmarks.md, "the event loop"). Nothing in gcs depends on which loop runs."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Coroutine
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
+    """uvloop's loop constructor, or None (asyncio's default) where uvloop is not installed."""
+    try:
+        import uvloop  # noqa: PLC0415 (optional: not on Windows)
+    except ImportError:
+        return None
+    return uvloop.new_event_loop
+
+
+def run(main: Coroutine[Any, Any, T]) -> T:
+    """asyncio.run(main) on the fastest loop available."""
+    with asyncio.Runner(loop_factory=loop_factory()) as runner:
+        return runner.run(main)
