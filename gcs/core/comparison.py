@@ -25,7 +25,6 @@ import numpy.typing as npt
 
 from gcs.core import lag as running_lag
 from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
-from gcs.core.estimators.stepping import BatchAttitudes
 from gcs.core.lag import RunningLag
 from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
 from gcs.core.samples import AttitudeSample
@@ -220,30 +219,28 @@ class Comparison:
         """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
         w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
         quat = (float(w), float(x), float(y), float(z))
-        self._add_estimates([t], [quat], [euler if euler is not None else quat_to_euler(quat)], [True], 0, 1)
+        roll, pitch, yaw = euler if euler is not None else quat_to_euler(quat)
+        self._add_estimates([t], [[*quat, roll, pitch, yaw, 1.0, 1.0]], 0, 1)
 
-    def add_batch(self, runs: BatchRuns, times: list[float], out: BatchAttitudes) -> None:
+    def add_batch(self, runs: BatchRuns, times: list[float], table: list[list[float]]) -> None:
         """A batch in arrival order (`BatchRuns`): `add_estimate` for each IMU row that gave an
-        estimate (`out`, the estimator's outputs over the rows; `times`, theirs), `add_reference`
-        for each reference."""
-        q, euler, stepped = out.q.tolist(), out.euler.tolist(), out.stepped.tolist()
+        estimate (`table`: the estimator's outputs over the rows, stepping.BatchAttitudes' rows
+        as lists; `times`, the rows'), `add_reference` for each reference."""
         for lo, hi, ref in runs:
             if hi > lo:
-                self._add_estimates(times, q, euler, stepped, lo, hi)
+                self._add_estimates(times, table, lo, hi)
             if ref is not None:
                 self.add_reference(ref)
 
-    def _add_estimates(
-        self, times: Sequence[float], quats: Sequence[Sequence[float]], eulers: Sequence[Sequence[float]],
-        stepped: Sequence[bool], lo: int, hi: int,
-    ) -> None:  # fmt: skip
-        """Estimates lo..hi (those `stepped`), in time order: one loop with the attributes read
+    def _add_estimates(self, times: Sequence[float], table: Sequence[Sequence[float]], lo: int, hi: int) -> None:
+        """Estimates lo..hi (the rows stepped), in time order: one loop with the attributes read
         once, as the live pipeline adds ~10 per tick per estimator."""
         estimates, recent, pending, lag = self.estimates, self._window_t, self.pending, self.running_lag
         history, window, lag_step = self.history, self.window, self.lag_step
         next_lag = lag.last_estimate() + lag_step
         for r in range(lo, hi):
-            if not stepped[r]:
+            w, x, y, z, roll, pitch, _, _, stepped = table[r]
+            if not stepped:
                 continue
             t = times[r]
             if estimates:
@@ -256,10 +253,8 @@ class Comparison:
                     next_lag = lag.last_estimate() + lag_step
                 elif t == last:
                     continue
-            w, x, y, z = quats[r]
             estimates.append((t, (w, x, y, z)))
             if t >= next_lag:  # the lag's resolution
-                roll, pitch, _ = eulers[r]
                 lag.add_estimate(t, roll, pitch)
                 next_lag = t + lag_step
             start = t - history

@@ -17,9 +17,9 @@ from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.estimators.kernels import Compiled
-from gcs.core.estimators.stepping import BatchAttitudes, Fault, ImuBatch, step_batch, step_samples
+from gcs.core.estimators.stepping import BatchAttitudes, Fault, ImuBatch, accepted_rows, step_batch, step_samples
 from gcs.core.gains import PresetFile
-from gcs.core.plausibility import imu_rows_accepted, refusal
+from gcs.core.plausibility import refusal
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 
@@ -136,7 +136,7 @@ class EstimationPipeline:
     def _segment(self, items: list[ImuSample | AttitudeSample]) -> list[AttitudePoint]:
         """IMU samples and references in arrival order → the points `feed` gives."""
         batch = ImuBatch.of([item for item in items if isinstance(item, ImuSample)])
-        accepted = imu_rows_accepted(batch.rows, batch.has_mag)
+        accepted = accepted_rows(batch.rows)
         if not accepted.all():
             batch = batch.take(accepted)
         # the plausible inputs as runs of IMU rows, each followed by a reference (None: the last)
@@ -161,19 +161,20 @@ class EstimationPipeline:
         self.imu_samples += kept
         outputs = {name: self._step(name, batch) for name in list(self.estimators)}
         times = batch.rows[:, 0].tolist()
-        for name, out in outputs.items():
-            self.comparisons[name].add_batch(runs, times, out)
+        tables = {name: out.rows.tolist() for name, out in outputs.items()}
+        for name, table in tables.items():
+            self.comparisons[name].add_batch(runs, times, table)
         # the points, in the order feed gives them: per sample every estimator with a valid
         # attitude, references where they arrived
         points: list[AttitudePoint] = []
         latest = self.latest
-        shown = [(name, (out.valid & out.stepped).tolist(), out.euler.tolist()) for name, out in outputs.items()]
+        shown = list(tables.items())
         for lo, hi, ref in runs:
             for r in range(lo, hi):
                 t = times[r]
-                for name, valid, euler in shown:
-                    if valid[r]:
-                        roll, pitch, yaw = euler[r]
+                for name, table in shown:
+                    _, _, _, _, roll, pitch, yaw, valid, stepped = table[r]
+                    if valid and stepped:
                         latest[name] = point = AttitudePoint(t, name, roll, pitch, yaw)
                         points.append(point)
             if ref is not None:

@@ -25,6 +25,7 @@ from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled, registr
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.jit import kernel
+from gcs.core.plausibility import imu_row_accepted
 from gcs.core.samples import ImuSample
 
 Floats = npt.NDArray[np.float64]
@@ -32,33 +33,38 @@ Bools = npt.NDArray[np.bool_]
 
 #: step_rows' stops besides a step's re-initialisation codes
 END, GROW, NON_FINITE = -1, -3, -4
-#: a row's field where its sample has none (update_imu passes the kernels zeros)
-NO_FIELD = np.zeros(3)
+#: ImuBatch.rows' columns: t, gyro xyz, accel xyz, mag xyz (zero without one, as update_imu
+#: passes the kernels), 1.0 where the sample has a field
+T, GYRO, ACCEL, MAG, HAS_MAG, ROW = 0, 1, 4, 7, 10, 11
+#: BatchAttitudes.rows' columns: quaternion w x y z, roll pitch yaw, valid, stepped (0.0 / 1.0)
+Q, EULER, VALID, STEPPED, OUT = 0, 4, 7, 8, 9
+_NO_FIELD = (0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, slots=True)
 class ImuBatch:
-    """Consecutive IMU samples as columns: `rows` n×10 (t, gyro xyz, accel xyz, mag xyz; a
-    zero field where a sample has none, as `update_imu` passes one) and `has_mag` per row."""
+    """Consecutive IMU samples as one n×ROW table (the columns above), so that a batch costs a
+    few NumPy calls and one compiled call per estimator, whatever its size."""
 
     rows: Floats
-    has_mag: Bools
 
     @classmethod
     def of(cls, samples: Sequence[ImuSample]) -> ImuBatch:
-        rows = np.empty((len(samples), 10))
-        if not samples:  # references only
-            return cls(rows, np.zeros(0, dtype=np.bool_))
-        rows[:, 0] = [sample.t for sample in samples]
-        rows[:, 1:4] = [sample.gyro for sample in samples]
-        rows[:, 4:7] = [sample.accel for sample in samples]
-        mags = [sample.mag for sample in samples]
-        rows[:, 7:10] = [NO_FIELD if mag is None else mag for mag in mags]
-        return cls(rows, np.array([mag is not None for mag in mags], dtype=np.bool_))
+        flat: list[float] = []
+        for sample in samples:
+            flat.append(sample.t)
+            flat += sample.gyro.tolist()
+            flat += sample.accel.tolist()
+            if sample.mag is None:
+                flat += _NO_FIELD
+            else:
+                flat += sample.mag.tolist()
+                flat.append(1.0)
+        return cls(np.array(flat, dtype=np.float64).reshape(-1, ROW))
 
     def take(self, rows: Bools) -> ImuBatch:
         """The rows where `rows` is True."""
-        return ImuBatch(self.rows[rows], self.has_mag[rows])
+        return ImuBatch(self.rows[rows])
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -66,24 +72,30 @@ class ImuBatch:
     def sample(self, i: int) -> ImuSample:
         """Row i as the sample it was (for the Python part of a re-initialisation)."""
         row = self.rows[i]
-        mag = row[7:10].copy() if self.has_mag[i] else None
-        return ImuSample(float(row[0]), row[1:4].copy(), row[4:7].copy(), mag)
+        mag = row[MAG:HAS_MAG].copy() if row[HAS_MAG] else None
+        return ImuSample(float(row[T]), row[GYRO:ACCEL].copy(), row[ACCEL:MAG].copy(), mag)
 
 
 @dataclass(frozen=True, slots=True)
 class BatchAttitudes:
-    """One estimator's outputs over an ImuBatch, per row: the quaternion (w, x, y, z) and its
-    Z-Y-X angles (rad) after the row, whether they were valid then, and whether the row gave an
-    estimate at all (`stepped`: False where the estimator faulted and restarted)."""
+    """One estimator's outputs over an ImuBatch, one n×OUT table (the columns above): per row the
+    quaternion (w, x, y, z) and its Z-Y-X angles (rad) after it, whether they were valid then, and
+    whether the row gave an estimate at all (`stepped`: not where the estimator faulted)."""
 
-    q: Floats
-    euler: Floats
-    valid: Bools
-    stepped: Bools
+    rows: Floats
 
     @classmethod
     def empty(cls, n: int) -> BatchAttitudes:
-        return cls(np.zeros((n, 4)), np.zeros((n, 3)), np.zeros(n, np.bool_), np.zeros(n, np.bool_))
+        return cls(np.zeros((n, OUT)))
+
+
+@kernel
+def accepted_rows(rows: Floats) -> Bools:
+    """plausibility.refusal(...) is None, for every row of an ImuBatch."""
+    out = np.empty(rows.shape[0], dtype=np.bool_)
+    for i in range(rows.shape[0]):
+        out[i] = imu_row_accepted(rows[i], rows[i, HAS_MAG] != 0.0)
+    return out
 
 
 @kernel
@@ -97,39 +109,37 @@ def step_any(which: int, s: Floats, hist: Floats, g: Floats, row: Floats, has_ma
 
 
 @kernel
-def write_attitude(s: Floats, i: int, out_q: Floats, out_euler: Floats) -> bool:
-    """The state's quaternion and angles (kernels.attitude_of) into row i; whether finite."""
+def write_attitude(s: Floats, out: Floats) -> bool:
+    """The state's quaternion and angles (kernels.attitude_of) into an output row; whether finite."""
     q, euler = k.attitude_of(s)
-    out_q[i, 0], out_q[i, 1], out_q[i, 2], out_q[i, 3] = q
-    out_euler[i, 0], out_euler[i, 1], out_euler[i, 2] = euler
+    out[Q], out[Q + 1], out[Q + 2], out[Q + 3] = q
+    out[EULER], out[EULER + 1], out[EULER + 2] = euler
     return math.isfinite(q[0] + q[1] + q[2] + q[3])
 
 
 @kernel
 def step_rows(
-    which: int, s: Floats, hist: Floats, g: Floats, valid_slot: int, hist_n_slot: int, rows: Floats,
-    has_mag: Bools, i: int, at: npt.NDArray[np.int64], out_q: Floats, out_euler: Floats, out_valid: Bools,
-    out_stepped: Bools,
+    which: int, s: Floats, hist: Floats, g: Floats, valid_slot: int, hist_n_slot: int, rows: Floats, i: int,
+    out: Floats,
 ) -> tuple[int, int]:  # fmt: skip
     """Step estimator `which` over rows i.. until the end, a step that asks for a
     re-initialisation (its code; the row is then not written), a full history (GROW; not
-    stepped) or a non-finite attitude (NON_FINITE; the row is not marked stepped). `at[0]` is the
-    row being stepped, for an error raised inside a kernel. Returns (row, why it stopped)."""
+    stepped) or a non-finite attitude (NON_FINITE; the row is not marked stepped). Returns (row,
+    why it stopped). An error inside a step leaves its row the first one not stepped."""
     n = rows.shape[0]
     while i < n:
         if hist_n_slot >= 0 and s[hist_n_slot] >= hist.shape[0] - 1:
             return i, GROW
-        at[0] = i
-        code = step_any(which, s, hist, g, rows[i], has_mag[i])
+        code = step_any(which, s, hist, g, rows[i], rows[i, HAS_MAG] != 0.0)
         if code == k.STEP:
-            out_valid[i] = True
+            out[i, VALID] = 1.0
         elif code == k.DUPLICATE:
-            out_valid[i] = s[valid_slot] != 0.0
+            out[i, VALID] = 1.0 if s[valid_slot] != 0.0 else 0.0
         else:
             return i, code
-        if not write_attitude(s, i, out_q, out_euler):
+        if not write_attitude(s, out[i]):
             return i, NON_FINITE
-        out_stepped[i] = True
+        out[i, STEPPED] = 1.0
         i += 1
     return i, END
 
@@ -147,31 +157,32 @@ def step_batch(est: k.Compiled, batch: ImuBatch, start: int, out: BatchAttitudes
     end, or the fault at which the pipeline restarts the estimator (an error, a non-finite state),
     as the per-sample path restarts it: the caller goes on from the next row with a new one."""
     kernels = est.KERNELS
-    rows, has_mag = batch.rows, batch.has_mag
-    at = np.zeros(1, dtype=np.int64)
+    rows, table = batch.rows, out.rows
     i = start
     while i < len(rows):
         try:
             i, why = step_rows(
-                kernels.step, est.s, est.hist, est.gain_vector(), kernels.valid_slot, kernels.hist_n_slot,
-                rows, has_mag, i, at, out.q, out.euler, out.valid, out.stepped,
+                kernels.step, est.s, est.hist, est.gain_vector(), kernels.valid_slot, kernels.hist_n_slot, rows, i,
+                table,
             )  # fmt: skip
         except Exception as exc:  # as update_imu's error: the pipeline restarts it
-            return Fault(int(at[0]), f"{type(exc).__name__}: {exc}")
+            while table[i, STEPPED]:
+                i += 1
+            return Fault(i, f"{type(exc).__name__}: {exc}")
         if why == END:
             return None
         if why == GROW:
             est._grow()
             continue
         if why == NON_FINITE:
-            return Fault(i, f"non-finite state at t={rows[i, 0]:.3f} s")
+            return Fault(i, f"non-finite state at t={rows[i, T]:.3f} s")
         try:  # a re-initialisation: the rest of update_imu, in Python as on the per-sample path
-            out.valid[i] = est._after_step(int(why), batch.sample(i))
+            table[i, VALID] = est._after_step(int(why), batch.sample(i))
         except Exception as exc:
             return Fault(i, f"{type(exc).__name__}: {exc}")
-        if not write_attitude(est.s, i, out.q, out.euler):
-            return Fault(i, f"non-finite state at t={rows[i, 0]:.3f} s")
-        out.stepped[i] = True
+        if not write_attitude(est.s, table[i]):
+            return Fault(i, f"non-finite state at t={rows[i, T]:.3f} s")
+        table[i, STEPPED] = 1.0
         i += 1
     return None
 
@@ -180,15 +191,13 @@ def step_samples(est: AttitudeEstimator, batch: ImuBatch, start: int, out: Batch
     """`step_batch` for an estimator without compiled kernels (a reference one): per sample."""
     for i in range(start, len(batch)):
         try:
-            out.valid[i] = est.update_imu(batch.sample(i))
+            valid = est.update_imu(batch.sample(i))
         except Exception as exc:  # as step_batch
             return Fault(i, f"{type(exc).__name__}: {exc}")
-        (w, x, y, z), euler = est.attitude()
+        (w, x, y, z), (roll, pitch, yaw) = est.attitude()
         if not math.isfinite(w + x + y + z):
-            return Fault(i, f"non-finite state at t={batch.rows[i, 0]:.3f} s")
-        out.q[i] = w, x, y, z
-        out.euler[i] = euler
-        out.stepped[i] = True
+            return Fault(i, f"non-finite state at t={batch.rows[i, T]:.3f} s")
+        out.rows[i] = w, x, y, z, roll, pitch, yaw, float(valid), 1.0
     return None
 
 
@@ -196,6 +205,7 @@ def warm() -> None:
     """Compile (or load from the disk cache) the batch stepping now, off the live loop."""
     gyro, accel, mag = np.array([0.01, -0.02, 0.03]), np.array([0.1, 0.2, -9.8]), np.array([0.2, 0.01, 0.4])
     batch = ImuBatch.of([ImuSample(0.01 * i, gyro, accel, mag if i != 1 else None) for i in range(4)])
+    accepted_rows(batch.rows)
     for name in registry.names():
         est = registry.create(name)
         if isinstance(est, k.Compiled):

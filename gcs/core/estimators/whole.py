@@ -59,7 +59,9 @@ class WholeRun:
 
 def imu_accepted(kind: npt.NDArray[np.generic], imu: Floats) -> npt.NDArray[np.bool_]:
     """plausibility.refusal(...) is None for every IMU row, on whole columns."""
-    return imu_rows_accepted(imu, kind[(kind == InputKind.IMU) | (kind == InputKind.IMU_MAG)] == InputKind.IMU_MAG)
+    mag = kind[(kind == InputKind.IMU) | (kind == InputKind.IMU_MAG)] == InputKind.IMU_MAG
+    accepted: npt.NDArray[np.bool_] = imu_rows_accepted(np.ascontiguousarray(imu, dtype=np.float64), mag)
+    return accepted
 
 
 def gps_accepted(kind: npt.NDArray[np.generic], gps: Floats) -> npt.NDArray[np.bool_]:
