@@ -139,9 +139,11 @@ async def pose_view_colours(page) -> int:
         canvas = frame.locator("canvas").first
         try:
             await canvas.wait_for(timeout=15_000)
-            await asyncio.sleep(2.0)
-            shot = await canvas.screenshot()
-            colours = len(Image.open(io.BytesIO(shot)).convert("RGB").getcolors(maxcolors=1 << 24))
+            deadline = time.monotonic() + 15  # the scene drawn: looked at until it shows, or the deadline
+            while colours <= 20 and time.monotonic() < deadline:
+                await asyncio.sleep(0.25)
+                shot = await canvas.screenshot()
+                colours = len(Image.open(io.BytesIO(shot)).convert("RGB").getcolors(maxcolors=1 << 24))
         except Exception as exc:
             print(f"pose view attempt {attempt}: {exc}")
         if colours > 20:

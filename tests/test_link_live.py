@@ -86,7 +86,8 @@ def test_tcp_peer_that_drops_is_redialled(tcp_port):
             async with running_sim(f"tcpin:127.0.0.1:{tcp_port}", profile="pixhawk"):
                 assert await link.wait_connected(10)
             await wait_for(lambda: link.state == LinkState.LOST, 5, "lost")
-            await asyncio.sleep(2.0)  # the station keeps redialling a closed port meanwhile
+            # the station redials the closed port (and fails) before the peer comes back
+            await wait_for(lambda: any(e.detail.startswith("cannot open") for e in link.events), 15, "a redial refused")
             async with running_sim(f"tcpin:127.0.0.1:{tcp_port}", profile="pixhawk"):
                 assert await link.wait_connected(15)
             return link
