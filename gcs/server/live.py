@@ -112,8 +112,8 @@ Writer = Callable[[bytes], Coroutine[Any, Any, None]]
 class ClientFeed:
     """One WebSocket client's encoded frames (`gcs.server.wire`) and its counters.
 
-    Once it has a `writer` (the route attaches it), a frame offered while nothing is on its way to this
-    client is written at once, in the flush's own turn (`eager.start`: no task when the socket
+    Once it has a writer (the route attaches one), a frame offered while nothing is on its way
+    to this client is written at once, in the flush's own turn (`eager.start`: no task when the socket
     accepts it). While a send waits (a slow client: its transport paused), frames wait in the
     bounded queue, the oldest dropped and counted when it is full, and go out together as one
     message when the send is done; the flush, the link and the other clients never wait for it."""
@@ -121,9 +121,9 @@ class ClientFeed:
     id: int
     address: str
     max_frames: int
-    writer: Writer | None = None
 
     def __post_init__(self) -> None:
+        self.writer: Writer | None = None
         self.frames: DropOldestQueue[tuple[bytes, int]] = DropOldestQueue(self.max_frames)
         self.queued_points = 0
         self.sent_points = 0
