@@ -13,10 +13,12 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`), between `frame_interval`
-and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. Points that
-come more often than that wait half an interval on average, and fewer viewers wait less; the
-fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core). The
+client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`, and every frame costs the
+live estimation a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one or two
+viewers, 2 ms more for each further one, 10 ms from 5 on (100 frames/s: more than a page draws).
+Points that come more often than that wait half an interval on average, and fewer viewers wait
+less. With 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per
+1000 msg/s (four pairs, docs/benchmarks.md). The
 live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
 its points come in one batch per interval and go out right after it. Figures:
 docs/benchmarks.md; data flow: docs/design.md
@@ -221,7 +223,7 @@ class LiveHub:
         max_rate: float = 400.0,
         frame_interval: float = 0.004,
         client_max_frames: int = 1000,
-        sends_per_s: float = 1000.0,
+        sends_per_s: float = 500.0,
         max_frame_interval: float = 0.010,
     ) -> None:
         self.capacity = int(seconds * max_rate)
