@@ -135,27 +135,38 @@ class UdpTransport(Transport):
         return port
 
     def _readable(self) -> None:
-        for _ in range(UDP_READ_BATCH):
-            sock = self._sock
-            if sock is None:
-                return
-            try:
-                data, ancdata, _flags, addr = sock.recvmsg(UDP_MAX_DATAGRAM, _DROPS_CMSG_SPACE)
-            except (BlockingIOError, InterruptedError):
-                return
-            except ConnectionRefusedError:
-                continue  # ICMP "port unreachable" while the peer is not listening yet
-            except OSError:
-                self.close()
-                return
+        """Read up to UDP_READ_BATCH datagrams. The drop count is cumulative, so only the last
+        datagram's is read, and every peer heard in one wake-up is stamped with its time."""
+        on_data, udpin = self._on_data, self.address.kind == "udpin"
+        assert on_data is not None  # set by open() before the reader exists
+        ancdata: list = []
+        heard = None
+        try:
+            for _ in range(UDP_READ_BATCH):
+                sock = self._sock
+                if sock is None:
+                    return
+                try:
+                    data, anc, _flags, addr = sock.recvmsg(UDP_MAX_DATAGRAM, _DROPS_CMSG_SPACE)
+                except (BlockingIOError, InterruptedError):
+                    return
+                except ConnectionRefusedError:
+                    continue  # ICMP "port unreachable" while the peer is not listening yet
+                except OSError:
+                    self.close()
+                    return
+                ancdata = anc
+                if udpin:
+                    if addr != self.peer:
+                        self.peer = addr
+                        heard = None
+                    if heard is None:
+                        heard = self.peers[addr] = self._loop.time() if self._loop is not None else 0.0
+                on_data(data)
+        finally:
             for level, kind, payload in ancdata:
                 if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
                     self.kernel_drops = struct.unpack("=I", payload[:4])[0]
-            if self.address.kind == "udpin":
-                self.peer = addr
-                self.peers[addr] = self._loop.time() if self._loop is not None else 0.0
-            assert self._on_data is not None  # set by open() before the reader exists
-            self._on_data(data)
 
     def write(self, data: bytes) -> None:
         if self._sock is None or self.peer is None:
