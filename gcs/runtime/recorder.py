@@ -22,6 +22,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
 
@@ -87,7 +88,8 @@ class Session:
     def __init__(self, folder: Path, meta: dict, on_error) -> None:
         self.meta = meta
         self.encoders = {table: columnar.StreamEncoder(schema) for table, schema in columnar.SCHEMAS.items()}
-        self.rows: dict[str, list[tuple]] = {table: [] for table in columnar.SCHEMAS}
+        self.rows: dict[str, list[tuple]] = {table: [] for table in columnar.SCHEMAS if table != "attitude"}
+        self.points: list[tuple[float, list]] = []  # (wall time, AttitudePoints): the attitude table's rows
         self._rows_lock = threading.Lock()
         layout.write_meta(folder, meta)  # at once: the folder is a session (listed, recoverable) from now on
         self.lock_fd = take_lock(folder)
@@ -103,13 +105,22 @@ class Session:
             with self._rows_lock:
                 self.rows[table].extend(rows)
 
-    def _encode_tables(self) -> dict[str, bytes]:
-        out = {}
-        for table, encoder in self.encoders.items():
+    def add_points(self, wall_time: float, points: list) -> None:
+        """Estimation points, made rows by the writer thread (the event loop only keeps the list)."""
+        if self.writer.failed is None:
             with self._rows_lock:
-                rows, self.rows[table] = self.rows[table], []
-            out[layout.stream_path(Path(""), table).name] = encoder.encode(rows)
-        return out
+                self.points.append((wall_time, points))
+
+    def _encode_tables(self) -> dict[str, bytes]:
+        with self._rows_lock:
+            rows, self.rows = self.rows, {table: [] for table in self.rows}
+            points, self.points = self.points, []
+        columns: dict[str, list[Sequence]] = {table: list(zip(*table_rows)) for table, table_rows in rows.items()}
+        columns["attitude"] = columnar.attitude_columns(points)
+        return {
+            layout.stream_path(Path(""), table).name: encoder.encode_columns(columns[table])
+            for table, encoder in self.encoders.items()
+        }
 
     def close(self, end: float) -> dict:
         """Last flush, Parquet conversion, end time in meta; the lock is released."""
@@ -345,7 +356,7 @@ class SessionRecorder:
             # session now, or a warm estimator's first points would come before it and be lost
             self._drain()
         if self.session is not None:
-            self.session.add_rows("attitude", columnar.attitude_rows(points, time.time()))
+            self.session.add_points(time.time(), points)
 
     def _on_event(self, event) -> None:
         if self.session is None and not self._armed:

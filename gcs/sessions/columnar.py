@@ -9,6 +9,7 @@ complete batch. At close (or recovery) it is converted to Parquet, which is what
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import pyarrow as pa
@@ -53,6 +54,15 @@ def attitude_rows(points, wall_time: float) -> list[tuple]:
     return [(wall_time, p.t, p.source, p.roll, p.pitch, p.yaw) for p in points]
 
 
+def attitude_columns(batches: list[tuple[float, list]]) -> list[Sequence]:
+    """(wall time, AttitudePoints) batches → the attitude table's columns (as `attitude_rows`
+    gives them, without a tuple per point: a recorder keeps the batches as they come)."""
+    points = [p for _, batch in batches for p in batch]
+    if not points:
+        return []
+    return [[wall for wall, batch in batches for _ in batch], *zip(*points)]
+
+
 def warm() -> None:
     """Convert one value to Arrow now. pyarrow's first Python-to-Arrow conversion imports pandas
     when it is installed (0.7 s, holding the GIL): done by a recording's writer thread at its first
@@ -71,8 +81,11 @@ class StreamEncoder:
         self._writer = pa.ipc.new_stream(self._sink, schema)
 
     def encode(self, rows: list[tuple]) -> bytes:
-        if rows:
-            columns = list(zip(*rows))
+        return self.encode_columns(list(zip(*rows)))
+
+    def encode_columns(self, columns: list[Sequence]) -> bytes:
+        """The same for the table's columns (none: no rows)."""
+        if columns:
             batch = pa.record_batch(
                 [pa.array(c, type=f.type) for c, f in zip(columns, self.schema)], schema=self.schema
             )
