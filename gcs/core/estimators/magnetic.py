@@ -101,6 +101,10 @@ class MagneticHeading:
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
 
+    And on every sample, a wrong heading: a steady heading disagreement for `mag_relearn` s of
+    turning faster than MAG_HEADING_MIN_GYR distrusts the heading, makes the field the reference
+    and keeps the old reference as rejected (a field nearer to it than to the reference fails).
+
     After a learned offset `weight` (what the estimators scale their heading correction by) is 0
     until ∫|ω|² dt reaches MAG_OFFSET_HOLD_SPIN2 or MAG_OFFSET_HOLD s pass, then back to 1: the gyro
     holds the heading.
