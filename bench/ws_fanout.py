@@ -4,11 +4,14 @@ each of 4 sources every 5 ms (200 Hz, as ATTITUDE and three estimators), with 0 
 (bench.ws_readers, their own process). µs per send = (loop CPU with N − with 0) / sends, so it
 holds each send's share of the frame's encoding and flush (without clients nothing is encoded).
 
-    python -m bench.ws_fanout [--clients 20] [--seconds 8]
+    python -m bench.ws_fanout [--clients 20] [--seconds 8] [--loop asyncio] [--ws websockets] [--shipped]
 
 The station is started without traffic (its link idle): the points are the hub's only work.
 Rows: the shipped interval (gcs.server.live.LiveHub.flush_interval) and a fixed 10 ms (the
-interval before), each with its frames/s and loop CPU (% of a core).
+interval before), each with its frames/s and loop CPU (% of a core); `--shipped` only the first.
+The loop is the station's (`gcs.runtime.event_loop`: uvloop where installed) unless `--loop
+asyncio`; `--ws` picks uvicorn's WebSocket implementation (`websockets-sansio`, `websockets`,
+`wsproto` where installed; `auto` as shipped).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import time
 from typing import Any
 
 from gcs.core.estimation import AttitudePoint
+from gcs.runtime import event_loop
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.dashboard import DashboardServer
 from gcs.transport.address import free_port
@@ -31,10 +35,10 @@ SOURCES = ("onboard", "dcm", "kf", "ekf")
 PERIOD_S = 0.005
 
 
-async def measure(clients: int, seconds: float, fixed_interval: float | None) -> dict[str, float]:
+async def measure(clients: int, seconds: float, fixed_interval: float | None, ws: str = "auto") -> dict[str, Any]:
     station = Station(StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", request_streams=False))
     await station.start()
-    server = DashboardServer(station, port=0, viser=False)
+    server = DashboardServer(station, port=0, viser=False, ws_protocol=ws)
     if fixed_interval is not None:
         server.hub.frame_interval = server.hub.max_frame_interval = fixed_interval
     await server.start()
@@ -70,18 +74,24 @@ async def measure(clients: int, seconds: float, fixed_interval: float | None) ->
         handle[0].cancel()
         await server.stop()
         await station.stop()
-    return {"frames_per_s": frames / wall, "cpu_pct": 100 * cpu / wall, "interval_ms": 1000 * interval}
+    kind = type(loop).__module__.split(".")[0]  # uvloop or asyncio
+    return {"frames_per_s": frames / wall, "cpu_pct": 100 * cpu / wall, "interval_ms": 1000 * interval, "loop": kind}
 
 
-def main(clients: int = 20, seconds: float = 8.0) -> list[dict[str, Any]]:
+def main(
+    clients: int = 20, seconds: float = 8.0, loop: str = "station", ws: str = "auto", shipped: bool = False
+) -> list[dict[str, Any]]:
+    run = asyncio.run if loop == "asyncio" else event_loop.run
     rows = []
-    for name, fixed in (("shipped", None), ("fixed 10 ms", 0.010)):
-        idle = asyncio.run(measure(0, seconds, fixed))
-        busy = asyncio.run(measure(clients, seconds, fixed))
+    for name, fixed in (("shipped", None), ("fixed 10 ms", 0.010))[: 1 if shipped else 2]:
+        idle = run(measure(0, seconds, fixed, ws))
+        busy = run(measure(clients, seconds, fixed, ws))
         per_send = 1e4 * (busy["cpu_pct"] - idle["cpu_pct"]) / max(busy["frames_per_s"] * clients, 1e-9)
         rows.append(
             {
                 "benchmark": f"ws fan-out, {clients} clients, 4 sources at 200 Hz, interval {name}",
+                "loop": busy["loop"],
+                "ws": ws,
                 "interval_ms": round(busy["interval_ms"], 1),
                 "frames_per_s": round(busy["frames_per_s"], 1),
                 "loop_cpu_pct": round(busy["cpu_pct"], 2),
@@ -97,6 +107,9 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--clients", type=int, default=20)
     parser.add_argument("--seconds", type=float, default=8.0)
+    parser.add_argument("--loop", choices=("station", "asyncio"), default="station")
+    parser.add_argument("--ws", default="auto", help="uvicorn's WebSocket implementation")
+    parser.add_argument("--shipped", action="store_true", help="the shipped interval only")
     a = parser.parse_args()
-    for row in main(a.clients, a.seconds):
+    for row in main(a.clients, a.seconds, a.loop, a.ws, a.shipped):
         print(json.dumps(row))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import math
 import random
 
 from gcs.core.estimation import AttitudePoint
@@ -72,6 +73,15 @@ def test_the_interval_keeps_the_fan_out_within_its_send_budget_up_to_the_longest
     assert hub.flush_interval() == 0.004  # 2 clients: 500 sends/s at the shortest interval
 
 
+def test_by_default_five_pages_get_a_frame_every_10_ms_and_one_page_every_4_ms():
+    hub = LiveHub(seconds=10)
+    feeds = [hub.connect(str(k)) for k in range(5)]
+    assert hub.flush_interval() == 0.010  # 500 sends/s
+    for feed in feeds[1:]:
+        hub.disconnect(feed)
+    assert hub.flush_interval() == 0.004
+
+
 def test_without_clients_nothing_is_encoded_and_the_store_keeps_everything():
     async def run() -> tuple[int, int, list[wire.PointsFrame]]:
         hub = LiveHub(seconds=10, frame_interval=0.0)
@@ -103,7 +113,8 @@ def test_every_sample_reaches_a_reading_client_once_and_in_order():
         async def read() -> None:
             received = 0
             while received < total:
-                message, points = await feed.next_message()
+                await feed.frames.wait()
+                message, points = feed.take()
                 received += points
                 for frame in wire.decode(message):
                     assert isinstance(frame, wire.PointsFrame)
@@ -140,7 +151,8 @@ def test_a_viewers_counters_as_the_status_lists_them():
         reading, stuck = hub.connect("127.0.0.1:1"), hub.connect("127.0.0.1:2")
         for k in range(3):
             hub.broadcast({"type": "gain", "k": k})
-        await reading.next_message()
+        await reading.frames.wait()
+        reading.take()
         reading.sent(0)
         return [(c.snapshot(), c.snapshot().as_dict()) for c in (reading, stuck)]
 
@@ -148,3 +160,98 @@ def test_a_viewers_counters_as_the_status_lists_them():
     assert reading == dataclasses.asdict(reading_snapshot) and stuck == dataclasses.asdict(stuck_snapshot)
     assert reading["sent_messages"] == 1 and reading["queued_frames"] == 0
     assert stuck["dropped_frames"] == 1 and stuck["queued_frames"] == 2 and stuck["address"] == "127.0.0.1:2"
+
+
+class Gate:
+    """A client's writer whose sends wait while the gate is shut, as a send to a client whose
+    transport is paused waits for it to drain; with the gate open a send finishes without
+    waiting, as one the socket accepts at once."""
+
+    def __init__(self, open_: bool = True) -> None:
+        self.opened = asyncio.Event()
+        if open_:
+            self.opened.set()
+        self.messages: list[bytes] = []
+
+    async def write(self, message: bytes) -> None:
+        await self.opened.wait()
+        self.messages.append(message)
+
+    def onboard_times(self) -> list[float]:
+        return [
+            t
+            for m in self.messages
+            for f in wire.decode(m)
+            if isinstance(f, wire.PointsFrame)
+            for t in f.points["onboard"][0]
+        ]
+
+
+def test_a_frame_is_written_in_the_flushs_own_turn_when_the_client_keeps_up():
+    async def run() -> tuple[list[float], int, int]:
+        hub = LiveHub(seconds=10, frame_interval=0.0)
+        reader = Gate()
+        hub.connect("reader").attach(reader.write)
+        hub.on_points([point(1.0)])
+        await asyncio.sleep(0)  # the flush's turn
+        written = reader.onboard_times()  # nothing else ran after the flush: no task was woken
+        return written, len(asyncio.all_tasks()), hub.clients[1].sent_messages
+
+    written, tasks, sent = asyncio.run(run())
+    assert written == [1.0] and sent == 1
+    assert tasks == 1  # this test's own: the write made none
+
+
+def test_a_slow_client_queues_and_drops_alone_and_gets_the_rest_in_one_message_once_it_reads():
+    async def run() -> dict:
+        hub = LiveHub(seconds=10, frame_interval=0.0, sends_per_s=math.inf, client_max_frames=3)
+        slow, reader = Gate(open_=False), Gate()
+        slow_feed = hub.connect("slow")
+        slow_feed.attach(slow.write)
+        hub.connect("reader").attach(reader.write)
+        for k in range(6):  # 6 frames: the first waits in its send, 3 queue, 2 are dropped
+            hub.on_points([point(1.0 + k)])
+            await asyncio.sleep(0)
+        while_stuck = (
+            list(reader.onboard_times()),
+            len(slow.messages),
+            slow_feed.dropped_frames,
+            len(slow_feed.frames),
+        )
+        slow.opened.set()
+        async with asyncio.timeout(30):
+            while slow_feed.sent_messages < 2:
+                await asyncio.sleep(0)
+        return {
+            "while_stuck": while_stuck,
+            "slow_messages": len(slow.messages),
+            "slow_times": slow.onboard_times(),
+            "dropped_points": slow_feed.dropped_points,
+            "queued_points": slow_feed.queued_points,
+        }
+
+    r = asyncio.run(run())
+    reader_times, slow_written, dropped, queued = r["while_stuck"]
+    assert reader_times == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]  # the reader never waited for the slow one
+    assert slow_written == 0 and dropped == 2 and queued == 3
+    # its first frame, then the newest three in one message; the two oldest queued were dropped
+    assert r["slow_messages"] == 2 and r["slow_times"] == [1.0, 4.0, 5.0, 6.0]
+    assert r["dropped_points"] == 2 and r["queued_points"] == 0
+
+
+def test_a_client_whose_write_fails_is_sent_nothing_more_and_the_others_go_on():
+    async def broken(message: bytes) -> None:
+        raise ConnectionResetError("the client went away")
+
+    async def run() -> tuple[list[float], bool, int]:
+        hub = LiveHub(seconds=10, frame_interval=0.0, sends_per_s=math.inf)
+        gone, reader = hub.connect("gone"), Gate()
+        gone.attach(broken)
+        hub.connect("reader").attach(reader.write)
+        for k in range(3):
+            hub.on_points([point(1.0 + k)])
+            await asyncio.sleep(0)
+        return reader.onboard_times(), gone.closed, len(gone.frames)
+
+    times, closed, queued = asyncio.run(run())
+    assert times == [1.0, 2.0, 3.0] and closed and queued == 0

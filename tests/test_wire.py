@@ -64,7 +64,7 @@ def test_a_client_gets_every_queued_frame_in_one_message_in_order():
         hub.broadcast({"type": "gain", "estimator": "dcm", "gain": "kp_rp", "new": 0.3})
         hub.on_points([AttitudePoint(1.01, "onboard", -0.1, 0.0, math.pi), AttitudePoint(1.0, "dcm", 0.0, 0.0, 0.0)])
         await asyncio.wait_for(flushed(hub, 2), 5)
-        message, points = await feed.next_message()
+        message, points = feed.take()  # queued: no writer attached
         return message, points, hub.frames_out
 
     message, points, frames_out = asyncio.run(run())

@@ -45,6 +45,7 @@ class DashboardServer:
         allow_origins: tuple[str, ...] = (),
         token: str | None = None,
         fleet: FleetFacade | None = None,
+        ws_protocol: str = "auto",
     ) -> None:
         self.station = station
         self.fleet = fleet
@@ -54,6 +55,7 @@ class DashboardServer:
         self.use_viser = viser
         self.hub = hub or LiveHub()
         self.send_buffer = send_buffer
+        self.ws_protocol = ws_protocol
         self.allow_origins = allow_origins
         self.token = token or secrets.token_urlsafe(16)
         self.viser: ViserServer | None = None
@@ -98,7 +100,9 @@ class DashboardServer:
             app.state.viser_port = self.viser_port
         # no permessage-deflate: the live frames are small and frequent, and compressing each one
         # for each client cost the loop more CPU than the bytes it saved (docs/benchmarks.md)
-        config = uvicorn.Config(app, log_level="warning", ws_ping_interval=None, ws_per_message_deflate=False)
+        config = uvicorn.Config(
+            app, log_level="warning", ws=self.ws_protocol, ws_ping_interval=None, ws_per_message_deflate=False
+        )
         self._server = uvicorn.Server(config)
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
         while not self._server.started:

@@ -7,15 +7,18 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   for a long window, with the estimator errors computed as the page does) and memory never grows;
 * the **pending frame**: flushed in the loop's next turn when the last flush is at least
   `flush_interval()` old, else when it will be; encoded once (binary float arrays,
-  `gcs.server.wire`) and offered to each client's own bounded queue (`ClientFeed`,
-  `client_max_frames`), sent by the client's own task. A client that stops reading loses its
-  oldest frames, counted for it alone; the others and the link never wait, and nothing is
-  decimated for a client that keeps up.
+  `gcs.server.wire`), the same bytes for every client, and written to each client in the
+  flush's own turn (`ClientFeed`: no task woken per client per frame) unless a send to it is
+  still waiting, when it joins that client's bounded queue (`client_max_frames`). A client that
+  stops reading loses its oldest frames, counted for it alone; the others and the link never
+  wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~35 µs of CPU, a third of it the system call), between `frame_interval`
-and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. Points that
-come more often than that wait half an interval on average, and fewer viewers wait less; the
-fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core). The
+client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`, and every frame costs the
+live estimation a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one or two
+viewers, 2 ms more for each further one, 10 ms from 5 on (100 frames/s: more than a page draws).
+Points that come more often than that wait half an interval on average, and fewer viewers wait
+less. With 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per
+1000 msg/s (four pairs, docs/benchmarks.md). The
 live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
 its points come in one batch per interval and go out right after it. Figures:
 docs/benchmarks.md; data flow: docs/design.md
@@ -27,13 +30,15 @@ import asyncio
 import itertools
 import math
 import time
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
 from gcs.core.estimation import AttitudePoint
 from gcs.runtime.dropqueue import DropOldestQueue
-from gcs.server import wire
+from gcs.server import eager, wire
 
 DEG = 180.0 / math.pi
 #: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.vehicle).
@@ -101,37 +106,61 @@ class ClientSnapshot:
 CLIENT_FIELDS = tuple(f.name for f in fields(ClientSnapshot))
 
 
+#: How a feed writes one message to its client (the route's `WebSocket.send_bytes`).
+Writer = Callable[[bytes], Coroutine[Any, Any, None]]
+
+
 @dataclass
 class ClientFeed:
-    """One WebSocket client's bounded queue of encoded frames (`gcs.server.wire`) and its counters."""
+    """One WebSocket client's encoded frames (`gcs.server.wire`) and its counters.
+
+    Once it has a writer (the route attaches one), a frame offered while nothing is on its way
+    to this client is written at once, in the flush's own turn (`eager.start`: no task when the socket
+    accepts it). While a send waits (a slow client: its transport paused), frames wait in the
+    bounded queue, the oldest dropped and counted when it is full, and go out together as one
+    message when the send is done; the flush, the link and the other clients never wait for it."""
 
     id: int
     address: str
     max_frames: int
 
     def __post_init__(self) -> None:
+        self.writer: Writer | None = None
         self.frames: DropOldestQueue[tuple[bytes, int]] = DropOldestQueue(self.max_frames)
         self.queued_points = 0
         self.sent_points = 0
         self.sent_messages = 0
         self.dropped_points = 0
         self.connected_at = time.monotonic()
+        self.closed = False
+        self._sending: asyncio.Task[None] | None = None
 
     @property
     def dropped_frames(self) -> int:
         return self.frames.dropped
 
     def offer(self, frame: bytes, points: int) -> None:
-        """Queue a frame without waiting; when full, the oldest one is dropped and counted."""
+        """Write a frame now if nothing is on its way to this client, else queue it without
+        waiting; when the queue is full, the oldest frame is dropped and counted."""
+        if self.closed:
+            return
+        if self.writer is not None and self._sending is None and not self.frames:
+            self._write(frame, points)
+            return
         lost = self.frames.put((frame, points))
         self.queued_points += points
         if lost is not None:
             self.queued_points -= lost[1]
             self.dropped_points += lost[1]
 
-    async def next_message(self) -> tuple[bytes, int]:
-        """Everything queued as one binary message: its frames back to back."""
-        await self.frames.wait()
+    def attach(self, writer: Writer) -> None:
+        """Start writing to the client: what was queued since it connected, then every frame."""
+        self.writer = writer
+        if self.frames and self._sending is None and not self.closed:
+            self._write(*self.take())
+
+    def take(self) -> tuple[bytes, int]:
+        """Everything queued as one binary message: its frames back to back (empty if none)."""
         frames = self.frames.drain()
         if len(frames) == 1:  # the usual case: a client that keeps up
             message, points = frames[0]
@@ -139,6 +168,34 @@ class ClientFeed:
             message, points = b"".join(f for f, _ in frames), sum(n for _, n in frames)
         self.queued_points -= points
         return message, points
+
+    def close(self) -> None:
+        """Send nothing more (the client left, or a write to it failed)."""
+        self.closed = True
+        if self._sending is not None:
+            self._sending.cancel()
+
+    def _write(self, message: bytes, points: int) -> None:
+        assert self.writer is not None
+        try:
+            task = eager.start(self.writer(message))
+        except Exception:  # the client is gone: its route notices from its side and disconnects it
+            self.close()
+            return
+        if task is None:
+            self.sent(points)
+            return
+        self._sending = task
+        task.add_done_callback(lambda done: self._written(done, points))
+
+    def _written(self, task: asyncio.Task[None], points: int) -> None:
+        self._sending = None
+        if task.cancelled() or task.exception() is not None:
+            self.close()
+            return
+        self.sent(points)
+        if self.frames and not self.closed:
+            self._write(*self.take())
 
     def sent(self, points: int) -> None:
         self.sent_points += points
@@ -166,7 +223,7 @@ class LiveHub:
         max_rate: float = 400.0,
         frame_interval: float = 0.004,
         client_max_frames: int = 1000,
-        sends_per_s: float = 1000.0,
+        sends_per_s: float = 500.0,
         max_frame_interval: float = 0.010,
     ) -> None:
         self.capacity = int(seconds * max_rate)
@@ -248,6 +305,7 @@ class LiveHub:
 
     def disconnect(self, feed: ClientFeed) -> None:
         self.clients.pop(feed.id, None)
+        feed.close()
 
     # ---- readers -------------------------------------------------------------------------
     def data_age(self) -> float | None:

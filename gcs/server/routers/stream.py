@@ -14,7 +14,6 @@ Messages on /ws/live:
 from __future__ import annotations
 
 import asyncio
-import time
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
@@ -55,9 +54,11 @@ async def get_history(
 async def live(ws: WebSocket, hub: HubDep) -> None:
     await ws.accept()
     feed = hub.connect(f"{ws.client.host}:{ws.client.port}" if ws.client else "?")
-    sender = asyncio.create_task(send_feed(ws, feed))
+    stats: asyncio.Task[None] | None = None
     try:
         await ws.send_text(strict_json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
+        feed.attach(ws.send_bytes)  # the hub writes the frames from here on (gcs.server.live.ClientFeed)
+        stats = asyncio.create_task(send_stats(ws, feed))
         # The page sends nothing we need; reading notices the disconnect. Whatever a client sends
         # (text or binary) is read and ignored, never an error.
         while (await ws.receive())["type"] != "websocket.disconnect":
@@ -66,18 +67,13 @@ async def live(ws: WebSocket, hub: HubDep) -> None:
         pass
     finally:
         hub.disconnect(feed)
-        sender.cancel()
-        await asyncio.gather(sender, return_exceptions=True)
+        if stats is not None:
+            stats.cancel()
+            await asyncio.gather(stats, return_exceptions=True)
 
 
-async def send_feed(ws: WebSocket, feed: ClientFeed) -> None:
-    """Send this client's queue as fast as it reads; its counters about once a second."""
-    last_stats = time.monotonic()
+async def send_stats(ws: WebSocket, feed: ClientFeed) -> None:
+    """This client's counters, about once a second."""
     while True:
-        frames, points = await feed.next_message()
-        await ws.send_bytes(frames)
-        feed.sent(points)
-        now = time.monotonic()
-        if now - last_stats >= CLIENT_STATS_PERIOD:
-            last_stats = now
-            await ws.send_text(strict_json.dumps({"type": "client", **feed.snapshot().as_dict()}))
+        await asyncio.sleep(CLIENT_STATS_PERIOD)
+        await ws.send_text(strict_json.dumps({"type": "client", **feed.snapshot().as_dict()}))
