@@ -77,9 +77,9 @@ class PipelineSummary(TypedDict):
 
 #: IMU samples from which `feed_many` steps a segment as a batch; fewer go one by one through
 #: `feed` (the same numbers). A batch has fixed costs (its tables, one compiled call and one
-#: outputs table per estimator): in `gcs serve`, where a tick brings ~6 messages (~5 IMU samples),
-#: the batch path cost 10-15 % more than the per-sample one (docs/benchmarks.md, branch `batch`);
-#: from ~13 samples (a 16-message turn) it cost a quarter to a third less.
+#: outputs table per estimator): in `gcs serve` with 5 ms ticks (~5 IMU samples each) batches alone
+#: cost 10-15 % more than one input at a time; with 10 ms ticks (~8) this threshold cost ~10-15 %
+#: less than either alone (docs/benchmarks.md, branch `batch`).
 BATCH_MIN = 8
 
 
