@@ -14,11 +14,12 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
 client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`), between `frame_interval`
-and `max_frame_interval`: 4 ms for up to 4 viewers, 5 ms for 5, 10 ms from 10 on. Points that
-come more often than that wait half an interval on average, and fewer viewers wait less; the
-fan-out costs at most 600 sends/s more than at the fixed 10 ms it replaced (~2 % of a core). The
-live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
-its points come in one batch per interval and go out right after it. Figures:
+and `max_frame_interval`: 4 ms for 1 or 2 viewers, 6 and 8 ms for 3 and 4, 10 ms from 5 on.
+Points that come more often than that wait half an interval on average, and fewer viewers wait
+less; the fan-out costs at most 300 sends/s more than at the fixed 10 ms. The live estimation's
+tick follows this interval (the dashboard paces it: `Station.pace_points`), so its points come in
+one batch per interval and go out right after it, and a shorter interval costs both: with 5 pages
+(`bench.serve_cpu`) 5 ms frames (a budget of 1000 sends/s) took 3.9 % of a core more than 10 ms. Figures:
 docs/benchmarks.md; data flow: docs/design.md
 """
 
@@ -221,7 +222,7 @@ class LiveHub:
         max_rate: float = 400.0,
         frame_interval: float = 0.004,
         client_max_frames: int = 1000,
-        sends_per_s: float = 1000.0,
+        sends_per_s: float = 500.0,
         max_frame_interval: float = 0.010,
     ) -> None:
         self.capacity = int(seconds * max_rate)
