@@ -104,8 +104,8 @@ def test_presets():
     ap = DcmEstimator("ardupilot").gains
     # AHRS_YAW_P doubled at rest; the turn-rate schedule halves it at 2.5 rad/s (docs/estimators/dcm.md)
     assert (ap["kp_rp"], ap["kp_yaw"], ap["ki_rp"], ap["ki_yaw"]) == (0.2, 0.4, 0.0087, 0.01)
-    assert (ap["yaw_spin_half"], ap["accel_dev_gate"]) == (2.5, 7.0)
-    assert (seed["yaw_spin_half"], seed["accel_dev_gate"], seed["pick_dt"]) == (0.0, 0.0, 0.0)
+    assert (ap["yaw_spin_half"], ap["accel_dev_gate"], ap["yaw_acc_cap"]) == (2.5, 7.0, 0.4)
+    assert (seed["yaw_spin_half"], seed["accel_dev_gate"], seed["yaw_acc_cap"], seed["pick_dt"]) == (0.0,) * 4
     assert DcmEstimator.DEFAULT_PRESET == "ardupilot"
 
 

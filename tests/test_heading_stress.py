@@ -12,7 +12,7 @@ import pytest
 from conftest import DATA
 
 from bench.broad import load_trial, run_estimator, run_vqf
-from bench.stress import BIAS_STEP, bias_step, cut, magnet, mid, score, shocks
+from bench.stress import BIAS_STEP, bias_step, cut, floor_magnet, magnet, mid, score, shocks
 from gcs.core.estimators import registry
 
 BROAD = DATA / "broad"
@@ -33,28 +33,18 @@ def test_all_six_trials_are_there():
     assert len(TRIALS) == 6, f"BROAD trials missing in {BROAD}: {TRIALS}"
 
 
-#: Known shortfalls against the issue's targets, held to what was measured (a regression bound,
-#: stated, not hidden; the target stays the bound for every other case). Remove when met.
-MAGNET_SHORTFALLS = {
-    # target 5°, measured 5.31°: dcm's heading in fast translation, where the field points 2-6°
-    # off north in the volume the trial moves through. Since the learned offset is followed by
-    # coasting on the gyro (magnetic.py, MAG_OFFSET_HOLD_SPIN2) the offset's own error no longer
-    # adds to it (6.40° before; kf 5.81° -> 4.64°); what is left is the heading error dcm already
-    # had at the switch, which the gyro then holds (docs/benchmarks.md, seventh pass)
-    ("15", "dcm"): 5.5,
-}
-
-
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("stem", TRIALS)
 def test_magnet_fixed_to_the_sensor(stem, name):
     """A 100 µT body-fixed field (twice the earth's) from the middle of the trial on: the heading
     error after the switch stays below 5° RMS (before robust heading: 48° mean, 94° worst for
-    ekf; VQF, which relearns it as a new earth field, 16° mean, 59° worst, at full trial length)."""
+    ekf; VQF, which relearns it as a new earth field, 16° mean, 59° worst, at full trial length).
+    The last miss, dcm on trial 15 at 5.31°, is 2.39° since its yaw gain has a ceiling in
+    acceleration (docs/estimators/dcm.md)."""
     trial, t_on = segment(stem)
     stressed = magnet(trial, 100.0, t_on)
     err = score(stressed, run_estimator(name, stressed), t_on)
-    assert err["heading"] < MAGNET_SHORTFALLS.get((stem[:2], name), 5.0), err
+    assert err["heading"] < 5.0, err
 
 
 @pytest.mark.parametrize("offset", [20.0, 50.0])
@@ -86,23 +76,19 @@ def test_shocks_leave_no_lasting_error(stem, name):
     assert worst < 2.0
 
 
-#: Measured 2.03× VQF (6.87° against 3.39°) since dcm learns the gyro's bias at rest (1.93× on the
-#: full trial before): trial 15's field error, no longer cancelled (see MAGNET_SHORTFALLS).
-BIAS_STEP_SHORTFALLS = {("15", "dcm", EVERY): 2.1}
-
-
 @pytest.mark.parametrize("every", [EVERY, 1])
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("stem", TRIALS)
 def test_gyro_bias_step(stem, name, every):
     """1°/s added to gyro x at the middle: the total error after the step stays within twice
     VQF's on the same samples (VQF estimates the bias too), at 47.6 Hz and at the full 285.7 Hz
-    (kf, before it learned the bias: 2.2x and 2.7x on the full trials)."""
+    (kf, before it learned the bias: 2.2x and 2.7x on the full trials; dcm on trial 15 at 47.6 Hz
+    2.03x until its yaw gain got a ceiling in acceleration, now 1.87x)."""
     trial, t_on = segment(stem, every)
     stressed = bias_step(trial, BIAS_STEP, t_on)
     ours = score(stressed, run_estimator(name, stressed), t_on)["total"]
     vqf = score(stressed, run_vqf(stressed), t_on)["total"]
-    assert ours < BIAS_STEP_SHORTFALLS.get((stem[:2], name, every), 2.0) * max(vqf, 1.5), (ours, vqf)
+    assert ours < 2.0 * max(vqf, 1.5), (ours, vqf)
 
 
 @pytest.mark.parametrize("offset", [20.0, 100.0])
@@ -116,4 +102,18 @@ def test_magnet_in_fast_rotation_at_full_rate(name, offset):
     stressed = magnet(trial, offset, t_on)
     ours = score(stressed, run_estimator(name, stressed), t_on)["heading"]
     vqf = score(stressed, run_vqf(stressed), t_on)["heading"]
+    assert ours < 2.0 * vqf, (ours, vqf)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_floor_magnet_is_not_hard_iron(name):
+    """Trial 10 (slow translation) over a magnet lying on the floor (bench.stress's place-fixed
+    dipole), whole trial at 47.6 Hz: heading within 2× VQF's. The sensor starts at rest over the
+    magnet and then moves away; with little net rotation the changed field looked fixed to the
+    sensor and was learned as a 15 µT hard-iron offset that kept the start's 50° heading error
+    (2.3-2.8× VQF). An offset now has to swing first (magnetic.py, MAG_OFFSET_SWING)."""
+    trial = load_trial(BROAD / f"{next(s for s in TRIALS if s.startswith('10'))}.hdf5", EVERY)
+    stressed = floor_magnet(trial)
+    ours = score(stressed, run_estimator(name, stressed))["heading"]
+    vqf = score(stressed, run_vqf(stressed))["heading"]
     assert ours < 2.0 * vqf, (ours, vqf)

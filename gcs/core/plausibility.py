@@ -11,6 +11,10 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+import numpy as np
+import numpy.typing as npt
+
+from gcs.core.estimators.jit import kernel
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 
 #: Largest magnitudes accepted: 4000 °/s (twice the usual 2000 °/s full scale), 160 g. The
@@ -54,3 +58,28 @@ def refusal(item: ImuSample | GpsSample | AttitudeSample) -> str | None:
     if not _bounded((item.roll, item.pitch, item.yaw), 2 * math.pi):
         return "attitude:angles"
     return None
+
+
+@kernel
+def _within(row: npt.NDArray[np.float64], lo: int, limit: float) -> bool:
+    return bool(-limit <= row[lo] <= limit and -limit <= row[lo + 1] <= limit and -limit <= row[lo + 2] <= limit)
+
+
+@kernel
+def imu_row_accepted(row: npt.NDArray[np.float64], has_mag: bool) -> bool:
+    """`refusal(...) is None` for one IMU row (t, gyro xyz, accel xyz, mag xyz), compiled."""
+    t = row[0]
+    if not (math.isfinite(t) and t >= 0):
+        return False
+    if not (_within(row, 1, MAX_RATE) and _within(row, 4, MAX_ACCEL)):
+        return False
+    return not has_mag or _within(row, 7, MAX_FIELD)
+
+
+@kernel
+def imu_rows_accepted(rows: npt.NDArray[np.float64], has_mag: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """`imu_row_accepted` of every row: the whole-run tables (has_mag: whether the row has a field)."""
+    out = np.empty(rows.shape[0], dtype=np.bool_)
+    for i in range(rows.shape[0]):
+        out[i] = imu_row_accepted(rows[i], has_mag[i])
+    return out

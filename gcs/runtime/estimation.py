@@ -6,8 +6,8 @@ import asyncio
 from collections.abc import Callable
 
 from gcs.core import comparison
-from gcs.core.estimation import AttitudePoint, EstimationPipeline
-from gcs.core.estimators import registry
+from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline
+from gcs.core.estimators import registry, stepping
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime import heap
@@ -34,8 +34,10 @@ TICK = 0.010
 
 
 def warm() -> None:
-    """Compile (or load from the disk cache) the estimators' and the comparison's kernels."""
+    """Compile (or load from the disk cache) the estimators' kernels, their batch stepping and the
+    comparison's kernels."""
     registry.warm()
+    stepping.warm()
     comparison.warm()
 
 
@@ -103,19 +105,28 @@ class LiveEstimation:
             self._feed(self._sub.drain())
 
     def _feed(self, items: list[Message]) -> None:
+        """The batch's messages → inputs, estimated together (`EstimationPipeline.feed_many`); what
+        they gave before a declination signal is estimated before it goes out, as per message."""
         points: list[AttitudePoint] = []
+        inputs: list[EstimationInput] = []
         # per message: bound methods and the declination read once (MessageInputs' properties)
-        feed_inputs, feed_pipeline = self.inputs.feed, self.pipeline.feed
+        feed_inputs, feed_many = self.inputs.feed, self.pipeline.feed_many
         declination = self.inputs.vehicle_declination
         for item in items:
             self.messages_fed += 1
             had_fix, source, value = declination.gps_fix, declination.source, declination.value
             # the wall time as the recording's tlog keeps it, so a replay dates the WMM the same
-            for estimation_input in feed_inputs(item.msg, tlog_wall_time(item.wall_time)):
-                points += feed_pipeline(estimation_input)
-            if declination.gps_fix and not had_fix:
+            inputs += feed_inputs(item.msg, tlog_wall_time(item.wall_time))
+            locked = declination.gps_fix and not had_fix
+            changed = (declination.source, declination.value) != (source, value)
+            if locked or changed:
+                points += feed_many(inputs)
+                inputs = []
+            if locked:
                 self.gps_locked.emit()
-            if (declination.source, declination.value) != (source, value):
+            if changed:
                 self.declination_changed.emit(declination.source, declination.value)
+        if inputs:
+            points += feed_many(inputs)
         if points:
             self.points.emit(points)

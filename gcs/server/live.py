@@ -13,13 +13,14 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`), between `frame_interval`
-and `max_frame_interval`: 4 ms for 1 or 2 viewers, 6 and 8 ms for 3 and 4, 10 ms from 5 on.
+client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`, and every frame costs the
+live estimation a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one or two
+viewers, 2 ms more for each further one, 10 ms from 5 on (100 frames/s: more than a page draws).
 Points that come more often than that wait half an interval on average, and fewer viewers wait
-less; the fan-out costs at most 300 sends/s more than at the fixed 10 ms. The live estimation's
-tick follows this interval (the dashboard paces it: `Station.pace_points`), so its points come in
-one batch per interval and go out right after it, and a shorter interval costs both: with 5 pages
-(`bench.serve_cpu`) 5 ms frames (a budget of 1000 sends/s) took 3.9 % of a core more than 10 ms. Figures:
+less. With 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per
+1000 msg/s (four pairs, docs/benchmarks.md). The
+live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
+its points come in one batch per interval and go out right after it. Figures:
 docs/benchmarks.md; data flow: docs/design.md
 """
 

@@ -100,6 +100,14 @@ class DcmEstimator(AttitudeEstimator):
                 "roll-pitch P gain × 1/(1 + mean(|f| - g)² / this²); 0 = off",
             ),
             Gain("yaw_spin_half", 2.5, 0.0, 1000.0, "rad/s", "yaw P gain × 1/(1 + (|gyro| / this)²); 0 = off"),
+            Gain(
+                "yaw_acc_cap",
+                0.4,
+                0.0,
+                1000.0,
+                "m²/s⁵",
+                "yaw P gain at most this × (1 + (|gyro| / yaw_spin_half)²) / mean(|f| - g)²; 0 = off",
+            ),
         )
         + MAG_GAINS
         + REST_GAINS
@@ -120,6 +128,7 @@ class DcmEstimator(AttitudeEstimator):
             "accel_weight": 0.0,
             "accel_dev_gate": 0.0,
             "yaw_spin_half": 0.0,
+            "yaw_acc_cap": 0.0,
             "pick_dt": 0.0,
             **MAG_OFF,
             **REST_OFF,
@@ -247,8 +256,18 @@ class DcmEstimator(AttitudeEstimator):
         gate, half = g["accel_dev_gate"], g["yaw_spin_half"]
         if gate > 0.0:
             kp /= 1.0 + self.accel_dev / (gate * gate)
+        turn = 1.0
         if half > 0.0:
-            kpy /= 1.0 + (gx * gx + gy * gy + gz * gz) / (half * half)
+            turn += (gx * gx + gy * gy + gz * gz) / (half * half)
+            kpy /= turn
+        # 5b. and at most yaw_acc_cap·turn/⟨(|f| − g)²⟩ while accelerating: the tilt is then less
+        #     sure and each degree of it is tan(dip) degrees of the field's heading. A ceiling, not
+        #     a factor, so that kp_yaw tunes the heading loop and not its share in translation;
+        #     raised with the turn rate, as a turn's acceleration is mostly centripetal (averaged
+        #     out of the tilt reference) and fast turns are where the gyro drifts
+        cap = g["yaw_acc_cap"] * turn
+        if cap > 0.0 and kpy * self.accel_dev > cap:
+            kpy = cap / self.accel_dev
         self.omega_P = (kp * bx, kp * by, kp * bz)
         self.omega_Y = (kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2])
         self.corr_e = (kp * ex, kp * ey, kpy * ez)

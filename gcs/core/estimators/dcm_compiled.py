@@ -26,7 +26,7 @@ SPIN_GAIN, SPIN_GAIN_YAW, ACCEL_TAU, ACCEL_WEIGHT = (
     _G["accel_tau"],
     _G["accel_weight"],
 )
-YAW_SPIN_HALF, ACCEL_DEV_GATE = _G["yaw_spin_half"], _G["accel_dev_gate"]
+YAW_SPIN_HALF, ACCEL_DEV_GATE, YAW_ACC_CAP = _G["yaw_spin_half"], _G["accel_dev_gate"], _G["yaw_acc_cap"]
 REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, DECLINATION, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["declination"], _G["max_gap"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
@@ -184,8 +184,13 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     gate, half = g[ACCEL_DEV_GATE], g[YAW_SPIN_HALF]
     if gate > 0.0:
         kp /= 1.0 + s[ACCEL_DEV] / (gate * gate)
+    turn = 1.0
     if half > 0.0:
-        kpy /= 1.0 + (gx * gx + gy * gy + gz * gz) / (half * half)
+        turn += (gx * gx + gy * gy + gz * gz) / (half * half)
+        kpy /= turn
+    cap = g[YAW_ACC_CAP] * turn
+    if cap > 0.0 and kpy * s[ACCEL_DEV] > cap:
+        kpy = cap / s[ACCEL_DEV]
     s[OMEGA_P], s[OMEGA_P + 1], s[OMEGA_P + 2] = kp * bx, kp * by, kp * bz
     s[OMEGA_Y], s[OMEGA_Y + 1], s[OMEGA_Y + 2] = kpy * ez * Z[0], kpy * ez * Z[1], kpy * ez * Z[2]
     s[CORR_E], s[CORR_E + 1], s[CORR_E + 2] = kp * ex, kp * ey, kpy * ez

@@ -27,6 +27,7 @@ from gcs.core.estimators.magnetic import (
     MAG_OFFSET_HOLD,
     MAG_OFFSET_HOLD_SPIN2,
     MAG_OFFSET_RAMP,
+    MAG_OFFSET_SWING,
     MAG_OFFSET_TURN,
     MAG_REF_TAU,
     MAG_TIME_SIGMA,
@@ -56,7 +57,8 @@ GPS_T, GPS_A, GPS_SPEED, GPS_COURSE, GPS_TIMEOUT = 37, 38, 41, 42, 43
 Q = 44
 GPS_VEL = 48
 WEIGHT, OFFSET_AGE, OFFSET_AGE_SPIN2 = 51, 52, 53  # MagneticHeading.weight, .offset_age, .offset_age_spin2
-BASE = 54
+OFF_ROWS, OFF_SWUNG = 54, 63  # MagneticHeading.offset_rows (9), .offset_swung
+BASE = 64
 
 
 def new_state(size: int) -> State:
@@ -77,6 +79,8 @@ def reset_mag(s: State) -> None:
     s[DECL] = math.nan
     s[WEIGHT] = 1.0
     s[OFFSET_AGE] = s[OFFSET_AGE_SPIN2] = math.inf
+    s[OFF_ROWS:OFF_SWUNG] = 0.0
+    s[OFF_SWUNG] = 0.0
 
 
 def reset_shock(s: State) -> None:
@@ -423,13 +427,23 @@ def mag_field(
     if s[OFFC_SET] == 0.0 or math.sqrt((o0 - c0) ** 2 + (o1 - c1) ** 2 + (o2 - c2) ** 2) > off_tol * n0:
         s[OFFC_SET], s[OFFC], s[OFFC + 1], s[OFFC + 2] = 1.0, o0, o1, o2
         s[OFF_N], s[OFF_TIME], s[OFF_TURN] = 1.0, 0.0, 0.0
+        for i in range(3):
+            s[OFF_ROWS + i], s[OFF_ROWS + 3 + i], s[OFF_ROWS + 6 + i] = X[i], Y[i], Z[i]
+        s[OFF_SWUNG] = 0.0
     else:
+        r = OFF_ROWS
+        sx = (X[0] - s[r]) * c0 + (X[1] - s[r + 1]) * c1 + (X[2] - s[r + 2]) * c2
+        sy = (Y[0] - s[r + 3]) * c0 + (Y[1] - s[r + 4]) * c1 + (Y[2] - s[r + 5]) * c2
+        sz = (Z[0] - s[r + 6]) * c0 + (Z[1] - s[r + 7]) * c1 + (Z[2] - s[r + 8]) * c2
+        if sx * sx + sy * sy + sz * sz >= MAG_OFFSET_SWING**2 * (c0 * c0 + c1 * c1 + c2 * c2):
+            s[OFF_SWUNG] = 1.0
         s[OFF_N] += 1.0
         k = 1.0 / s[OFF_N]
         s[OFFC], s[OFFC + 1], s[OFFC + 2] = c0 + k * (o0 - c0), c1 + k * (o1 - c1), c2 + k * (o2 - c2)
         s[OFF_TIME] += dt
         s[OFF_TURN] += spin * dt
-        if s[OFF_TIME] >= off_time and s[OFF_TURN] >= MAG_OFFSET_TURN:
+        turned = s[OFF_TURN] >= MAG_OFFSET_TURN and s[OFF_SWUNG] != 0.0
+        if s[OFF_TIME] >= off_time and turned:
             s[OFFSET], s[OFFSET + 1], s[OFFSET + 2] = s[OFFC], s[OFFC + 1], s[OFFC + 2]
             learned = True
     if learned:

@@ -27,6 +27,12 @@ MAG_NEW_MIN_GYR = math.radians(20.0)
 #: Turn (integrated |ω| dt) a sensor-frame offset must stay steady through before it is learned:
 #: without turning, a heading error and a body-fixed offset look the same.
 MAG_OFFSET_TURN = math.radians(90.0)
+#: The offset must also have swung: were it fixed to the sensor, its earth-frame image R·o has moved
+#: by MAG_OFFSET_SWING·|o| from where the window began (a turn of 30° across it) — which is how far
+#: an offset fixed to the place (a steel floor, a magnet on the bench) would have moved in the
+#: sensor frame, and the window restarts once that passes `mag_offset_tol`. Turning back and forth,
+#: or about the offset's own axis, integrates to MAG_OFFSET_TURN without telling the two apart.
+MAG_OFFSET_SWING = 2.0 * math.sin(math.radians(15.0))
 
 #: The test's settings, declared once; every estimator using MagneticHeading appends them.
 MAG_GAINS: tuple[Gain, ...] = (
@@ -77,7 +83,8 @@ class MagneticHeading:
     rejected field is timed two ways:
 
     * hard iron: o = m − Rᵀ m_E (m_E from the reference at the gyro-held heading) steady within
-      `mag_offset_tol`·|m_E| for `mag_offset_time` s and MAG_OFFSET_TURN of turning becomes b;
+      `mag_offset_tol`·|m_E| for `mag_offset_time` s, MAG_OFFSET_TURN of turning and a swing of
+      MAG_OFFSET_SWING becomes b;
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
 
@@ -96,6 +103,8 @@ class MagneticHeading:
         self.offset_n = 0
         self.offset_time = 0.0
         self.offset_turn = 0.0
+        self.offset_rows: Rows = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # R at its start
+        self.offset_swung = False  # has R·o moved by MAG_OFFSET_SWING·|o| since
         self.heading_trusted = False
         self.weight = 1.0  # weight of the heading from the field: 0 → 1 after a learned offset
         self.offset_age = math.inf  # time since the offset was learned (s)
@@ -206,13 +215,21 @@ class MagneticHeading:
         c = self.offset_cand
         if c is None or math.dist(o, c) > g["mag_offset_tol"] * n0:
             self.offset_cand, self.offset_n, self.offset_time, self.offset_turn = o, 1, 0.0, 0.0
+            self.offset_rows, self.offset_swung = rows, False
             return False
+        X0, Y0, Z0 = self.offset_rows
+        sx = (X[0] - X0[0]) * c[0] + (X[1] - X0[1]) * c[1] + (X[2] - X0[2]) * c[2]
+        sy = (Y[0] - Y0[0]) * c[0] + (Y[1] - Y0[1]) * c[1] + (Y[2] - Y0[2]) * c[2]
+        sz = (Z[0] - Z0[0]) * c[0] + (Z[1] - Z0[1]) * c[1] + (Z[2] - Z0[2]) * c[2]
+        if sx * sx + sy * sy + sz * sz >= MAG_OFFSET_SWING**2 * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]):
+            self.offset_swung = True
         self.offset_n += 1
         k = 1.0 / self.offset_n
         self.offset_cand = (c[0] + k * (o[0] - c[0]), c[1] + k * (o[1] - c[1]), c[2] + k * (o[2] - c[2]))
         self.offset_time += dt
         self.offset_turn += spin * dt
-        if self.offset_time >= g["mag_offset_time"] and self.offset_turn >= MAG_OFFSET_TURN:
+        turned = self.offset_turn >= MAG_OFFSET_TURN and self.offset_swung
+        if self.offset_time >= g["mag_offset_time"] and turned:
             self.offset = self.offset_cand
             return True
         return False

@@ -19,11 +19,12 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.core.estimation import GainChange
-from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled, registry
+from gcs.core.estimators import ekf_compiled, registry
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.jit import kernel
-from gcs.core.plausibility import MAX_ACCEL, MAX_FIELD, MAX_RATE, MAX_SPEED
+from gcs.core.estimators.stepping import step_any
+from gcs.core.plausibility import MAX_SPEED, imu_rows_accepted
 from gcs.core.samples import ImuSample
 
 Floats = npt.NDArray[np.float64]
@@ -59,12 +60,7 @@ class WholeRun:
 def imu_accepted(kind: npt.NDArray[np.generic], imu: Floats) -> npt.NDArray[np.bool_]:
     """plausibility.refusal(...) is None for every IMU row, on whole columns."""
     mag = kind[(kind == InputKind.IMU) | (kind == InputKind.IMU_MAG)] == InputKind.IMU_MAG
-    t = imu[:, 0]
-    ok = np.isfinite(t) & (t >= 0)
-    ok &= np.all(np.abs(imu[:, 1:4]) <= MAX_RATE, axis=1)
-    ok &= np.all(np.abs(imu[:, 4:7]) <= MAX_ACCEL, axis=1)
-    ok &= ~mag | np.all(np.abs(imu[:, 7:10]) <= MAX_FIELD, axis=1)
-    accepted: npt.NDArray[np.bool_] = ok
+    accepted: npt.NDArray[np.bool_] = imu_rows_accepted(np.ascontiguousarray(imu, dtype=np.float64), mag)
     return accepted
 
 
@@ -78,15 +74,6 @@ def gps_accepted(kind: npt.NDArray[np.generic], gps: Floats) -> npt.NDArray[np.b
     ok &= ~vel | np.all(np.abs(gps[:, 6:9]) <= MAX_SPEED, axis=1)
     accepted: npt.NDArray[np.bool_] = ok
     return accepted
-
-
-@kernel
-def _step(which: int, s: Floats, hist: Floats, g: Floats, row: Floats, has_mag: bool) -> int:
-    if which == k.DCM:
-        return dcm_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
-    if which == k.KF:
-        return kf_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
-    return ekf_compiled.step(s, hist, g, row[0], row[1:4], row[4:7], row[7:10], has_mag)
 
 
 @kernel
@@ -113,7 +100,7 @@ def run_inputs(
             if imu_ok[r_imu]:
                 if hist_n_slot >= 0 and s[hist_n_slot] >= hist.shape[0] - 1:
                     return i, r_imu, r_gps, GROW
-                code = _step(which, s, hist, g, imu[r_imu], kd == 1)
+                code = step_any(which, s, hist, g, imu[r_imu], kd == 1)
                 if code == k.STEP:
                     out_valid[r_imu] = True
                 elif code == k.DUPLICATE:
