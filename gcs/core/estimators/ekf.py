@@ -29,6 +29,7 @@ from gcs.core.estimators.base import (
     initial_attitude,
 )
 from gcs.core.estimators.magnetic import MAG_GAINS, MAG_TIME_SIGMA, MAG_WEIGHT_MIN, MagneticHeading
+from gcs.core.estimators.rest import REST_TEST_GAINS, RestTest
 from gcs.core.gains import Gain
 from gcs.core.rotation import Quat, Vec3, matrix_to_quat, quat_exp, quat_mul, quat_rows, quat_unit, rows_times
 from gcs.core.samples import G0, GpsSample, ImuSample
@@ -90,9 +91,7 @@ class EkfEstimator(AttitudeEstimator):
             Gain("gps_timeout", 1.0, 0.05, 10.0, "s", "GPS older than this no longer aids: back to the velocity prior"),
             Gain("mag_noise", 0.05, 1e-4, 10.0, "rad·√s", "magnetometer heading noise density"),
             Gain("mag_time_sigma", MAG_TIME_SIGMA, 0.0, 1.0, "s", "field sample timing uncertainty: R + (|ω|·σ_t)²"),
-            Gain("rest_gyro", 0.035, 0.0, 1.0, "rad/s", "bias-corrected rate below which the sensor may be at rest"),
-            Gain("rest_acc", 0.5, 0.0, 10.0, "m/s²", "change of the accel vector allowed while at rest"),
-            Gain("rest_time", 1.5, 0.1, 60.0, "s", "time both rest conditions must hold before zero-rate updates"),
+            *REST_TEST_GAINS,
             Gain("rest_noise", 1e-3, 1e-6, 1.0, "rad/s/√Hz", "gyro noise density during zero-rate updates at rest"),
             Gain("rest_acc_noise", 0.01, 1e-4, 10.0, "m/s²/√Hz", "accel noise density for the gravity update at rest"),
         )
@@ -123,8 +122,7 @@ class EkfEstimator(AttitudeEstimator):
         self._v_hist: deque[tuple[float, Vec3]] = deque()
         self._v_offset: Vec3 = (0.0, 0.0, 0.0)
         self._gps_t = -math.inf
-        self._rest_since = -math.inf
-        self._rest_acc: list[float] | None = None
+        self.rest = RestTest()
         self.mag = MagneticHeading()
         self.shock = Shock()
         self.stats: dict[str, float] = {
@@ -170,7 +168,7 @@ class EkfEstimator(AttitudeEstimator):
         aided = sample.t - self._gps_t <= g["gps_timeout"]
         self.stats["gps_aided"] = int(aided)
         if shock:
-            self._rest_acc = None  # a shock is not rest
+            self.rest.interrupt()
         elif self._at_rest(sample.t, gyro, accel):
             self._update_zero_rate(gyro, dt)
             if not aided:  # with GPS, a steady acceleration is not taken for rest
@@ -319,18 +317,10 @@ class EkfEstimator(AttitudeEstimator):
         self._update(self.P[:, idx], _plus_r(self.P[idx, idx], r), y)
 
     def _at_rest(self, t: float, gyro: list[float], accel: list[float]) -> bool:
-        """Still for rest_time: small bias-corrected rate and an accel vector that has not moved."""
-        g = self.gains.values
-        wx, wy, wz = gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2]
-        still = wx * wx + wy * wy + wz * wz < g["rest_gyro"] ** 2
-        if still and self._rest_acc is not None:
-            dx, dy, dz = accel[0] - self._rest_acc[0], accel[1] - self._rest_acc[1], accel[2] - self._rest_acc[2]
-            still = dx * dx + dy * dy + dz * dz < g["rest_acc"] ** 2
-        if not still or self._rest_acc is None:
-            self._rest_since, self._rest_acc = t, accel
-            self.stats["at_rest"] = 0
-            return False
-        self.stats["at_rest"] = int(t - self._rest_since >= g["rest_time"])
+        """Still for rest_time (rest.RestTest: small bias-corrected rate, an accel vector that has
+        not moved)."""
+        w = (gyro[0] - self.b[0], gyro[1] - self.b[1], gyro[2] - self.b[2])
+        self.stats["at_rest"] = int(self.rest.update(t, w, (accel[0], accel[1], accel[2]), self.gains.values))
         return bool(self.stats["at_rest"])
 
     def _update_gravity(self, accel: list[float], dt: float) -> None:

@@ -16,6 +16,7 @@ from gcs.core.estimators.ekf import MAG_SETTLE_TILT, MAG_TIME_DT, EkfEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
 from gcs.core.estimators.magnetic import MAG_WEIGHT_MIN
+from gcs.core.estimators.rest import rest_still
 from gcs.core.rotation import Vec3, matrix_to_quat
 from gcs.core.samples import G0, GpsSample, ImuSample
 
@@ -44,7 +45,7 @@ M0, M1, M2, M3, M4, M5, M6 = (_G[n] for n in _MAG)
 
 B = k.BASE
 V, BIAS, V_OFFSET = B, B + 3, B + 6
-GPS_T_FUSED, REST_SINCE, REST_ACC_SET, REST_ACC = B + 9, B + 10, B + 11, B + 12
+GPS_T_FUSED, REST_SINCE, REST_ACC_SET = B + 9, B + 10, B + 11  # rest_still's slots: since, acc set, acc (3)
 INITIALISED, HIST_HEAD, HIST_N = B + 15, B + 16, B + 17
 # EkfEstimator.stats, in its order (accel_norm is the shared slot)
 ACC_INFLATION, VEL_INNOV, GPS_NIS, GPS_AIDED, MAG_NIS, MAG_INNOV_DEG, MAG_REJECTED, AT_REST, DROPPED = range(
@@ -279,18 +280,10 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     if shock:
         s[REST_ACC_SET] = 0.0
     else:
-        # -- _at_rest
+        # -- _at_rest (rest.RestTest on REST_SINCE.., laid out as its kernel's slots)
         wx, wy, wz = g0 - s[BIAS], g1 - s[BIAS + 1], g2 - s[BIAS + 2]
-        still = wx * wx + wy * wy + wz * wz < g[REST_GYRO] ** 2
-        if still and s[REST_ACC_SET] != 0.0:
-            dx, dy, dz = a0 - s[REST_ACC], a1 - s[REST_ACC + 1], a2 - s[REST_ACC + 2]
-            still = dx * dx + dy * dy + dz * dz < g[REST_ACC_G] ** 2
-        if not still or s[REST_ACC_SET] == 0.0:
-            s[REST_SINCE] = t
-            s[REST_ACC_SET], s[REST_ACC], s[REST_ACC + 1], s[REST_ACC + 2] = 1.0, a0, a1, a2
-            s[AT_REST] = 0.0
-        else:
-            s[AT_REST] = 1.0 if t - s[REST_SINCE] >= g[REST_TIME] else 0.0
+        rest = rest_still(s, REST_SINCE, t, wx, wy, wz, a0, a1, a2, True, g[REST_GYRO], g[REST_ACC_G], g[REST_TIME])
+        s[AT_REST] = 1.0 if rest else 0.0
         if s[AT_REST] != 0.0:
             # zero rate: y = gyro − b, H = [0, 0, I]
             y = s[W_Y : W_Y + 3]
