@@ -86,6 +86,7 @@ def inputs() -> list:
 
 @pytest.mark.parametrize("size", [1, 5, 16, 64, 100_000])
 def test_batches_equal_one_input_at_a_time(inputs, size):
+    """Segments under BATCH_MIN IMU samples go through `feed`, longer ones are stepped as batches."""
     expected = one_by_one(inputs)
     assert len(expected[0]) > 3000 and expected[2]  # points, and refused samples among them
     assert batched(inputs, size) == expected
@@ -94,7 +95,7 @@ def test_batches_equal_one_input_at_a_time(inputs, size):
 def test_a_non_finite_estimator_restarts_at_the_same_sample(inputs):
     """kf's state made NaN between two batches: it restarts on the batch's first sample in both
     paths, and the others go on."""
-    at = 16 * 40
+    at = 64 * 10
 
     def poke(pipeline, i):
         if i == at:
@@ -102,7 +103,7 @@ def test_a_non_finite_estimator_restarts_at_the_same_sample(inputs):
 
     expected = one_by_one(inputs, poke)
     assert expected[3] == {"kf": 1} and "non-finite" in expected[4]["kf"]
-    assert batched(inputs, 16, poke) == expected
+    assert batched(inputs, 64, poke) == expected
 
 
 def test_an_estimator_that_raises_restarts_at_the_same_sample(inputs, monkeypatch):
@@ -128,4 +129,4 @@ def test_estimators_without_kernels_are_stepped_per_sample(inputs, name, monkeyp
     reference = {"dcm": "dcm:DcmEstimator", "kf": "kf:KalmanAttitudeFilter", "ekf": "ekf:EkfEstimator"}[name]
     monkeypatch.setitem(registry.ESTIMATORS, name, f"gcs.core.estimators.{reference}")
     part = inputs[:1500]
-    assert batched(part, 16) == one_by_one(part)
+    assert batched(part, 64) == one_by_one(part)

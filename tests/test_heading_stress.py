@@ -117,3 +117,20 @@ def test_floor_magnet_is_not_hard_iron(name):
     ours = score(stressed, run_estimator(name, stressed))["heading"]
     vqf = score(stressed, run_vqf(stressed))["heading"]
     assert ours < 2.0 * vqf, (ours, vqf)
+
+
+@pytest.mark.parametrize("every", [EVERY, 1])
+@pytest.mark.parametrize("name", NAMES)
+def test_floor_magnet_under_the_rest_place(name, every):
+    """Trial 30 over the floor magnet, whole trial at 47.6 and 285.7 Hz: heading within 1.6× VQF's
+    (reached: 1.22× and 1.48×, dcm; the target is 2×). The sensor
+    rests over the magnet at the start and between movements, so the reference is the disturbed
+    field and the clean one fails the heading check while moving; dcm went back to the disturbed
+    heading in every rest (2.09× and 2.32× VQF; kf 2.10× at 285.7 Hz). After 20 s of fast turning
+    with the field steadily off the heading, the heading is distrusted and the rest place's field
+    is remembered as rejected (magnetic.py, MagneticHeading._new_heading)."""
+    trial = load_trial(BROAD / f"{next(s for s in TRIALS if s.startswith('30'))}.hdf5", every)
+    stressed = floor_magnet(trial)
+    ours = score(stressed, run_estimator(name, stressed))["heading"]
+    vqf = score(stressed, run_vqf(stressed))["heading"]
+    assert ours < 1.6 * vqf, (ours, vqf)

@@ -23,6 +23,7 @@ from gcs.core.estimators.base import GpsAcceleration
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.magnetic import (
     MAG_CURRENT_TAU,
+    MAG_HEADING_MIN_GYR,
     MAG_NEW_MIN_GYR,
     MAG_OFFSET_HOLD,
     MAG_OFFSET_HOLD_SPIN2,
@@ -58,7 +59,9 @@ Q = 44
 GPS_VEL = 48
 WEIGHT, OFFSET_AGE, OFFSET_AGE_SPIN2 = 51, 52, 53  # MagneticHeading.weight, .offset_age, .offset_age_spin2
 OFF_ROWS, OFF_SWUNG = 54, 63  # MagneticHeading.offset_rows (9), .offset_swung
-BASE = 64
+REJ_SET, REJ_N, REJ_D = 64, 65, 66  # MagneticHeading.rejected
+HEAD_SET, HEAD_CAND, HEAD_N, HEAD_TIME = 67, 68, 69, 70  # MagneticHeading.head_cand, .head_n, .head_time
+BASE = 71
 
 
 def new_state(size: int) -> State:
@@ -81,6 +84,7 @@ def reset_mag(s: State) -> None:
     s[OFFSET_AGE] = s[OFFSET_AGE_SPIN2] = math.inf
     s[OFF_ROWS:OFF_SWUNG] = 0.0
     s[OFF_SWUNG] = 0.0
+    s[REJ_SET:BASE] = 0.0
 
 
 def reset_shock(s: State) -> None:
@@ -363,6 +367,35 @@ def _accept(s: State) -> None:
 
 
 @kernel
+def _distance(norm: float, dip: float, ref_n: float, ref_d: float, tol_n: float, tol_d: float) -> float:
+    """magnetic._distance."""
+    dn = (norm - ref_n) / max(tol_n * ref_n, 1e-9)
+    dd = (dip - ref_d) / max(tol_d, 1e-9)
+    return dn * dn + dd * dd
+
+
+@kernel
+def _new_heading(s: State, ye: float, dt: float, spin: float, tol_h: float, relearn: float) -> bool:
+    """MagneticHeading._new_heading."""
+    c = s[HEAD_CAND]
+    if s[HEAD_SET] == 0.0 or abs(wrap_pi(ye - c)) > tol_h + spin * MAG_TIME_SIGMA:
+        s[HEAD_SET], s[HEAD_CAND], s[HEAD_N], s[HEAD_TIME] = 1.0, ye, 1.0, 0.0
+        return False
+    s[HEAD_N] += 1.0
+    c = c + wrap_pi(ye - c) / s[HEAD_N]
+    s[HEAD_CAND] = c
+    if abs(c) <= 0.5 * tol_h:
+        s[HEAD_SET], s[HEAD_N], s[HEAD_TIME] = 0.0, 0.0, 0.0
+        return False
+    if spin >= MAG_HEADING_MIN_GYR:
+        s[HEAD_TIME] += dt
+        if s[HEAD_TIME] >= relearn:
+            s[HEAD_SET], s[HEAD_N], s[HEAD_TIME] = 0.0, 0.0, 0.0
+            return True
+    return False
+
+
+@kernel
 def mag_field(
     s: State, m0: float, m1: float, m2: float, X: Vec3, Y: Vec3, Z: Vec3, dt: float, spin: float,
     gm: tuple[float, float, float, float, float, float, float], settling: bool,
@@ -406,6 +439,14 @@ def mag_field(
     ye = wrap_pi(decl - math.atan2(he, hn))
     s[YAW_ERROR] = ye
     fits = abs(norm - n0) <= tol_n * n0 and abs(dip - d0) <= tol_d
+    if s[TRUSTED] != 0.0 and _new_heading(s, ye, dt, spin, tol_h, relearn):
+        s[TRUSTED] = 0.0
+        s[REJ_SET], s[REJ_N], s[REJ_D] = 1.0, n0, d0
+        s[REF_N], s[REF_D] = norm, dip
+        n0, d0 = norm, dip
+        fits = True
+    if fits and s[REJ_SET] != 0.0:
+        fits = _distance(norm, dip, s[REJ_N], s[REJ_D], tol_n, tol_d) > _distance(norm, dip, n0, d0, tol_n, tol_d)
     agrees = abs(ye) <= tol_h + spin * MAG_TIME_SIGMA or s[TRUSTED] == 0.0
     if fits and agrees:
         a = dt / (MAG_REF_TAU + dt)

@@ -33,6 +33,12 @@ MAG_OFFSET_TURN = math.radians(90.0)
 #: sensor frame, and the window restarts once that passes `mag_offset_tol`. Turning back and forth,
 #: or about the offset's own axis, integrates to MAG_OFFSET_TURN without telling the two apart.
 MAG_OFFSET_SWING = 2.0 * math.sin(math.radians(15.0))
+#: Turn rate (rad/s) during which a steady disagreement between the field's heading and the
+#: estimate's is timed (for `mag_relearn` s) before the estimate's heading is distrusted: the
+#: field then agrees with itself from many attitudes and places, so it is the heading that is off
+#: (a reference taken at rest over a place-fixed field). VQF's 20°/s let slow translation's jitter
+#: time a body-fixed 100 µT magnet as well (BROAD trial 10: `dcm` 10×, `kf` 34× VQF).
+MAG_HEADING_MIN_GYR = math.radians(60.0)
 
 #: The test's settings, declared once; every estimator using MagneticHeading appends them.
 MAG_GAINS: tuple[Gain, ...] = (
@@ -71,6 +77,13 @@ MAG_WEIGHT_MIN = 1e-6
 MAG_OFF = {"mag_norm_tol": 10.0, "mag_dip_tol": math.pi, "mag_heading_tol": math.pi}
 
 
+def _distance(norm: float, dip: float, ref: tuple[float, float], g: Mapping[str, float]) -> float:
+    """How far (norm, dip) is from ref, in units of the tolerances (squared)."""
+    dn = (norm - ref[0]) / max(g["mag_norm_tol"] * ref[0], 1e-9)
+    dd = (dip - ref[1]) / max(g["mag_dip_tol"], 1e-9)
+    return dn * dn + dd * dd
+
+
 class MagneticHeading:
     """Which field, if any, to take heading from: m − b when it passes the test, else None.
 
@@ -87,6 +100,10 @@ class MagneticHeading:
       MAG_OFFSET_SWING becomes b;
     * new earth field: norm and dip steady for `mag_relearn` s of turning faster than
       MAG_NEW_MIN_GYR become the reference (turning proves it is fixed to the place).
+
+    And on every sample, a wrong heading: a steady heading disagreement for `mag_relearn` s of
+    turning faster than MAG_HEADING_MIN_GYR distrusts the heading, makes the field the reference
+    and keeps the old reference as rejected (a field nearer to it than to the reference fails).
 
     After a learned offset `weight` (what the estimators scale their heading correction by) is 0
     until ∫|ω|² dt reaches MAG_OFFSET_HOLD_SPIN2 or MAG_OFFSET_HOLD s pass, then back to 1: the gyro
@@ -115,6 +132,10 @@ class MagneticHeading:
         self.relearned = 0
         self.age = 0.0  # time the reference has held still while settling (s)
         self.declination: float | None = None  # the one the heading check last compared against
+        self.rejected: tuple[float, float] | None = None  # a reference the field proved disturbed
+        self.head_cand: float | None = None  # mean heading disagreement being timed (rad)
+        self.head_n = 0
+        self.head_time = 0.0
 
     def distrust_heading(self) -> None:
         """The estimate's heading may be wrong (a saturated gyro): take the next field that fits."""
@@ -162,6 +183,16 @@ class MagneticHeading:
             self.heading_trusted = False
         self.yaw_error = wrap_pi(g["declination"] - math.atan2(he, hn))
         fits = abs(norm - n0) <= g["mag_norm_tol"] * n0 and abs(dip - d0) <= g["mag_dip_tol"]
+        if self.heading_trusted and self._new_heading(self.yaw_error, dt, spin, g):
+            # The field has disagreed with the heading by a steady angle through `mag_relearn` s of
+            # turning, seen from many attitudes and places: the reference was the disturbed one
+            # (taken at rest over a place-fixed field). Follow the field; remember the old one.
+            self.heading_trusted = False
+            self.rejected, self.ref = self.ref, (norm, dip)
+            n0, d0 = self.ref
+            fits = True
+        if fits and self.rejected is not None:
+            fits = _distance(norm, dip, self.rejected, g) > _distance(norm, dip, (n0, d0), g)
         agrees = abs(self.yaw_error) <= g["mag_heading_tol"] + spin * MAG_TIME_SIGMA or not self.heading_trusted
         if fits and agrees:
             a = dt / (MAG_REF_TAU + dt)
@@ -232,6 +263,26 @@ class MagneticHeading:
         if self.offset_time >= g["mag_offset_time"] and turned:
             self.offset = self.offset_cand
             return True
+        return False
+
+    def _new_heading(self, ye: float, dt: float, spin: float, g: Mapping[str, float]) -> bool:
+        """Time a steady heading disagreement while turning; True once the estimate's heading is
+        to be distrusted (the field seen from many attitudes and places agrees with itself)."""
+        tol = g["mag_heading_tol"]
+        c = self.head_cand
+        if c is None or abs(wrap_pi(ye - c)) > tol + spin * MAG_TIME_SIGMA:
+            self.head_cand, self.head_n, self.head_time = ye, 1, 0.0
+            return False
+        self.head_n += 1
+        self.head_cand = c = c + wrap_pi(ye - c) / self.head_n
+        if abs(c) <= 0.5 * tol:
+            self.head_cand, self.head_n, self.head_time = None, 0, 0.0
+            return False
+        if spin >= MAG_HEADING_MIN_GYR:
+            self.head_time += dt
+            if self.head_time >= g["mag_relearn"]:
+                self.head_cand, self.head_n, self.head_time = None, 0, 0.0
+                return True
         return False
 
     def _new_field(self, norm: float, dip: float, dt: float, spin: float, g: Mapping[str, float]) -> bool:
