@@ -90,12 +90,15 @@ class LiveEstimation:
                 self._feed(sub.drain(BATCH))
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)
-        finally:
+        except asyncio.CancelledError:
             # Stopping: what the link delivered is estimated too, so that a recording and the
-            # live outputs hold the same inputs (the station stops the link first).
+            # live outputs hold the same inputs (the station stops the link first). A pipeline
+            # that failed is not fed again: it would only raise again, in the station's stop.
             self._feed(sub.drain())
+            raise
+        finally:
             sub.close()
-            self._sub = None
+            self._sub = None  # stopped or failed: nothing left to catch up on
             heap.release()
 
     def catch_up(self) -> None:
