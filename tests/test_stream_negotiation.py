@@ -10,7 +10,6 @@ import asyncio
 from live import running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
-from gcs.mavlink.dialect import mavlink
 from gcs.runtime.link import LinkState
 
 REQUESTED = {"RAW_IMU": 50.0, "SCALED_IMU2": 50.0, "ATTITUDE": 50.0, "AHRS2": 50.0, "SCALED_PRESSURE": 5.0}
@@ -121,33 +120,3 @@ def test_a_vehicle_that_forgot_its_streams_is_asked_again(udp_port):
 
     states = asyncio.run(scenario())
     assert LinkState.LOST not in states, states
-
-
-def test_streams_that_stopped_while_others_flow_are_asked_again(udp_port):
-    """A quick reboot, then another ground station asks the new boot for the barometer alone: the
-    streams accepted before, which had arrived and have stopped, are asked for again, although not
-    every stream is silent (one never seen at all would be taken as lacking, and left alone)."""
-
-    async def scenario():
-        address = f"udpout:127.0.0.1:{udp_port}"
-        async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station:
-            station.streams.check_interval = 0.5
-            station.streams.retry_interval = station.link.stats.window + 5.0
-            async with running_sim(address, profile="pixhawk"):
-                rates = station.link.stats.rates
-                await wait_for(lambda: rates().get("ATTITUDE", 0) > 0, 30, "the first boot's ATTITUDE arriving")
-            async with running_sim(address, profile="pixhawk") as second:
-                other_gcs = mavlink.MAVLink_command_long_message(
-                    1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                    mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE, 200_000, 0, 0, 0, 0, 0,
-                )  # fmt: skip
-                # at once, while the old boot's packets are still in the rate window: every stream
-                # silent (the quick-reboot rule) never happens
-                await wait_for(lambda: second.received.get("HEARTBEAT", 0) > 0, 30, "the station heard by the new boot")
-                station.link.send(other_gcs)
-                await wait_for(lambda: "SCALED_PRESSURE" in second.stream_rates(), 30, "the barometer alone")
-                assert "ATTITUDE" not in second.stream_rates()
-                await wait_for(lambda: second.stream_rates().get("ATTITUDE", 0) > 0, 60, "ATTITUDE asked again")
-                return station.streams.requests_sent
-
-    assert asyncio.run(scenario()) > 0

@@ -14,10 +14,8 @@ group, and the accepted group-mates are then asked again so the group request do
 them.
 A vehicle that does not know the command (no ACK, UNSUPPORTED) gets REQUEST_DATA_STREAM for all.
 Requests are repeated only after a reconnect, a reboot, or when a message stays far below its
-accepted rate or stops after it had arrived (another ground station may have overridden it, or a
-reboot quicker than the heartbeat timeout forgot it), and then at most once per `retry_interval`,
-a group always at the rate of its fastest accepted member: never a flood of requests over a slow
-radio.
+accepted rate (another ground station may have overridden it), and then at most once per
+`retry_interval`: never a flood of requests over a slow radio.
 
 Each message's target rate passes through `target_rate(name, hz)` before it is asked for: the one
 place where a per-message cap (a radio's budget) applies.
@@ -144,9 +142,6 @@ class StreamRequester:
     loop_rate_hz: float | None = None
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
-    #: messages seen arriving since they were last asked for: one that then stops has been forgotten
-    #: (one never seen the vehicle lacks, and is not asked for again)
-    _arrived: set[str] = field(default_factory=set)
     _no_intervals: bool = False  # the vehicle does not know SET_MESSAGE_INTERVAL
 
     @property
@@ -320,7 +315,6 @@ class StreamRequester:
             )
             self.requests_sent += 1
             self._last_request[name] = time.monotonic()
-            self._arrived.discard(name)
             deadline = time.monotonic() + self.ack_timeout
             while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
                 if item.type == "COMMAND_ACK" and item.msg.command == command:
@@ -348,11 +342,9 @@ class StreamRequester:
         now = time.monotonic()
         for name in wanted:
             self._last_request[name] = now
-            self._arrived.discard(name)
 
     async def _monitor_until_woken(self) -> None:
-        """Every `check_interval`, re-request messages far below their accepted rate or stopped after
-        they had arrived, rate-limited."""
+        """Every `check_interval`, re-request messages far below their accepted rate, rate-limited."""
         while True:
             try:
                 async with asyncio.timeout(self.check_interval):
@@ -364,20 +356,20 @@ class StreamRequester:
                 continue
             achieved = self.link.stats.rates()
             now = time.monotonic()
-            self._arrived.update(name for name in self.negotiated if achieved.get(name, 0.0) > 0.0)
             if self._all_silent(achieved, now):
                 return  # ask for everything again, as after a reconnect
             starved = {
                 name: n
                 for name, n in self.negotiated.items()
                 if n.accepted_hz
-                and self._starved(name, achieved.get(name, 0.0), n.accepted_hz)
+                and 0.0 < achieved.get(name, 0.0) < 0.5 * n.accepted_hz  # never sent at all: the vehicle lacks it
                 and now - self._last_request.get(name, 0.0) >= self.retry_interval
             }
             if not starved:
                 continue
-            if any(n.method == REQUEST_DATA_STREAM for n in starved.values()):
-                self._request_streams(self._whole_groups(starved))
+            by_group = {name: n.accepted_hz or 0.0 for name, n in starved.items() if n.method == REQUEST_DATA_STREAM}
+            if by_group:
+                self._request_streams(by_group)
             sub = self.link.bus.subscribe("stream-reacks", types=["COMMAND_ACK"], maxlen=50)
             try:
                 for name, n in starved.items():
@@ -385,23 +377,6 @@ class StreamRequester:
                         await self._set_interval(name, n.accepted_hz, sub, attempts=1)
             finally:
                 sub.close()
-
-    def _whole_groups(self, starved: dict[str, Negotiated]) -> dict[str, float]:
-        """The group-mates of the starved messages asked for by group, each at its accepted rate:
-        a group request sets the rate of every message in the group, so asking one slow member's
-        rate alone would slow its faster mates (and, behind a radio, see-saw against its budget)."""
-        groups = {STREAM_GROUPS.get(name) for name, n in starved.items() if n.method == REQUEST_DATA_STREAM}
-        return {
-            name: n.accepted_hz or 0.0
-            for name, n in self.negotiated.items()
-            if n.method == REQUEST_DATA_STREAM and STREAM_GROUPS.get(name) in groups
-        }
-
-    def _starved(self, name: str, achieved_hz: float, accepted_hz: float) -> bool:
-        """Far below its accepted rate, or stopped after it had arrived (another ground station
-        reset it, or a quick reboot was asked for other streams since); never arrived at all: the
-        vehicle lacks it."""
-        return 0.0 < achieved_hz < 0.5 * accepted_hz or (achieved_hz == 0.0 and name in self._arrived)
 
     def _all_silent(self, achieved: dict[str, float], now: float) -> bool:
         """Every stream the vehicle accepted has stopped while its heartbeats go on, and none was
