@@ -3,7 +3,7 @@ brings it on Linux and macOS), asyncio's own loop elsewhere.
 
 Why: the station's loop wakes for every burst of datagrams and every WebSocket send; libuv's loop
 and its socket transports take a fraction of the CPU of asyncio's pure-Python ones per wake-up
-(docs/benchmarks.md, "the event loop"). Nothing in gcs depends on which loop runs."""
+(docs/benchmarks.md, "`gcs serve` and `gcs demo` on uvloop"). Nothing in gcs depends on which loop runs."""
 
 from __future__ import annotations
 
