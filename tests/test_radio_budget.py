@@ -11,6 +11,7 @@ import pytest
 from live import running_station, wait_for
 
 from gcs.commands.status import format_report
+from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.mavlink.radio import frame_bytes, link_capacity, predict
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.logdownload import LogDownloader
@@ -18,7 +19,7 @@ from gcs.runtime.station import StationConfig
 from gcs.runtime.streams import STREAM_GROUPS, StreamPlan
 from gcs.server.app import create_app
 from gcs.sim import SimVehicle
-from gcs.sim.radio import fit_radio
+from gcs.sim.radio import UART_BUFFER_BYTES, SikRadio, fit_radio
 from gcs.sim.recording import fly_flight_logs
 
 
@@ -33,6 +34,25 @@ def test_prediction_fits_the_apm25_streams_into_57600_baud():
     assert fitted.rates["RAW_IMU"] == fitted.rates["ATTITUDE"] and fitted.rates["RAW_IMU"].is_integer()
     # a group member costs its group's rate: the barometer rides with the IMU
     assert fitted.cost_bps["SCALED_PRESSURE"] == fitted.rates["RAW_IMU"] * frame_bytes("SCALED_PRESSURE", 1)
+
+
+def test_vehicles_sharing_a_radio_each_have_their_own_serial_port():
+    """Two vehicles sending a burst at the same instant (every stream at one rate falls due
+    together): each fits its own autopilot's UART; only a vehicle overfilling its own skips."""
+    radio = SikRadio(57600)
+    bursts = {sysid: [Encoder(sysid, 1, mavlink1=True).encode(_simstate()) for _ in range(6)] for sysid in (1, 2)}
+    assert sum(len(p) for p in bursts[1]) < UART_BUFFER_BYTES < sum(len(p) for b in bursts.values() for p in b)
+    for packets in bursts.values():
+        for packet in packets:
+            radio.offer(packet)
+    assert radio.skipped == 0 and radio.queued == sum(len(p) for b in bursts.values() for p in b)
+    for packet in bursts[1] * 2:  # the same vehicle again, before its UART drained: it skips
+        radio.offer(packet)
+    assert radio.skipped > 0
+
+
+def _simstate():
+    return mavlink.MAVLink_simstate_message(*([0.0] * 9), 0, 0)
 
 
 class SteadyRadio:

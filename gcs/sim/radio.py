@@ -3,7 +3,9 @@
 
 Vehicle → ground, in two stages, as on the real thing:
 - the autopilot's UART at `baud` (8N1: baud / 10 bytes/s) with a small transmit buffer; like
-  ArduPilot (HAVE_PAYLOAD_SPACE), the vehicle skips a message that does not fit in it;
+  ArduPilot (HAVE_PAYLOAD_SPACE), the vehicle skips a message that does not fit in it. Each
+  vehicle has its own (by the sysid in the packet's header): vehicles sharing a radio network
+  share its air time and buffer, never one autopilot's serial port;
 - the radio's serial buffer (`buffer_bytes`), sent over the air at `capacity_bps` (gcs.mavlink.radio:
   baud / 10 × SiK's efficiency, a modelled figure);
   bytes arriving at a full buffer are lost. Whole packets go out, so a UDP datagram is one packet.
@@ -54,8 +56,7 @@ class SikRadio:
         self._rng = np.random.default_rng(seed)
         self._queue: deque[bytes] = deque()
         self.queued = 0  # bytes in the radio's buffer
-        self._uart_level = 0.0
-        self._uart_last: float | None = None
+        self._uarts: dict[int, Uart] = {}  # each vehicle's, by sysid
         self._credit = 0.0
         self._last: float | None = None
         self.skipped = 0  # packets the vehicle did not send (UART full)
@@ -64,21 +65,21 @@ class SikRadio:
 
     # --- vehicle side ----------------------------------------------------------------------------
 
-    def _drain_uart(self, now: float) -> None:
-        if self._uart_last is not None:
-            self._uart_level = max(0.0, self._uart_level - (now - self._uart_last) * self.uart_bps)
-        self._uart_last = now
+    def uart(self, sysid: int) -> Uart:
+        """Vehicle `sysid`'s serial port to the radio."""
+        return self._uarts.setdefault(sysid, Uart(self.uart_bps))
 
-    def uart_has_room(self, size: int = 105) -> bool:
-        """HAVE_PAYLOAD_SPACE for a packet of `size` bytes (a MAVLink 1 LOG_DATA by default)."""
-        return self._uart_level + size <= UART_BUFFER_BYTES
+    def _drain_uarts(self, now: float) -> None:
+        for uart in self._uarts.values():
+            uart.drain(now)
 
     def offer(self, packet: bytes) -> None:
-        """The vehicle sends a packet: skipped when the UART is full, lost when the radio is."""
-        if not self.uart_has_room(len(packet)):
+        """The vehicle sends a packet: skipped when its UART is full, lost when the radio is."""
+        uart = self.uart(_sysid(packet))
+        if not uart.has_room(len(packet)):
             self.skipped += 1
             return
-        self._uart_level += len(packet)
+        uart.level += len(packet)
         if self.queued + len(packet) > self.buffer_bytes:
             self.overflowed += 1
             return
@@ -94,7 +95,7 @@ class SikRadio:
 
     def drain(self, now: float) -> list[bytes]:
         """The whole packets the air has carried since the last call."""
-        self._drain_uart(now)
+        self._drain_uarts(now)
         if self._last is not None:
             self._credit = min(self._credit + (now - self._last) * self.capacity_bps, self.buffer_bytes)
         self._last = now
@@ -131,8 +132,7 @@ class RadioEndpoint:
         self._task = asyncio.create_task(self._air())
 
     def write(self, packet: bytes) -> None:
-        loop_now = asyncio.get_running_loop().time()
-        self.radio._drain_uart(loop_now)
+        self.radio._drain_uarts(asyncio.get_running_loop().time())
         self.radio.offer(packet)
 
     async def _air(self) -> None:
@@ -161,5 +161,28 @@ def fit_radio(sim, baud: int = 57600, seed: int = 0, radio: SikRadio | None = No
     radio = radio or SikRadio(baud, mavlink1=sim.profile.mavlink1, seed=seed)
     sim.radio = radio
     sim.log_server.sends_per_loop = 1
-    sim.log_server.has_room = radio.uart_has_room
+    sim.log_server.has_room = radio.uart(sim.sysid).has_room
     return radio
+
+
+class Uart:
+    """One autopilot's serial transmit buffer, drained at the port's `bps`."""
+
+    def __init__(self, bps: float) -> None:
+        self.bps = bps
+        self.level = 0.0  # bytes waiting
+        self._last: float | None = None
+
+    def drain(self, now: float) -> None:
+        if self._last is not None:
+            self.level = max(0.0, self.level - (now - self._last) * self.bps)
+        self._last = now
+
+    def has_room(self, size: int = 105) -> bool:
+        """HAVE_PAYLOAD_SPACE for a packet of `size` bytes (a MAVLink 1 LOG_DATA by default)."""
+        return self.level + size <= UART_BUFFER_BYTES
+
+
+def _sysid(packet: bytes) -> int:
+    """The sender's sysid from a MAVLink 1 (0xFE) or 2 (0xFD) header."""
+    return packet[5] if packet[0] == 0xFD else packet[3]
