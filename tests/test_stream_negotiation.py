@@ -10,6 +10,7 @@ import asyncio
 from live import running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
+from gcs.mavlink.dialect import mavlink
 from gcs.runtime.link import LinkState
 
 REQUESTED = {"RAW_IMU": 50.0, "SCALED_IMU2": 50.0, "ATTITUDE": 50.0, "AHRS2": 50.0, "SCALED_PRESSURE": 5.0}
@@ -120,3 +121,69 @@ def test_a_vehicle_that_forgot_its_streams_is_asked_again(udp_port):
 
     states = asyncio.run(scenario())
     assert LinkState.LOST not in states, states
+
+
+def test_streams_that_stopped_while_others_flow_are_asked_again(udp_port):
+    """A quick reboot, then another ground station asks the new boot for the barometer alone: the
+    streams accepted before, which had arrived and have stopped, are asked for again, although not
+    every stream is silent (one never seen at all would be taken as lacking, and left alone)."""
+
+    async def scenario():
+        address = f"udpout:127.0.0.1:{udp_port}"
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station:
+            station.streams.check_interval = 0.5
+            station.streams.retry_interval = station.link.stats.window + 5.0
+            async with running_sim(address, profile="pixhawk"):
+                rates = station.link.stats.rates
+                await wait_for(lambda: rates().get("ATTITUDE", 0) > 0, 30, "the first boot's ATTITUDE arriving")
+            async with running_sim(address, profile="pixhawk") as second:
+                other_gcs = mavlink.MAVLink_command_long_message(
+                    1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                    mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE, 200_000, 0, 0, 0, 0, 0,
+                )  # fmt: skip
+                # at once, while the old boot's packets are still in the rate window: every stream
+                # silent (the quick-reboot rule) never happens
+                await wait_for(lambda: second.received.get("HEARTBEAT", 0) > 0, 30, "the station heard by the new boot")
+                station.link.send(other_gcs)
+                await wait_for(lambda: "SCALED_PRESSURE" in second.stream_rates(), 30, "the barometer alone")
+                assert "ATTITUDE" not in second.stream_rates()
+                await wait_for(lambda: second.stream_rates().get("ATTITUDE", 0) > 0, 60, "ATTITUDE asked again")
+                return station.streams.requests_sent
+
+    assert asyncio.run(scenario()) > 0
+
+
+def test_a_stream_that_stays_starved_is_asked_ever_more_rarely(udp_port):
+    """Another ground station slows ATTITUDE to 1 Hz and the vehicle refuses anything faster from
+    now on: the station's re-requests (each refused) come after 1, 2, then 4 retry intervals, not
+    once every interval for good over what may be a slow radio."""
+
+    async def scenario():
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim,
+            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
+        ):
+            streams = station.streams
+            streams.check_interval, streams.retry_interval = 0.25, 2.0
+            await wait_for(lambda: settled(station, {"ATTITUDE": 50.0}), 30, "ATTITUDE at 50 Hz")
+            sim.interval_limits["ATTITUDE"] = 1.0
+            other_gcs = mavlink.MAVLink_command_long_message(
+                1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1_000_000, 0, 0, 0, 0, 0
+            )
+            station.link.send(other_gcs)
+            await wait_for(lambda: sim.stream_rates().get("ATTITUDE") == 1.0, 30, "ATTITUDE slowed to 1 Hz")
+            asked = [streams._last_request["ATTITUDE"]]  # the other GCS's request went out as ours
+
+            def asked_again(times: int) -> bool:
+                if streams._last_request["ATTITUDE"] != asked[-1]:
+                    asked.append(streams._last_request["ATTITUDE"])
+                return len(asked) > times
+
+            await wait_for(lambda: asked_again(3), 60, "three re-requests of ATTITUDE")
+            return asked, sim.stream_rates()["ATTITUDE"], streams.negotiated["ATTITUDE"].ack
+
+    asked, rate, ack = asyncio.run(scenario())
+    gaps = [b - a for a, b in zip(asked[1:], asked[2:], strict=False)]
+    print(f"\nre-requests of ATTITUDE {gaps} s apart (retry_interval 2 s)")
+    assert rate == 1.0 and ack == "DENIED"  # refused each time: still starved
+    assert gaps[0] >= 2 * 2.0 - 0.1 and gaps[1] >= 4 * 2.0 - 0.1, gaps

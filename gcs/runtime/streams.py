@@ -14,8 +14,10 @@ group, and the accepted group-mates are then asked again so the group request do
 them.
 A vehicle that does not know the command (no ACK, UNSUPPORTED) gets REQUEST_DATA_STREAM for all.
 Requests are repeated only after a reconnect, a reboot, or when a message stays far below its
-accepted rate (another ground station may have overridden it), and then at most once per
-`retry_interval`: never a flood of requests over a slow radio.
+accepted rate or stops after it had arrived (another ground station may have overridden it, or a
+reboot quicker than the heartbeat timeout forgot it); a group always at the rates of its accepted
+members, a message at most once per `retry_interval`, doubled after each re-request that did not
+bring it back (up to MAX_BACKOFF): never a flood of requests over a slow radio (docs/vehicles.md).
 
 Each message's target rate passes through `target_rate(name, hz)` before it is asked for: the one
 place where a per-message cap (a radio's budget) applies.
@@ -79,6 +81,9 @@ LOOP_RATE_FRACTION = 0.8
 REASON_WAIT = 0.5
 #: STATUSTEXT.text length: a chunk this long may be continued in the next one (same id).
 STATUSTEXT_CHUNK = 50
+#: The longest wait between re-requests of one message, in `retry_interval`s: each re-request
+#: that did not bring it back doubles the wait, up to this.
+MAX_BACKOFF = 8
 
 
 @dataclass
@@ -142,6 +147,11 @@ class StreamRequester:
     loop_rate_hz: float | None = None
     _wake: asyncio.Event = field(default_factory=asyncio.Event)
     _last_request: dict[str, float] = field(default_factory=dict)
+    #: messages seen arriving since they were last asked for: one that then stops has been forgotten
+    #: (one never seen the vehicle lacks, and is not asked for again)
+    _arrived: set[str] = field(default_factory=set)
+    #: re-requests in a row per message that did not bring it back to half its accepted rate
+    _misses: dict[str, int] = field(default_factory=dict)
     _no_intervals: bool = False  # the vehicle does not know SET_MESSAGE_INTERVAL
 
     @property
@@ -180,6 +190,7 @@ class StreamRequester:
         if self.rate_cap is not None:  # the radio's budget
             wanted = self.rate_cap(wanted)
         self.negotiated = {name: Negotiated(hz) for name, hz in wanted.items()}
+        self._misses.clear()
         if not self._no_intervals:
             for name, hz in wanted.items():
                 result = await self._negotiate(name, hz, replies)
@@ -315,6 +326,7 @@ class StreamRequester:
             )
             self.requests_sent += 1
             self._last_request[name] = time.monotonic()
+            self._arrived.discard(name)
             deadline = time.monotonic() + self.ack_timeout
             while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
                 if item.type == "COMMAND_ACK" and item.msg.command == command:
@@ -342,9 +354,11 @@ class StreamRequester:
         now = time.monotonic()
         for name in wanted:
             self._last_request[name] = now
+            self._arrived.discard(name)
 
     async def _monitor_until_woken(self) -> None:
-        """Every `check_interval`, re-request messages far below their accepted rate, rate-limited."""
+        """Every `check_interval`, re-request messages far below their accepted rate or stopped after
+        they had arrived, rate-limited."""
         while True:
             try:
                 async with asyncio.timeout(self.check_interval):
@@ -356,20 +370,25 @@ class StreamRequester:
                 continue
             achieved = self.link.stats.rates()
             now = time.monotonic()
+            self._arrived.update(name for name in self.negotiated if achieved.get(name, 0.0) > 0.0)
             if self._all_silent(achieved, now):
                 return  # ask for everything again, as after a reconnect
             starved = {
                 name: n
                 for name, n in self.negotiated.items()
                 if n.accepted_hz
-                and 0.0 < achieved.get(name, 0.0) < 0.5 * n.accepted_hz  # never sent at all: the vehicle lacks it
-                and now - self._last_request.get(name, 0.0) >= self.retry_interval
+                and self._starved(name, achieved.get(name, 0.0), n.accepted_hz)
+                and now - self._last_request.get(name, 0.0) >= self._retry_wait(name)
             }
+            for name, n in self.negotiated.items():
+                if n.accepted_hz and achieved.get(name, 0.0) >= 0.5 * n.accepted_hz:
+                    self._misses.pop(name, None)  # back: the next trouble is retried soon again
+            for name in starved:
+                self._misses[name] = self._misses.get(name, 0) + 1
             if not starved:
                 continue
-            by_group = {name: n.accepted_hz or 0.0 for name, n in starved.items() if n.method == REQUEST_DATA_STREAM}
-            if by_group:
-                self._request_streams(by_group)
+            if any(n.method == REQUEST_DATA_STREAM for n in starved.values()):
+                self._request_streams(self._whole_groups(starved))
             sub = self.link.bus.subscribe("stream-reacks", types=["COMMAND_ACK"], maxlen=50)
             try:
                 for name, n in starved.items():
@@ -377,6 +396,29 @@ class StreamRequester:
                         await self._set_interval(name, n.accepted_hz, sub, attempts=1)
             finally:
                 sub.close()
+
+    def _whole_groups(self, starved: dict[str, Negotiated]) -> dict[str, float]:
+        """The group-mates of the starved messages asked for by group, each at its accepted rate:
+        a group request sets the rate of every message in the group, so asking one slow member's
+        rate alone would slow its faster mates (and, behind a radio, see-saw against its budget)."""
+        groups = {STREAM_GROUPS.get(name) for name, n in starved.items() if n.method == REQUEST_DATA_STREAM}
+        return {
+            name: n.accepted_hz or 0.0
+            for name, n in self.negotiated.items()
+            if n.method == REQUEST_DATA_STREAM and STREAM_GROUPS.get(name) in groups
+        }
+
+    def _retry_wait(self, name: str) -> float:
+        """`retry_interval`, doubled after each re-request of `name` that did not bring it back: a
+        message the vehicle (or a radio dropping it) will not send is asked for ever more rarely."""
+        return self.retry_interval * min(2 ** self._misses.get(name, 0), MAX_BACKOFF)
+
+    def _starved(self, name: str, achieved_hz: float, accepted_hz: float) -> bool:
+        """Far below its accepted rate (the rate after the radio's cap: what was asked for), or
+        stopped after it had arrived: not one packet over the whole rate window (another ground
+        station reset it, or a quick reboot was asked for other streams since); never arrived at
+        all: the vehicle lacks it."""
+        return 0.0 < achieved_hz < 0.5 * accepted_hz or (achieved_hz == 0.0 and name in self._arrived)
 
     def _all_silent(self, achieved: dict[str, float], now: float) -> bool:
         """Every stream the vehicle accepted has stopped while its heartbeats go on, and none was
