@@ -10,8 +10,8 @@ pymavlink tool runs), which decodes every packet.
   400 : ATTITUDE 100 : GPS 5 : HEARTBEAT 1, one packet per datagram as over UDP): a fleet's link
   routing to the vehicle's core, whose parts subscribe as they do live (the estimation and the
   vehicle state by type and reading every message, the recorder every type as bytes, the stream
-  requester's replies), drained every 8 datagrams. Every message of this stream is read, so all
-  are decoded here too.
+  requester's replies), drained every 8 datagrams. Every message of this stream is read: the
+  IMU messages (HIGHRES_IMU) from their bytes (gcs.mavlink.imu_packets), the others decoded.
 """
 
 from __future__ import annotations
@@ -77,10 +77,8 @@ def serve_receive_path(datagrams: list[bytes], wake_every: int = 8) -> int:
     async def run() -> int:
         fleet = Fleet(StationConfig(connect="udpin:127.0.0.1:9"))
         bus = fleet.first.bus
-        readers = [
-            bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000),
-            bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=100_000),
-        ]
+        estimation = bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        vehicle_state = bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=100_000)
         recorder = bus.subscribe("recorder", maxlen=200_000)
         replies = bus.subscribe("stream-acks", types=["COMMAND_ACK", "HEARTBEAT", "STATUSTEXT", "PARAM_VALUE"])
         on_data = fleet.links[0]._on_data
@@ -88,9 +86,10 @@ def serve_receive_path(datagrams: list[bytes], wake_every: int = 8) -> int:
         for k, datagram in enumerate(datagrams):
             on_data(datagram)
             if k % wake_every == wake_every - 1 or k == len(datagrams) - 1:
-                for sub in readers:
-                    for item in sub.drain():
-                        item.msg  # noqa: B018 (read, as the parts do)
+                for item in estimation.drain():
+                    item.reading  # noqa: B018 (read, as the estimation does)
+                for item in vehicle_state.drain():
+                    item.msg  # noqa: B018 (read, as the vehicle state does)
                 n += len(recorder.drain())
                 replies.drain()
         return n
