@@ -11,7 +11,7 @@ wire order), so the values are the ones pymavlink's message would hold
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from gcs.core.samples import ms_to_s, usec_to_s
 from gcs.mavlink.dialect import MARKER_V1, mavlink
@@ -20,11 +20,11 @@ from gcs.mavlink.dialect import MARKER_V1, mavlink
 IMU_AXES = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
 
 
-@dataclass(frozen=True, slots=True)
-class ImuPacket:
+class ImuPacket(NamedTuple):
     """An IMU message's type, source system, vehicle time (s since boot) and `IMU_AXES` values in
     the message's own units. `get_type` and `get_srcSystem` answer as pymavlink's message does, so
-    the sampler (gcs.mavlink.sampling) routes it as it routes the decoded message."""
+    the sampler (gcs.mavlink.sampling) routes it as it routes the decoded message. (A NamedTuple:
+    built once per IMU message, it costs a third of a frozen dataclass.)"""
 
     type: str
     sysid: int
