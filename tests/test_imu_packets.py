@@ -16,6 +16,7 @@ from operator import attrgetter
 
 import numpy as np
 import pytest
+from fastcrc import crc16
 
 from bench.serve_cpu import packets as serve_stream
 from gcs.mavlink.dialect import Encoder, MAVLink, mavlink
@@ -179,6 +180,20 @@ def test_trimmed_payloads_read_as_pymavlink_pads_them(version):
     link, items = through_link(raws)
     assert [item.type for item in items] == [msg.msgname for msg in IMU_MESSAGES]
     assert assert_same_inputs(items) == len(IMU_MESSAGES)
+
+
+def test_a_signed_packet_reads_as_pymavlink_decodes_it():
+    for msg in IMU_MESSAGES:
+        plain = trimmed(msg, 2)
+        head = bytearray(plain[:10])
+        head[2] = 0x01  # signed: 13 bytes of signature follow the CRC
+        body = bytes(head[1:]) + plain[10:-2]
+        crc = crc16.mcrf4xx(bytes([msg.crc_extra]), crc16.mcrf4xx(body, 0xFFFF))
+        raw = bytes(head) + plain[10:-2] + crc.to_bytes(2, "little") + bytes(range(13))
+        ref = pymavlink_message(raw)
+        assert ref.get_header().incompat_flags == 0x01
+        got = imu_packet(raw, ref.get_type(), 3)
+        assert bits(got.axes) == bits(attrgetter(*IMU_AXES)(ref)), ref
 
 
 @pytest.mark.parametrize("version", [1, 2])
