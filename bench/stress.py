@@ -114,13 +114,6 @@ def score(trial: Trial, q_enu: np.ndarray, t_from: float = 0.0) -> dict[str, flo
     return broad_errors(q_enu, np.asarray(trial["opt_quat"]), moving)
 
 
-def cut(trial: Trial, t_from: float, t_to: float) -> Trial:
-    """The samples in [t_from, t_to), times kept (a shorter segment around a switch)."""
-    t = np.asarray(trial["t"])
-    sel = (t >= t_from) & (t < t_to)
-    return {k: (np.asarray(v)[sel] if isinstance(v, np.ndarray) else v) for k, v in trial.items()}
-
-
 #: name → (build the stressed trial, time from which it is scored), both from the trial.
 CASES: dict[str, Callable[[Trial], tuple[Trial, float]]] = {
     "none (second half)": lambda tr: (tr, mid(tr)),

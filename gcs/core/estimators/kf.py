@@ -174,6 +174,14 @@ class KalmanAttitudeFilter(AttitudeEstimator):
                 "1 = heading corrections teach the bias too (0: tilt corrections only)",
             ),
             Gain("bias_acc_tol", 0.5, 0.0, 1000.0, "m/s²", "the bias is learned only while ||f| - g| is below this"),
+            Gain(
+                "yaw_acc_r",
+                0.05,
+                0.0,
+                100.0,
+                "rad²/(m/s²)²",
+                "field heading noise at least this × mean(|f| - g)² (dcm's yaw_acc_cap); 0 = off",
+            ),
         )
         + MAG_GAINS
         + REST_GAINS
@@ -192,6 +200,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         "mag_time_sigma": 0.0,
         "mag_dt": 0.0,
         "bias_tau": 0.0,
+        "yaw_acc_r": 0.0,
         **REST_OFF,
     }
     PRESETS = {"seed004": _THESIS, "telemetry": {"q_roll": 2.59e-6, "q_pitch": 2.57e-6, "q_yaw": 4.051e-5}}
@@ -210,6 +219,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.valid = False
         self.accel_norm = 0.0
         self.accel_scale = 1.0
+        self.accel_dev = 0.0  # ⟨(|f| − g)²⟩ over accel_tau (m²/s⁴)
         self.mag_rejected = 0
         self.innovation = np.zeros(6)
         self.heading_source = "none"
@@ -280,6 +290,7 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.gyro_prev = vec3(float(v) for v in sample.gyro)
         self.bias = (0.0, 0.0, 0.0)
         self.f_avg = None
+        self.accel_dev = 0.0
         self.kf.x = np.array([[roll], [pitch], [yaw or 0.0], *([v] for v in self.rates_prev)])
         self.kf.P = np.diag([g[f"q_{s}"] for s in _ANGLES + _RATES])
         self.valid = True
@@ -361,6 +372,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         k = g["gps_gain"]
         r = [g[n] for n in _R_NAMES]
         spin = math.sqrt(gyro[0] ** 2 + gyro[1] ** 2 + gyro[2] ** 2)
+        dev = self.accel_norm - G0
+        self.accel_dev += dt / (g["accel_tau"] + dt) * (dev * dev - self.accel_dev)
         if self.shock.update(sample.t, self.accel_norm, spin, g) and self.shock.saturated:
             self.mag.distrust_heading()
         if self.accel_norm > 1e-6 and not self.shock.active:
@@ -389,6 +402,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         z0 = x[0] + wrap_pi(roll - x[0])
         if yaw is not None:
             r[2] += (spin * g["mag_time_sigma"]) ** 2
+            if self.heading_source == "mag":  # accelerating: the tilt, hence the levelled field, is less sure
+                r[2] = max(r[2], g["yaw_acc_r"] * self.accel_dev)
             if dt < g["mag_dt"]:  # heading errors are correlated over mag_dt: more samples add no information
                 r[2] *= g["mag_dt"] / dt
             if self.heading_source == "mag":  # a freshly learned hard-iron offset: less weight

@@ -46,6 +46,7 @@ ACCEL_TAU, ACCEL_GATE, MAG_DELAY, MAG_TIME_SIGMA, MAG_DT = (
     _G["accel_tau"], _G["accel_gate"], _G["mag_delay"], _G["mag_time_sigma"], _G["mag_dt"],
 )  # fmt: skip
 BIAS_TAU, BIAS_ACC_TOL, BIAS_HEADING = _G["bias_tau"], _G["bias_acc_tol"], _G["bias_heading"]
+YAW_ACC_R = _G["yaw_acc_r"]
 REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
@@ -69,7 +70,8 @@ BIAS = B + 61  # 3
 W_R, W_Z = B + 64, B + 70
 W_PHT, W_S, W_SI, W_K, W_IKH, W_T = range(B + 76, B + 76 + 6 * 36, 36)
 REST = B + 76 + 6 * 36  # RestBias
-SIZE = REST + REST_SIZE
+ACCEL_DEV = REST + REST_SIZE  # ⟨(|f| − g)²⟩ over accel_tau
+SIZE = ACCEL_DEV + 1
 #: heading_source labels by code
 HEADING_SOURCES = ("none", "mag", "mag_rejected", "gps_course")
 _body_turn = kernel(body_turn)
@@ -254,6 +256,8 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     for i in range(6):
         r[i] = g[R_GAINS + i]
     spin = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    dev = accel_norm - G0
+    s[ACCEL_DEV] += dt / (g[ACCEL_TAU] + dt) * (dev * dev - s[ACCEL_DEV])
     if k.shock_update(s, t, accel_norm, spin, g[GYRO_LIMIT], g[SHOCK_ACC], g[SHOCK_HOLD]):
         if s[k.SHOCK_SATURATED] != 0.0:
             s[k.TRUSTED] = 0.0
@@ -314,6 +318,8 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     skip = 2  # no heading: H without the yaw row
     if not math.isnan(yaw):
         r[2] += (spin * g[MAG_TIME_SIGMA]) ** 2
+        if source == 1.0:  # accelerating: the tilt, hence the levelled field, is less sure
+            r[2] = max(r[2], g[YAW_ACC_R] * s[ACCEL_DEV])
         if dt < g[MAG_DT]:
             r[2] *= g[MAG_DT] / dt
         if source == 1.0:
@@ -403,7 +409,7 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
         rates = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
         s[RATES_PREV : RATES_PREV + 3] = rates
         s[GYRO_PREV : GYRO_PREV + 3] = np.asarray(sample.gyro, float)
-        s[FAVG_SET] = 0.0
+        s[FAVG_SET] = s[ACCEL_DEV] = 0.0
         s[BIAS : BIAS + 3] = 0.0
         s[X : X + 6] = (roll, pitch, yaw or 0.0, *rates)
         s[P : P + 36] = np.diag([g[f"q_{a}"] for a in _ANGLES + _RATES]).reshape(-1)
