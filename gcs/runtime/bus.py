@@ -114,10 +114,6 @@ class Subscription:
     def dropped(self) -> int:
         return self.queue.dropped
 
-    def _offer(self, item: Message) -> None:
-        self.queue.put(item)
-        self.delivered += 1
-
     async def get(self, timeout: float | None = None) -> Message | None:
         """The oldest queued message, waiting for one; None if `timeout` s pass first."""
         return self.queue.get_nowait() if await self.queue.wait(timeout) else None
@@ -184,10 +180,12 @@ class MessageBus:
         self.published += 1
         if item.type in INPUT_TYPES:
             self.inputs_published += 1
-        for sub in self._all:
-            sub._offer(item)
+        for sub in self._all:  # (the queue's put inline: this runs for every packet)
+            sub.queue.put(item)
+            sub.delivered += 1
         for sub in self._by_type.get(item.type, ()):
-            sub._offer(item)
+            sub.queue.put(item)
+            sub.delivered += 1
 
     def subscriptions(self) -> list[Subscription]:
         seen: dict[int, Subscription] = {id(s): s for s in self._all}
