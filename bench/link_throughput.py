@@ -10,8 +10,11 @@ pymavlink tool runs), which decodes every packet.
   400 : ATTITUDE 100 : GPS 5 : HEARTBEAT 1, one packet per datagram as over UDP): a fleet's link
   routing to the vehicle's core, whose parts subscribe as they do live (the estimation and the
   vehicle state by type and reading every message, the recorder every type as bytes, the stream
-  requester's replies), drained every 8 datagrams. Every message of this stream is read, so all
-  are decoded here too.
+  requester's replies), drained every 8 datagrams. Every message of this stream is read: the
+  IMU messages (HIGHRES_IMU) from their bytes (gcs.mavlink.imu_packets), the others decoded.
+- `serve receive path to the estimation's inputs`: the same, and the estimation's messages turned
+  into its inputs (`MessageInputs`: samples on the vehicle's clock), as the live estimation does
+  before its estimators run.
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ import time
 
 from bench.serve_cpu import packets
 from gcs.mavlink.dialect import Encoder, MAVLink, mavlink
-from gcs.mavlink.sampling import INPUT_TYPES
+from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.link import Link
 from gcs.runtime.station import StationConfig
@@ -73,29 +77,39 @@ def link_and_bus(parts: list[bytes]) -> int:
     return asyncio.run(run())
 
 
-def serve_receive_path(datagrams: list[bytes], wake_every: int = 8) -> int:
+def serve_receive_path(datagrams: list[bytes], wake_every: int = 8, inputs: bool = False) -> int:
+    """`inputs`: the estimation's messages become its inputs too (`MessageInputs`, as
+    gcs.runtime.estimation feeds it), so the row runs from the datagram to the estimation's input."""
+
     async def run() -> int:
         fleet = Fleet(StationConfig(connect="udpin:127.0.0.1:9"))
         bus = fleet.first.bus
-        readers = [
-            bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000),
-            bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=100_000),
-        ]
+        estimation = bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        vehicle_state = bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=100_000)
         recorder = bus.subscribe("recorder", maxlen=200_000)
         replies = bus.subscribe("stream-acks", types=["COMMAND_ACK", "HEARTBEAT", "STATUSTEXT", "PARAM_VALUE"])
         on_data = fleet.links[0]._on_data
+        feed = MessageInputs().feed
         n = 0
         for k, datagram in enumerate(datagrams):
             on_data(datagram)
             if k % wake_every == wake_every - 1 or k == len(datagrams) - 1:
-                for sub in readers:
-                    for item in sub.drain():
-                        item.msg  # noqa: B018 (read, as the parts do)
+                for item in estimation.drain():
+                    if inputs:
+                        feed(item.reading, tlog_wall_time(item.wall_time))
+                    else:
+                        item.reading  # noqa: B018 (read, as the estimation does)
+                for item in vehicle_state.drain():
+                    item.msg  # noqa: B018 (read, as the vehicle state does)
                 n += len(recorder.drain())
                 replies.drain()
         return n
 
     return asyncio.run(run())
+
+
+def to_inputs(datagrams: list[bytes]) -> int:
+    return serve_receive_path(datagrams, inputs=True)
 
 
 def best_rate(fn, parts: list[bytes], repeats: int = 3, clock=time.perf_counter) -> tuple[float, int]:
@@ -117,6 +131,7 @@ def main() -> list[dict]:
     for name, baseline, ours, data in (
         ("link decode+dispatch", bare_pymavlink, link_and_bus, parts),
         ("serve receive path (fleet link, the station's subscriptions)", bare_pymavlink, serve_receive_path, datagrams),
+        ("serve receive path to the estimation's inputs", bare_pymavlink, to_inputs, datagrams),
     ):
         base, n_base = best_rate(baseline, data, 3, time.process_time)
         rate, n_ours = best_rate(ours, data, 3, time.process_time)

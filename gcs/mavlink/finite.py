@@ -11,9 +11,10 @@ estimation's own range checks (gcs.core.plausibility) still apply to what passes
 from __future__ import annotations
 
 import math
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 
 from gcs.mavlink.dialect import MAVLinkMessage, mavlink
+from gcs.mavlink.imu_packets import IMU_AXES, ImuPacket
 
 _ANGLES = ("roll", "pitch", "yaw")
 
@@ -46,3 +47,22 @@ def nonfinite_field(msg: MAVLinkMessage, msg_type: str) -> str | None:
     if values is None or math.isfinite(sum(values(msg))):
         return None
     return next(name for name in FINITE_FIELDS[msg_type] if not math.isfinite(getattr(msg, name)))
+
+
+#: IMU type → its fields that must be finite, and their values in `ImuPacket.axes` in one C call
+_AXES_CHECKED = {
+    msg_type: (names, itemgetter(*(IMU_AXES.index(name) for name in names)))
+    for msg_type, names in FINITE_FIELDS.items()
+    if set(names) <= set(IMU_AXES)
+}
+
+
+def nonfinite_axis(packet: ImuPacket) -> str | None:
+    """`nonfinite_field` of an IMU message read from its bytes: the same verdict, the same name."""
+    checked = _AXES_CHECKED.get(packet.type)
+    if checked is None:
+        return None
+    names, values = checked
+    if math.isfinite(sum(values(packet.axes))):
+        return None
+    return next(name for name, value in zip(names, values(packet.axes), strict=True) if not math.isfinite(value))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from operator import attrgetter
 
 import numpy as np
 
@@ -29,40 +30,54 @@ from gcs.core.samples import (
     usec_to_s,
 )
 from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.imu_packets import IMU_AXES, ImuPacket
 from gcs.mavlink.params import param_name
 
 #: MAVLink's "unknown" marker for GPS_RAW_INT vel / cog (UINT16_MAX).
 UINT16_UNKNOWN = 65535
 
 
-def _imu_from_scaled(msg: MAVLinkMessage, t: float) -> ImuSample:
-    """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled)."""
-    gyro = np.array([mrad_to_rads(msg.xgyro), mrad_to_rads(msg.ygyro), mrad_to_rads(msg.zgyro)])
-    accel = np.array([mg_to_mps2(msg.xacc), mg_to_mps2(msg.yacc), mg_to_mps2(msg.zacc)])
-    field = np.array([mgauss_to_gauss(msg.xmag), mgauss_to_gauss(msg.ymag), mgauss_to_gauss(msg.zmag)])
+def _imu_from_scaled_axes(t: float, axes: tuple[float, ...], source: str) -> ImuSample:
+    """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled);
+    `axes`: their `IMU_AXES`."""
+    xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag = axes
+    gyro = np.array([mrad_to_rads(xgyro), mrad_to_rads(ygyro), mrad_to_rads(zgyro)])
+    accel = np.array([mg_to_mps2(xacc), mg_to_mps2(yacc), mg_to_mps2(zacc)])
+    field = np.array([mgauss_to_gauss(xmag), mgauss_to_gauss(ymag), mgauss_to_gauss(zmag)])
     mag = field if field.any() else None  # an all-zero field means "no compass", not a zero field
-    return ImuSample(t, gyro, accel, mag, msg.get_type())
+    return ImuSample(t, gyro, accel, mag, source)
+
+
+def _imu_from_highres_axes(t: float, axes: tuple[float, ...]) -> ImuSample:
+    """HIGHRES_IMU (PX4): already SI — m/s², rad/s, gauss; `axes`: its `IMU_AXES` as Python floats
+    (float64 arrays without asking for the type, which costs as much again as building them)."""
+    return ImuSample(t, np.array(axes[3:6]), np.array(axes[0:3]), np.array(axes[6:9]), "HIGHRES_IMU")
+
+
+_AXES = attrgetter(*IMU_AXES)
 
 
 def imu_from_raw_imu(msg: MAVLinkMessage) -> ImuSample:
     """RAW_IMU: time_usec since boot; accel mG, gyro mrad/s, mag mgauss (ArduPilot's scaled values)."""
-    return _imu_from_scaled(msg, usec_to_s(msg.time_usec))
+    return _imu_from_scaled_axes(usec_to_s(msg.time_usec), _AXES(msg), msg.get_type())
 
 
 def imu_from_scaled_imu(msg: MAVLinkMessage) -> ImuSample:
     """SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: time_boot_ms; same units as RAW_IMU."""
-    return _imu_from_scaled(msg, ms_to_s(msg.time_boot_ms))
+    return _imu_from_scaled_axes(ms_to_s(msg.time_boot_ms), _AXES(msg), msg.get_type())
 
 
 def imu_from_highres_imu(msg: MAVLinkMessage) -> ImuSample:
-    """HIGHRES_IMU (PX4): already SI — m/s², rad/s, gauss; time_usec since boot."""
-    return ImuSample(
-        usec_to_s(msg.time_usec),
-        np.array([msg.xgyro, msg.ygyro, msg.zgyro], dtype=float),
-        np.array([msg.xacc, msg.yacc, msg.zacc], dtype=float),
-        np.array([msg.xmag, msg.ymag, msg.zmag], dtype=float),
-        "HIGHRES_IMU",
-    )
+    """HIGHRES_IMU (PX4): time_usec since boot."""
+    return _imu_from_highres_axes(usec_to_s(msg.time_usec), tuple(map(float, _AXES(msg))))
+
+
+def imu_from_packet(packet: ImuPacket) -> ImuSample:
+    """The sample of an IMU message read from its bytes (gcs.mavlink.imu_packets): the same
+    conversions as from the decoded message."""
+    if packet.type == "HIGHRES_IMU":
+        return _imu_from_highres_axes(packet.t, packet.axes)
+    return _imu_from_scaled_axes(packet.t, packet.axes, packet.type)
 
 
 def gps_from_gps_raw_int(msg: MAVLinkMessage) -> GpsSample:
@@ -147,8 +162,10 @@ class VehicleClock:
     def __init__(self) -> None:
         self.latest: dict[int, float] = {}
 
-    def time_of(self, msg: MAVLinkMessage) -> float | None:
+    def time_of(self, msg: MAVLinkMessage | ImuPacket) -> float | None:
         """The vehicle time msg carries itself, or None."""
+        if isinstance(msg, ImuPacket):
+            return msg.t
         if hasattr(msg, "time_boot_ms"):
             return ms_to_s(msg.time_boot_ms)
         if msg.get_type() in _BOOT_USEC_MESSAGES:
@@ -203,7 +220,7 @@ class MessageSampler:
         self._secondary_since: dict[str, float] = {}
         self._leading: MAVLinkMessage | None = None  # an AHRS2 waiting for its slot's time
 
-    def feed(self, msg: MAVLinkMessage) -> list[ImuSample | GpsSample | AttitudeSample]:
+    def feed(self, msg: MAVLinkMessage | ImuPacket) -> list[ImuSample | GpsSample | AttitudeSample]:
         """The samples msg completes, in order: usually none or one; an AHRS2 held for its slot's
         time comes out just before the sample of the timestamped message that follows it."""
         kind = msg.get_type()
@@ -247,9 +264,13 @@ class MessageSampler:
             out.append(current)
         return out
 
-    def _sample(self, msg: MAVLinkMessage, kind: str, now: float) -> ImuSample | GpsSample | AttitudeSample | None:
+    def _sample(
+        self, msg: MAVLinkMessage | ImuPacket, kind: str, now: float
+    ) -> ImuSample | GpsSample | AttitudeSample | None:
         if kind in IMU_TYPES:
-            return _IMU_CONVERTERS[kind](msg) if self._is_imu_stream(kind, now) else None
+            if not self._is_imu_stream(kind, now):
+                return None
+            return imu_from_packet(msg) if isinstance(msg, ImuPacket) else _IMU_CONVERTERS[kind](msg)
         if kind == "GPS_RAW_INT":
             gps = gps_from_gps_raw_int(msg)
             if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:
@@ -306,24 +327,29 @@ class MessageInputs:
     def gps_fix(self) -> bool:
         return self.vehicle_declination.gps_fix
 
-    def feed(self, msg: MAVLinkMessage, wall_time: float | None = None) -> list[EstimationInput]:
-        """The inputs msg gives, in order; `wall_time`: its host UNIX time as the tlog stores it (s)."""
-        if msg.get_type() == "PARAM_VALUE":
-            if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:
-                return []
-            change = self.vehicle_declination.parameter(param_name(msg), float(msg.param_value))
-            return [] if change is None else [change]
+    def feed(self, msg: MAVLinkMessage | ImuPacket, wall_time: float | None = None) -> list[EstimationInput]:
+        """The inputs msg gives, in order; `wall_time`: its host UNIX time as the tlog stores it (s).
+        An IMU message may come as its `ImuPacket` (read from its bytes by the link): the same inputs."""
+        kind = msg.get_type()
+        if kind == "PARAM_VALUE":
+            return self._parameter(msg)
         clock = self.sampler.clock.latest
         before = clock.get(self.sampler.system) if self.sampler.system is not None else None
         out: list[EstimationInput] = list(self.sampler.feed(msg))
         after = clock.get(self.sampler.system) if self.sampler.system is not None else None
         if before is not None and after is not None and after < before - REBOOT_CLOCK_JUMP:
             self.vehicle_declination.reboot()
-        if msg.get_type() == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
+        if kind == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
             change = self._wmm_declination(msg, wall_time)
             if change is not None:
                 out.append(change)
         return out
+
+    def _parameter(self, msg: MAVLinkMessage) -> list[EstimationInput]:
+        if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:
+            return []
+        change = self.vehicle_declination.parameter(param_name(msg), float(msg.param_value))
+        return [] if change is None else [change]
 
     def _wmm_declination(self, msg: MAVLinkMessage, wall_time: float | None) -> GainChange | None:
         if self.vehicle_declination.gps_fix:

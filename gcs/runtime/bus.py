@@ -11,6 +11,7 @@ from collections.abc import Iterable
 
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.imu_packets import ImuPacket
 from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.runtime.dropqueue import DropOldestQueue
 
@@ -22,8 +23,10 @@ _EPOCH_US = 10**15
 class Message:
     """A MAVLink packet as it arrived: its bytes, type and source always; the decoded pymavlink
     message (`msg`) built on first use. The link builds it at once for the types some subscriber
-    asked for by name (it checks their values, gcs.mavlink.finite); a subscriber to every type
-    (the recorder) takes the bytes, so a type no part reads is never decoded.
+    asked for by name (it checks their values, gcs.mavlink.finite), except the IMU types, which it
+    reads from the bytes (`imu`, what the estimation takes) and which are decoded only for a part
+    that reads `msg`; a subscriber to every type (the recorder) takes the bytes, so a type no part
+    reads is never decoded.
 
     host_time: the host's monotonic clock at arrival, s (for latency and rates).
     wall_time: the host's UNIX time at arrival, s (for .tlog records).
@@ -31,7 +34,7 @@ class Message:
     message has one (None otherwise: AHRS2, SIMSTATE, HEARTBEAT, ...); it decodes the message.
     """
 
-    __slots__ = ("raw", "type", "host_time", "wall_time", "sysid", "compid", "link", "_msg")
+    __slots__ = ("raw", "type", "host_time", "wall_time", "sysid", "compid", "link", "_msg", "imu")
 
     def __init__(
         self,
@@ -43,6 +46,7 @@ class Message:
         compid: int,
         link: str = "",
         msg: MAVLinkMessage | None = None,
+        imu: ImuPacket | None = None,
     ) -> None:
         self.raw = raw
         self.type = type
@@ -52,6 +56,8 @@ class Message:
         self.compid = compid
         self.link = link
         self._msg = msg
+        #: an IMU message's fields read from its bytes by the link (gcs.mavlink.imu_packets)
+        self.imu = imu
 
     @classmethod
     def of(cls, msg: MAVLinkMessage, host_time: float, wall_time: float, link: str = "") -> Message:
@@ -65,6 +71,12 @@ class Message:
         if self._msg is None:
             self._msg = decode(self.raw)
         return self._msg
+
+    @property
+    def reading(self) -> MAVLinkMessage | ImuPacket:
+        """What the estimation reads (`MessageInputs.feed`): the IMU packet the link read from the
+        bytes, else the decoded message."""
+        return self.imu if self.imu is not None else self.msg
 
     @property
     def decoded(self) -> bool:
@@ -101,10 +113,6 @@ class Subscription:
     @property
     def dropped(self) -> int:
         return self.queue.dropped
-
-    def _offer(self, item: Message) -> None:
-        self.queue.put(item)
-        self.delivered += 1
 
     async def get(self, timeout: float | None = None) -> Message | None:
         """The oldest queued message, waiting for one; None if `timeout` s pass first."""
@@ -172,10 +180,12 @@ class MessageBus:
         self.published += 1
         if item.type in INPUT_TYPES:
             self.inputs_published += 1
-        for sub in self._all:
-            sub._offer(item)
+        for sub in self._all:  # (the queue's put inline: this runs for every packet)
+            sub.queue.put(item)
+            sub.delivered += 1
         for sub in self._by_type.get(item.type, ()):
-            sub._offer(item)
+            sub.queue.put(item)
+            sub.delivered += 1
 
     def subscriptions(self) -> list[Subscription]:
         seen: dict[int, Subscription] = {id(s): s for s in self._all}

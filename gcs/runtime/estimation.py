@@ -119,7 +119,7 @@ class LiveEstimation:
             self.messages_fed += 1
             had_fix, source, value = declination.gps_fix, declination.source, declination.value
             # the wall time as the recording's tlog keeps it, so a replay dates the WMM the same
-            inputs += feed_inputs(item.msg, tlog_wall_time(item.wall_time))
+            inputs += feed_inputs(item.reading, tlog_wall_time(item.wall_time))
             locked = declination.gps_fix and not had_fix
             changed = (declination.source, declination.value) != (source, value)
             if locked or changed:

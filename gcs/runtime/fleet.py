@@ -46,11 +46,17 @@ class _LinkBus(MessageBus):
     def __init__(self, fleet: Fleet, index: int) -> None:
         super().__init__()
         self.fleet, self.index = fleet, index
+        #: sysid → the view of each vehicle served on this link (set by the fleet when it adopts one)
+        self.views: dict[int, VehicleLink] = {}
 
     def publish(self, item: Message) -> None:
         if self._all or self._by_type:  # the link's own subscribers (none unless a tool adds one)
             super().publish(item)
-        self.fleet.route(self.index, item)
+        view = self.views.get(item.sysid)
+        if view is not None:  # a vehicle served here: one dispatch, no routing
+            view.deliver(item)
+        else:
+            self.fleet.route(self.index, item)
 
     def wants(self, msg_type: str) -> bool:
         return super().wants(msg_type) or self.fleet.wants(self.index, msg_type)
@@ -66,10 +72,12 @@ class Fleet:
         self.config = config
         self.single, self.sysid = single or sysid is not None, sysid
         addresses = list(connects) or [config.connect]
+        #: each link's bus, which also keeps the views of the vehicles served on it (`_LinkBus.views`)
+        self._buses = [_LinkBus(self, i) for i in range(len(addresses))]
         self.links = [
             Link(
                 address,
-                bus=_LinkBus(self, i),
+                bus=self._buses[i],
                 baud=config.baud,
                 speed=config.speed,
                 heartbeat_timeout=config.heartbeat_timeout,
@@ -85,7 +93,6 @@ class Fleet:
         self.supervisor = Supervisor(first.events)
         self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]
         self._unbound: Station | None = first
-        self._by_key: dict[tuple[int, int], VehicleLink] = {}  # (link index, sysid) -> the vehicle's view
         self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._ignored: set[tuple[int, int]] = set()  # (link, sysid): served on another link, or not followed
         self._started = False
@@ -129,11 +136,8 @@ class Fleet:
         return any(view.bus.wants(msg_type) for view in self._on_link[index])
 
     def route(self, index: int, item: Message) -> None:
+        """A message from a system not served on this link (`_LinkBus.publish` delivers the others)."""
         key = (index, item.sysid)
-        view = self._by_key.get(key)
-        if view is not None:
-            view.deliver(item)
-            return
         if key in self._ignored:
             return  # a vehicle served on another link, or one a single-vehicle fleet does not follow
         if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg):
@@ -172,7 +176,7 @@ class Fleet:
             self._entries.append(entry)
             if self._started:
                 core.launch()
-        self._by_key[(index, item.sysid)] = _view(core)
+        self._buses[index].views[item.sysid] = _view(core)
         self._on_link[index].append(_view(core))
         MessageBus.epoch += 1  # who reads what on each link changed (Link decodes by `wants`)
         address = str(link.address)

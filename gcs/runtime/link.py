@@ -19,9 +19,10 @@ from enum import StrEnum
 from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
-from gcs.mavlink.finite import nonfinite_field
+from gcs.mavlink.finite import nonfinite_axis, nonfinite_field
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.identity import is_vehicle_heartbeat
+from gcs.mavlink.imu_packets import IMU_PACKET_TYPES, imu_packet
 from gcs.mavlink.signing import Signing
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.link_stats import LinkStats
@@ -32,6 +33,9 @@ from gcs.transport.pipes import Transport, make_transport
 
 #: Baud rates tried by `baud="auto"`, most likely first (telemetry radio, then USB/companion).
 AUTO_BAUDS = (57600, 115200, 921600, 500000, 230400, 38400, 19200, 9600)
+
+#: how the receive path reads a type some part reads (`Link._decoded`; 0: it is not read)
+_DECODE, _READ_IMU = 1, 2
 
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190, as ground stations use
@@ -140,8 +144,8 @@ class Link:
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
-        #: message type → decoded on arrival (a part reads it), as of MessageBus.epoch `_epoch`
-        self._decoded: dict[str, bool] = {}
+        #: message type → read on arrival (a part reads it): 0, _DECODE or _READ_IMU, as of MessageBus.epoch `_epoch`
+        self._decoded: dict[str, int] = {}
         self._epoch = -1
 
     # ---- public API -------------------------------------------------------------------
@@ -216,8 +220,9 @@ class Link:
     # ---- receive path -----------------------------------------------------------------
     def _on_data(self, data: bytes) -> None:
         """Every intact packet is counted, forwarded and published as bytes; only the types a
-        subscriber asked for by name (and HEARTBEAT, which the link reads) are decoded here, and
-        those are checked for non-finite values (gcs.mavlink.finite) before anything sees them."""
+        subscriber asked for by name (and HEARTBEAT, which the link reads) are decoded here (the
+        IMU types only read from their bytes, gcs.mavlink.imu_packets), and those are checked for
+        non-finite values (gcs.mavlink.finite) before anything sees them."""
         now = time.monotonic()
         wall = time.time()
         stats = self.stats
@@ -233,13 +238,18 @@ class Link:
                 self._refuse_unsigned(msg_type, why)
                 continue
             counts[msg_type] = counts.get(msg_type, 0) + 1
-            msg = None
+            msg = imu = None
             read = decoded.get(msg_type)
             if read is None:
-                read = decoded[msg_type] = msg_type == "HEARTBEAT" or bus.wants(msg_type)
+                wanted = msg_type == "HEARTBEAT" or bus.wants(msg_type)
+                read = decoded[msg_type] = (_READ_IMU if msg_type in IMU_PACKET_TYPES else _DECODE) if wanted else 0
             if read:
-                msg = decode(raw)
-                field = nonfinite_field(msg, msg_type)
+                if read == _READ_IMU:
+                    imu = imu_packet(raw, msg_type, sysid)
+                    field = nonfinite_axis(imu)
+                else:
+                    msg = decode(raw)
+                    field = nonfinite_field(msg, msg_type)
                 if field is not None:
                     self._reject(msg_type, field)
                     continue
@@ -247,7 +257,7 @@ class Link:
                 out.write(raw, self, sysid)
             if msg_type == "HEARTBEAT":
                 self._on_heartbeat(msg, sysid, compid, now)
-            bus.publish(Message(raw, msg_type, now, wall, sysid, compid, name, msg))
+            bus.publish(Message(raw, msg_type, now, wall, sysid, compid, name, msg, imu))
 
     def _reject(self, msg_type: str, field: str) -> None:
         """A message with a non-finite value where the station needs a number goes nowhere;

@@ -52,8 +52,9 @@ class VehicleLink(Link):
 
     # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
     def deliver(self, item: Message) -> None:
-        self.stats.bytes_in += len(item.raw)
-        self.stats.count(item.type)
+        stats = self.stats
+        stats.bytes_in += len(item.raw)
+        stats.counts[item.type] = stats.counts.get(item.type, 0) + 1  # stats.count, inline (every packet)
         if item.type == "HEARTBEAT" and item.sysid == self.target_system:
             self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)
         self.bus.publish(item)
