@@ -169,18 +169,26 @@ class _Stats:
                 peaks.popleft()
 
     def summary(self) -> ReferenceSummary:
-        n = len(self.recent)
-        if n:
-            window_rms = [math.sqrt(max(v, 0.0) / n) for v in self.window_sum_sq]
-            window_max = [peaks[0][1] for peaks in self.window_max]
-        else:
-            window_rms = window_max = [math.nan] * 3
-        session_rms = [math.sqrt(s / self.n) if self.n else math.nan for s in self.sum_sq]
-        return {
-            "n": self.n,
-            "window": {"n": n, "rms": window_rms, "max": window_max},
-            "session": {"n": self.n, "rms": session_rms, "max": list(self.max) if self.n else [math.nan] * 3},
-        }
+        peaks = [queue[0][1] for queue in self.window_max] if self.recent else []
+        return reference_summary(self.n, self.sum_sq, self.max, len(self.recent), self.window_sum_sq, peaks)
+
+
+def reference_summary(
+    n: int, sum_sq: Sequence[float], top: Sequence[float], window_n: int, window_sum_sq: Sequence[float],
+    window_max: Sequence[float],
+) -> ReferenceSummary:  # fmt: skip
+    """The summary of running sums over n references (session) and window_n (window)."""
+    if window_n:
+        window_rms = [math.sqrt(max(v, 0.0) / window_n) for v in window_sum_sq]
+        window_peaks = list(window_max)
+    else:
+        window_rms = window_peaks = [math.nan] * 3
+    session_rms = [math.sqrt(s / n) if n else math.nan for s in sum_sq]
+    return {
+        "n": n,
+        "window": {"n": window_n, "rms": window_rms, "max": window_peaks},
+        "session": {"n": n, "rms": session_rms, "max": list(top) if n else [math.nan] * 3},
+    }
 
 
 #: Estimates `Comparison._bracket` steps back through before it bisects (a deque's middle is slow to reach).
@@ -319,9 +327,7 @@ class Comparison:
     def imu_rate(self) -> float:
         """Estimator output (= raw IMU) rate over the last `window` seconds, Hz."""
         times = self._window_t
-        if len(self.estimates) < 2 or len(times) < 2:
-            return 0.0
-        return (len(times) - 1) / (times[-1] - times[0])
+        return imu_rate_of(len(self.estimates), len(times), times[0] if times else 0.0, times[-1] if times else 0.0)
 
     def lag(self) -> float | None:
         """How late the estimator is behind ATTITUDE, s: the shift L for which the estimator at t + L
@@ -331,13 +337,7 @@ class Comparison:
         return self.running_lag.lag()
 
     def reliability(self) -> tuple[bool, str]:
-        rate = self.imu_rate()
-        if rate < RATE_TOLERANCE * self.min_imu_rate:
-            return False, (
-                f"raw IMU at {rate:.1f} Hz, below the {self.min_imu_rate:g} Hz needed: a ground-side estimator "
-                f"cannot follow the vehicle's motion; request RAW_IMU at {self.min_imu_rate:g} Hz or more"
-            )
-        return True, ""
+        return reliability(self.imu_rate(), self.min_imu_rate)
 
     def summary(self) -> ComparisonSummary:
         reliable, reason = self.reliability()
@@ -349,6 +349,23 @@ class Comparison:
             "dropped": self.dropped,
             "references": {source: s.summary() for source, s in sorted(self.stats.items())},
         }
+
+
+def imu_rate_of(estimates: int, times: int, first: float, last: float) -> float:
+    """The rate of `times` estimate times from first to last, Hz (0 below two, or two estimates kept)."""
+    if estimates < 2 or times < 2:
+        return 0.0
+    return (times - 1) / (last - first)
+
+
+def reliability(rate: float, min_imu_rate: float) -> tuple[bool, str]:
+    """Whether an estimator fed raw IMU at `rate` Hz can be compared, and why not."""
+    if rate < RATE_TOLERANCE * min_imu_rate:
+        return False, (
+            f"raw IMU at {rate:.1f} Hz, below the {min_imu_rate:g} Hz needed: a ground-side estimator "
+            f"cannot follow the vehicle's motion; request RAW_IMU at {min_imu_rate:g} Hz or more"
+        )
+    return True, ""
 
 
 def warm() -> None:

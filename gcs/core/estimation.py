@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, TypedDict
 
 from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
+from gcs.core.comparison_compiled import NO_OUTPUTS, NO_ROWS, CompiledComparison, ReferenceRuns
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.estimators.kernels import Compiled
@@ -90,7 +91,7 @@ class EstimationPipeline:
         window: float = 10.0,
     ) -> None:
         self.estimators = estimators if estimators is not None else {n: registry.create(n) for n in registry.names()}
-        self.comparisons = {name: Comparison(window=window) for name in self.estimators}
+        self.comparisons = {name: CompiledComparison(window=window) for name in self.estimators}
         self.latest: dict[str, AttitudePoint] = {}
         self.imu_samples = 0
         self.declination: float | None = None  # the vehicle's, once a GainChange for every estimator set it
@@ -171,10 +172,11 @@ class EstimationPipeline:
         runs.append((lo, kept, None))
         self.imu_samples += kept
         outputs = {name: self._step(name, batch) for name in list(self.estimators)}
+        references = ReferenceRuns.of(runs)
+        for name, out in outputs.items():
+            self.comparisons[name].add_batch(references, batch.rows, out.rows)
         times = batch.rows[:, 0].tolist()
         tables = {name: out.rows.tolist() for name, out in outputs.items()}
-        for name, table in tables.items():
-            self.comparisons[name].add_batch(runs, times, table)
         # the points, in the order feed gives them: per sample every estimator with a valid
         # attitude, references where they arrived
         points: list[AttitudePoint] = []
@@ -253,8 +255,9 @@ class EstimationPipeline:
         self.restart_reasons[name] = reason
 
     def _reference(self, ref: AttitudeSample) -> AttitudePoint:
+        references = ReferenceRuns.of([(0, 0, ref)])
         for comparison in self.comparisons.values():
-            comparison.add_reference(ref)
+            comparison.add_batch(references, NO_ROWS, NO_OUTPUTS)
         point = AttitudePoint(ref.t, ref.source, ref.roll, ref.pitch, ref.yaw)
         self.latest[ref.source] = point
         return point

@@ -99,9 +99,7 @@ class EstimateBuffer:
 class RunningLag:
     def __init__(self, lag_max: float, lag_step: float, history: float, spacing: float) -> None:
         self.lag_step, self.lag_max, self.history, self.spacing = lag_step, lag_max, history, spacing
-        steps = int(round(lag_max / lag_step))
-        self.ks = list(range(-steps, steps + 1))
-        self.offsets = np.array([k * lag_step for k in self.ks])
+        self.ks, self.offsets = lag_grid(lag_max, lag_step)
         self.estimates = EstimateBuffer()  # (t, roll, pitch), lag_step apart
         self.waiting: deque[tuple[float, float, float]] = deque()  # references not yet scorable
         self.reset()
@@ -158,11 +156,23 @@ class RunningLag:
 
     def lag(self) -> float | None:
         """The best lag on the grid (s; positive: the estimator is late), None without overlap."""
-        enough = self.count >= MIN_POINTS
-        if not enough.any():
-            return None
-        cost = np.where(enough, self.sum / np.maximum(self.count, 1.0), math.inf)
-        return self.ks[int(np.argmin(cost))] * self.lag_step
+        return best_lag(self.sum, self.count, self.ks, self.lag_step)
+
+
+def lag_grid(lag_max: float, lag_step: float) -> tuple[list[int], Floats]:
+    """The lags tried: steps k of lag_step within ±lag_max, and k * lag_step (s)."""
+    steps = int(round(lag_max / lag_step))
+    ks = list(range(-steps, steps + 1))
+    return ks, np.array([k * lag_step for k in ks])
+
+
+def best_lag(cost_sum: Floats, count: Floats, ks: list[int], lag_step: float) -> float | None:
+    """The lag of least mean cost among those covered by MIN_POINTS references, None if none is."""
+    enough = count >= MIN_POINTS
+    if not enough.any():
+        return None
+    cost = np.where(enough, cost_sum / np.maximum(count, 1.0), math.inf)
+    return ks[int(np.argmin(cost))] * lag_step
 
 
 def warm() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from gcs.core import comparison
+from gcs.core import comparison_compiled
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline
 from gcs.core.estimators import registry, stepping
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
@@ -38,7 +38,7 @@ def warm() -> None:
     comparison's kernels."""
     registry.warm()
     stepping.warm()
-    comparison.warm()
+    comparison_compiled.warm()
 
 
 class LiveEstimation:
