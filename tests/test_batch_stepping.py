@@ -86,7 +86,7 @@ def inputs() -> list:
 
 @pytest.mark.parametrize("size", [1, 5, 16, 64, 100_000])
 def test_batches_equal_one_input_at_a_time(inputs, size):
-    """Segments under BATCH_MIN IMU samples go through `feed`, longer ones are stepped as batches."""
+    """Segments without IMU samples go through `feed`, the others are stepped as batches."""
     expected = one_by_one(inputs)
     assert len(expected[0]) > 3000 and expected[2]  # points, and refused samples among them
     assert batched(inputs, size) == expected

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -339,19 +340,23 @@ class _Buffer:
         self.rows = np.empty((lanes, capacity, width))
         self.bounds = np.zeros((lanes, 2), dtype=np.int64)
 
-    def make_room(self, need: int, lanes: int | None = None) -> None:
-        """Every lane's live rows moved to the front, into longer (or more) lanes if `need` rows
-        would not fit after the longest."""
-        lanes = max(lanes or 0, len(self.rows))
+    def make_room(self, need: int, lanes: int = 0) -> None:
+        """Room for `need` more rows after every lane's end, and `lanes` lanes at least: the live
+        rows moved to the front, into arrays at least twice as long as the live rows and the need
+        (so that moves stay rare) when they do not fit."""
         live = int((self.bounds[:, END] - self.bounds[:, START]).max())
         capacity = self.rows.shape[1]
-        while capacity < live + need:
-            capacity *= 2
-        rows = np.empty((lanes, capacity, self.rows.shape[2]))
+        if capacity - int(self.bounds[:, END].max()) >= need and lanes <= len(self.rows):
+            return
+        rows = self.rows
+        if live + need > capacity // 2 or lanes > len(rows):
+            capacity = max(capacity, 2 * (live + need))
+            rows = np.empty((max(lanes, len(self.rows)), capacity, self.rows.shape[2]))
         for lane, (start, end) in enumerate(self.bounds.tolist()):
-            rows[lane, : end - start] = self.rows[lane, start:end]
+            rows[lane, : end - start] = self.rows[lane, start:end]  # numpy copies an overlap first
+        more = len(rows) - len(self.bounds)
         self.rows = rows
-        self.bounds = np.vstack([self.bounds - self.bounds[:, :1], np.zeros((lanes - len(self.bounds), 2), np.int64)])
+        self.bounds = np.vstack([self.bounds - self.bounds[:, :1], np.zeros((more, 2), np.int64)])
 
 
 #: lanes of the per-source buffers: one per source name, the same for every comparison
@@ -375,6 +380,8 @@ class ReferenceRuns:
 
     @classmethod
     def of(cls, runs: BatchRuns) -> ReferenceRuns:
+        if len(runs) == 1 and runs[0][2] is None:  # no reference
+            return cls(runs, NO_REFERENCES.refs, NO_REFERENCES.ends)
         refs = [(r.t, r.roll, r.pitch, r.yaw, float(source_lane(r.source))) for _, _, r in runs if r is not None]
         ends = [hi for _, hi, r in runs if r is not None]
         return cls(runs, np.array(refs, dtype=np.float64).reshape(-1, 5), np.array(ends, dtype=np.int64))
@@ -416,6 +423,7 @@ class CompiledComparison:
         self.waiting = _Buffer(1, 3)  # references the lag cannot score yet
         self.scored = _Buffer(1, 1 + 2 * len(self.ks), 64)  # t, cost per lag, covered per lag
         self.lag_sums = np.zeros((2, len(self.ks)))  # cost and covered, summed over scored
+        self._state = self._arrays()
 
     @property
     def dropped(self) -> int:
@@ -436,22 +444,26 @@ class CompiledComparison:
     def add_batch(self, runs: ReferenceRuns, imu: Floats, table: Floats) -> None:
         """`Comparison.add_batch`: the IMU rows' outputs (`table`, stepping.BatchAttitudes.rows) at
         the times in the first column of `imu` (stepping.ImuBatch.rows), with the references."""
-        while not add_batch(
+        while not add_batch(*self._state, SOURCES.get("onboard", -1), imu, table, runs.refs, runs.ends):
+            self._make_room(len(table), len(runs.refs))
+            self._state = self._arrays()
+
+    def _arrays(self) -> tuple[Any, ...]:
+        """The kernel's state arguments, in its order (new arrays only after `_make_room`)."""
+        return (
             self.params, self.counts, self.clock, self.est.rows, self.est.bounds, self.times_b, self.pending.rows,
             self.pending.bounds, self.recent.rows, self.recent.bounds, self.peaks.rows, self.peaks.bounds,
             self.src_counts, self.src_sums, self.lag_est.rows, self.lag_est.bounds, self.waiting.rows,
             self.waiting.bounds, self.scored.rows, self.scored.bounds, self.lag_sums, self.offsets,
-            SOURCES.get("onboard", -1), imu, table, runs.refs, runs.ends,
-        ):  # fmt: skip
-            self._make_room(len(table), len(runs.refs))
+        )  # fmt: skip
 
     def _make_room(self, n: int, m: int) -> None:
         """Room for n estimates and m references in every buffer, a lane for every source."""
         pending = int(self.pending.bounds[0, END] - self.pending.bounds[0, START])
         waiting = int(self.waiting.bounds[0, END] - self.waiting.bounds[0, START])
-        times_b = self.times_b - self.est.bounds[0, START]
+        moved_from = int(self.est.bounds[0, START])
         self.est.make_room(n)
-        self.times_b = times_b
+        self.times_b -= moved_from - int(self.est.bounds[0, START])  # the window's times moved with est
         self.lag_est.make_room(n)
         self.pending.make_room(m)
         sources = len(SOURCES)
@@ -460,8 +472,9 @@ class CompiledComparison:
         self.waiting.make_room(pending + m)
         self.scored.make_room(waiting + pending + m)
         more = sources - len(self.src_counts)
-        self.src_counts = np.vstack([self.src_counts, np.zeros((more, 2), np.int64)])
-        self.src_sums = np.vstack([self.src_sums, np.zeros((more, 9))])
+        if more > 0:
+            self.src_counts = np.vstack([self.src_counts, np.zeros((more, 2), np.int64)])
+            self.src_sums = np.vstack([self.src_sums, np.zeros((more, 9))])
 
     def imu_rate(self) -> float:
         """Estimator output (= raw IMU) rate over the last `window` seconds, Hz."""

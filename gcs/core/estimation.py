@@ -76,14 +76,6 @@ class PipelineSummary(TypedDict):
     latest: dict[str, LatestAttitude]
 
 
-#: IMU samples from which `feed_many` steps a segment as a batch; fewer go one by one through
-#: `feed` (the same numbers). A batch has fixed costs (its tables, one compiled call and one
-#: outputs table per estimator): in `gcs serve` with 5 ms ticks (~5 IMU samples each) batches alone
-#: cost 10-15 % more than one input at a time; with 10 ms ticks (~8) this threshold cost ~10-15 %
-#: less than either alone (docs/benchmarks.md, branch `batch`).
-BATCH_MIN = 8
-
-
 class EstimationPipeline:
     def __init__(
         self,
@@ -145,7 +137,7 @@ class EstimationPipeline:
     def _segment(self, items: list[ImuSample | AttitudeSample]) -> list[AttitudePoint]:
         """IMU samples and references in arrival order → the points `feed` gives."""
         imu = [item for item in items if isinstance(item, ImuSample)]
-        if len(imu) < BATCH_MIN:
+        if not imu:  # references only
             return [point for item in items for point in self.feed(item)]
         batch = ImuBatch.of(imu)
         accepted = accepted_rows(batch.rows)
