@@ -13,7 +13,7 @@ or grown first (`CompiledComparison._make_room`), so the kernel never allocates.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -333,6 +333,10 @@ def add_batch(
     return True
 
 
+#: the kernel, called with its state unpacked (`CompiledComparison._arrays`)
+_add_batch: Callable[..., bool] = add_batch
+
+
 class _Buffer:
     """Lanes of rows (lanes × capacity × width) and their [start, end) bounds."""
 
@@ -444,7 +448,7 @@ class CompiledComparison:
     def add_batch(self, runs: ReferenceRuns, imu: Floats, table: Floats) -> None:
         """`Comparison.add_batch`: the IMU rows' outputs (`table`, stepping.BatchAttitudes.rows) at
         the times in the first column of `imu` (stepping.ImuBatch.rows), with the references."""
-        while not add_batch(*self._state, SOURCES.get("onboard", -1), imu, table, runs.refs, runs.ends):
+        while not _add_batch(*self._state, SOURCES.get("onboard", -1), imu, table, runs.refs, runs.ends):
             self._make_room(len(table), len(runs.refs))
             self._state = self._arrays()
 
