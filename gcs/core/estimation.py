@@ -11,6 +11,7 @@ import math
 from collections import Counter
 from collections.abc import Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from itertools import chain, repeat
 from typing import NamedTuple, TypedDict
 
 from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
@@ -18,7 +19,16 @@ from gcs.core.comparison_compiled import NO_OUTPUTS, NO_ROWS, CompiledComparison
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.estimators.kernels import Compiled
-from gcs.core.estimators.stepping import BatchAttitudes, Fault, ImuBatch, accepted_rows, step_batch, step_samples
+from gcs.core.estimators.stepping import (
+    EULER,
+    OUT,
+    BatchAttitudes,
+    Fault,
+    ImuBatch,
+    accepted_rows,
+    step_batch,
+    step_samples,
+)
 from gcs.core.gains import PresetFile
 from gcs.core.plausibility import refusal
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
@@ -167,20 +177,48 @@ class EstimationPipeline:
         references = ReferenceRuns.of(runs)
         for name, out in outputs.items():
             self.comparisons[name].add_batch(references, batch.rows, out.rows)
-        times = batch.rows[:, 0].tolist()
-        tables = {name: out.rows.tolist() for name, out in outputs.items()}
-        # the points, in the order feed gives them: per sample every estimator with a valid
-        # attitude, references where they arrived
+        return self._points(runs, batch.rows[:, 0].tolist(), outputs)
+
+    def _points(self, runs: BatchRuns, times: list[float], outputs: dict[str, BatchAttitudes]) -> list[AttitudePoint]:
+        """The points of a batch, in the order feed gives them: per sample every estimator with a
+        valid attitude, references where they arrived. When every estimator gave a valid attitude
+        on every row (all but a start or a restart), each one's points are made by one `map`
+        over its columns and interleaved by `zip`, not by a Python loop per point."""
+        latest = self.latest
+        columns = {name: out.rows[:, EULER:OUT].T.tolist() for name, out in outputs.items()}
+        if not all(all(valid) and all(stepped) for _, _, _, valid, stepped in columns.values()):
+            return self._points_one_by_one(runs, times, columns)
+        each = [
+            list(map(AttitudePoint, times, repeat(name), roll, pitch, yaw))
+            for name, (roll, pitch, yaw, _, _) in columns.items()
+        ]
+        shown = list(chain.from_iterable(zip(*each)))
+        if len(runs) == 1:  # no reference
+            latest.update((name, series[-1]) for name, series in zip(columns, each, strict=True) if series)
+            return shown
+        width = len(each)
+        points: list[AttitudePoint] = []
+        for lo, hi, ref in runs:
+            if hi > lo:
+                points += shown[lo * width : hi * width]
+                latest.update((name, series[hi - 1]) for name, series in zip(columns, each, strict=True))
+            if ref is not None:
+                latest[ref.source] = point = AttitudePoint(ref.t, ref.source, ref.roll, ref.pitch, ref.yaw)
+                points.append(point)
+        return points
+
+    def _points_one_by_one(
+        self, runs: BatchRuns, times: list[float], columns: dict[str, list[list[float]]]
+    ) -> list[AttitudePoint]:
+        """`_points`, a point at a time (some estimator not valid on some row)."""
         points: list[AttitudePoint] = []
         latest = self.latest
-        shown = list(tables.items())
         for lo, hi, ref in runs:
             for r in range(lo, hi):
                 t = times[r]
-                for name, table in shown:
-                    _, _, _, _, roll, pitch, yaw, valid, stepped = table[r]
-                    if valid and stepped:
-                        latest[name] = point = AttitudePoint(t, name, roll, pitch, yaw)
+                for name, (roll, pitch, yaw, valid, stepped) in columns.items():
+                    if valid[r] and stepped[r]:
+                        latest[name] = point = AttitudePoint(t, name, roll[r], pitch[r], yaw[r])
                         points.append(point)
             if ref is not None:
                 latest[ref.source] = point = AttitudePoint(ref.t, ref.source, ref.roll, ref.pitch, ref.yaw)
