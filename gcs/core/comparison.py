@@ -225,10 +225,7 @@ class Comparison:
         self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: Sequence[float] | None = None
     ) -> None:
         """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
-        w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
-        quat = (float(w), float(x), float(y), float(z))
-        roll, pitch, yaw = euler if euler is not None else quat_to_euler(quat)
-        self._add_estimates([t], [[*quat, roll, pitch, yaw, 1.0, 1.0]], 0, 1)
+        self._add_estimates([t], [output_row(q, euler)], 0, 1)
 
     def add_batch(self, runs: BatchRuns, times: list[float], table: list[list[float]]) -> None:
         """A batch in arrival order (`BatchRuns`): `add_estimate` for each IMU row that gave an
@@ -349,6 +346,15 @@ class Comparison:
             "dropped": self.dropped,
             "references": {source: s.summary() for source, s in sorted(self.stats.items())},
         }
+
+
+def output_row(q: npt.NDArray[np.float64] | Sequence[float], euler: Sequence[float] | None) -> list[float]:
+    """An estimator's output q (w, x, y, z) and its Z-Y-X angles (from q without them) as a row
+    of stepping.BatchAttitudes (valid and stepped)."""
+    w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
+    quat = (float(w), float(x), float(y), float(z))
+    roll, pitch, yaw = euler if euler is not None else quat_to_euler(quat)
+    return [*quat, roll, pitch, yaw, 1.0, 1.0]
 
 
 def imu_rate_of(estimates: int, times: int, first: float, last: float) -> float:

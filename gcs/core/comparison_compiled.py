@@ -26,13 +26,13 @@ from gcs.core.comparison import (
     BatchRuns,
     ComparisonSummary,
     imu_rate_of,
+    output_row,
     reference_summary,
     reliability,
 )
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import attitude_error
 from gcs.core.lag import best_lag, lag_grid, score_reference
-from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import AttitudeSample
 
 Floats = npt.NDArray[np.float64]
@@ -437,10 +437,7 @@ class CompiledComparison:
         self, t: float, q: npt.NDArray[np.float64] | Sequence[float], euler: Sequence[float] | None = None
     ) -> None:
         """The estimator's output q (w, x, y, z) at t; `euler`, its Z-Y-X angles, when the caller has them."""
-        w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q
-        quat = (float(w), float(x), float(y), float(z))
-        roll, pitch, yaw = euler if euler is not None else quat_to_euler(quat)
-        self.add_batch(NO_REFERENCES, np.array([[t]]), np.array([[*quat, roll, pitch, yaw, 1.0, 1.0]]))
+        self.add_batch(NO_REFERENCES, np.array([[t]]), np.array([output_row(q, euler)]))
 
     def add_reference(self, ref: AttitudeSample) -> None:
         self.add_batch(ReferenceRuns.of([(0, 0, ref)]), NO_ROWS, NO_OUTPUTS)
