@@ -293,15 +293,21 @@ class MessageSampler:
 
     def imu_row(self, packet: ImuPacket, rows: list[EstimationInput | ImuRow]) -> bool:
         """`feed(packet)` of an IMU packet of the followed vehicle once its IMU stream is chosen
-        and no AHRS2 waits for its slot's time (the live stream nearly always): the vehicle clock
-        moves to its time and, if it is the IMU stream, its row (not an ImuSample) is appended to
-        `rows`. False, with nothing changed, where `feed` has more to do."""
+        (the live stream nearly always), appended to `rows`: an AHRS2 waiting for its slot's time
+        comes out at the packet's, the vehicle clock moves to it and, if it is the IMU stream, its
+        row follows (not an ImuSample). False, with nothing changed, where `feed` has more to do."""
         system = packet.sysid
-        if system != self.system or self._leading is not None or self.imu_type is None:
+        if system != self.system or self.imu_type is None:
             return False
-        self.clock.latest[system] = packet.t
+        t = packet.t
+        if self._leading is not None:
+            held, self._leading = self._leading, None
+            sample = attitude_from_message(held, t)
+            if sample is not None:
+                rows.append(sample)
+        self.clock.latest[system] = t
         if packet.type == self.imu_type:
-            rows.append(_ROWS[packet.type](packet.t, packet.axes))
+            rows.append(_ROWS[packet.type](t, packet.axes))
         return True
 
     def _sample(
