@@ -15,12 +15,11 @@ import dataclasses
 import math
 import random
 import socket
-import struct
 from types import SimpleNamespace
 from typing import Any
 
-import numpy as np
 import pytest
+from exact import bits
 
 from bench.serve_cpu import packets as serve_stream
 from bench.serve_cpu import stream_message
@@ -40,19 +39,6 @@ from gcs.runtime.station import StationConfig
 from gcs.runtime.vehicle import OBSERVED_TYPES
 from gcs.transport.address import Address
 from gcs.transport.pipes import UDP_READ_BATCH, UdpTransport
-
-
-def bits(value: object) -> object:
-    """A value as its exact bits: floats (NaN included), arrays and dataclasses compare bit for bit."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return type(value).__name__, tuple(bits(getattr(value, f.name)) for f in dataclasses.fields(value))
-    if isinstance(value, np.ndarray):
-        return value.dtype.str, value.shape, value.tobytes()
-    if isinstance(value, float):
-        return struct.pack("<d", value)
-    if isinstance(value, tuple):
-        return tuple(bits(v) for v in value)
-    return value
 
 
 def wakeups(datagrams: list[bytes], seed: int) -> list[list[bytes]]:
