@@ -151,9 +151,7 @@ class EstimationPipeline:
         """IMU samples (or their rows) and references in arrival order → the points `feed` gives."""
         imu = [item for item in items if not isinstance(item, AttitudeSample)]
         if not imu:  # references only
-            return [
-                point for item in items for point in self.feed(imu_sample_of(item) if isinstance(item, tuple) else item)
-            ]
+            return [point for item in items if isinstance(item, AttitudeSample) for point in self.feed(item)]
         batch = ImuBatch.of(imu)
         accepted = accepted_rows(batch.rows)
         if not accepted.all():
