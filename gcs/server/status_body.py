@@ -2,10 +2,12 @@
 
 The station publishes a snapshot once a second and every open page polls the status once a
 second. What comes from the snapshot (link, vehicle, streams, estimators, parts, radio: nearly all
-of the body) is validated and encoded by the first request after a publish and reused by the
-others; a request then costs only its own few fields (the newest data's age, the viewers, whether
-it carries the token), encoded and spliced after them. A new snapshot, or a part's failure (which
-replaces it), is encoded anew on the next request.
+of the body) is validated and encoded when the station publishes it (`prepare`, in the publish's
+own turn of the loop) and reused by every request; a request then costs only its own few fields
+(the newest data's age, the viewers, whether it carries the token), encoded and spliced after
+them. It was encoded by the first request after a publish: 0.6 ms and more of CPU that the pages'
+other requests queued behind (docs/benchmarks.md, branch `tail2`). A snapshot replaced between
+publishes (a part's failure) is encoded by the next request.
 """
 
 from __future__ import annotations
@@ -28,13 +30,18 @@ class StatusBodies:
         #: snapshot parts encoded so far (one per snapshot that was asked for)
         self.encoded = 0
 
+    def prepare(self, station: StationFacade, snap: StationSnapshot) -> None:
+        """Encode a snapshot as it is published, before any request asks for it."""
+        self._cached[id(station)] = (snap, encode(snapshot_status(snap)))
+        self.encoded += 1
+
     def body(self, station: StationFacade, hub: LiveHub, viser_port: int | None, authorised: bool) -> bytes:
         """The whole JSON body: the snapshot's part, then this request's own fields."""
         snap = station.snapshot
         cached = self._cached.get(id(station))
         if cached is None or cached[0] is not snap:
-            cached = self._cached[id(station)] = (snap, encode(snapshot_status(snap)))
-            self.encoded += 1
+            self.prepare(station, snap)
+            cached = self._cached[id(station)]
         age = hub.data_age()
         own = encode(
             {
