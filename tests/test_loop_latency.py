@@ -74,14 +74,17 @@ async def status_per_snapshot(udp_port: int) -> None:
         for _ in range(20):  # two requests between two publishes (one a second): retried if one fell between
             before = bodies.encoded
             station.publish()
-            snap, encoded = station.snapshot, bodies.encoded
+            snap = station.snapshot
+            # encoded in the loop's turn after the publish, before any request
+            await wait_for(lambda: bodies.encoded > before, 10, "the snapshot encoded")  # noqa: B023
+            encoded = bodies.encoded
             anonymous = strict_json.loads((await http.get("/api/status")).content)
             authorised = strict_json.loads((await http.get("/api/status", headers=server.auth_headers)).content)
-            if station.snapshot is snap:
+            if station.snapshot is snap and encoded == before + 1:  # no other publish in between
                 break
         assert station.snapshot is snap
-        assert encoded == before + 1  # encoded as it was published, before any request
-        assert bodies.encoded == encoded  # and by neither request
+        assert encoded == before + 1
+        assert bodies.encoded == encoded  # by neither request
         assert not anonymous["authorised"] and authorised["authorised"]  # each request's own fields
         shared = {k: v for k, v in anonymous.items() if k not in PER_REQUEST}
         assert shared == {k: v for k, v in authorised.items() if k not in PER_REQUEST}

@@ -73,7 +73,7 @@ def create_app(
 
     def follow_station(station: StationFacade, hub: LiveHub) -> None:
         follow(station, hub)
-        station.published.connect(lambda snap: bodies.prepare(station, snap))
+        station.published.connect(lambda snap: bodies.published(station, snap))
 
     follow_station(station, hub)
     routers = [importlib.import_module(module).router for module in ROUTERS]
