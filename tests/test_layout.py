@@ -8,6 +8,7 @@ corners); screenshots of both into test-artifacts/ (layout-laptop.png, layout-ph
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 from conftest import free_port
@@ -99,6 +100,19 @@ def test_layout_laptop_and_phone(udp_port, artifacts_dir):
     assert report["phone"]["pose_frame"]["overlays"] == [], report["phone"]["pose_frame"]
 
 
+async def settled_pose_frame(pose, phone: bool, timeout: float = 120.0) -> dict:
+    """JS_POSE_FRAME once viser's page has laid out and taken the station's style (its canvas
+    sized, nothing over the vehicle, on the phone nothing over the scene), or as it is at the
+    deadline: viser mounts its panels and the style in its own time after the canvas appears."""
+    deadline = time.monotonic() + timeout
+    while True:
+        frame = await pose.evaluate(JS_POSE_FRAME)
+        clear = frame is not None and frame["canvas"] != [300, 150] and not frame["over_vehicle"]
+        if (clear and not (phone and frame["overlays"])) or time.monotonic() > deadline:
+            return frame
+        await pose.wait_for_timeout(250)  # each look walks every element of the frame
+
+
 async def scenario(udp_port: int, artifacts_dir) -> dict:
     report = {}
     errors: list[str] = []
@@ -117,7 +131,10 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                     "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
                 ):
                     await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
-                await page.wait_for_timeout(3000)  # a few draws and a track point or two
+                # a few more draws with live data, then the page's blocks are where they stay
+                await page.wait_for_function(
+                    "(n) => gcsPlots.draws >= n", arg=await page.evaluate("gcsPlots.draws") + 5, polling=POLL_MS
+                )
                 report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
                 over = await page.query_selector(".chart .u-over")
                 assert over is not None
@@ -129,10 +146,12 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                 )
                 report[name]["readout"] = await page.eval_on_selector(".chart .readout", "el => el.textContent")
                 await page.mouse.move(0, 0)
+                # in sight, as when someone looks at it: Chromium does not lay out a frame off screen
+                await page.locator("#pose").scroll_into_view_if_needed()
                 pose = await (await page.wait_for_selector("#pose")).content_frame()
                 assert pose is not None
                 await pose.wait_for_selector("canvas", timeout=120_000)
-                report[name]["pose_frame"] = await pose.evaluate(JS_POSE_FRAME)
+                report[name]["pose_frame"] = await settled_pose_frame(pose, phone=name == "phone")
                 await page.screenshot(path=str(artifacts_dir / f"layout-{name}.png"))
                 await page.screenshot(path=str(artifacts_dir / f"layout-{name}-full.png"), full_page=True)
                 await page.close()
