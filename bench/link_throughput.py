@@ -11,10 +11,15 @@ pymavlink tool runs), which decodes every packet.
   routing to the vehicle's core, whose parts subscribe as they do live (the estimation and the
   vehicle state by type and reading every message, the recorder every type as bytes, the stream
   requester's replies), drained every 8 datagrams. Every message of this stream is read: the
-  IMU messages (HIGHRES_IMU) from their bytes (gcs.mavlink.imu_packets), the others decoded.
+  IMU messages (HIGHRES_IMU) from their bytes (gcs.mavlink.imu_packets), the others decoded. The
+  8 datagrams go to the link in one call, as a UDP socket's wake-up hands them over
+  (`Link._on_datagrams`); the `per datagram` row hands them over one by one (`Link._on_data`).
 - `serve receive path to the estimation's inputs`: the same, and the estimation's messages turned
-  into its inputs (`MessageInputs`: samples on the vehicle's clock), as the live estimation does
-  before its estimators run.
+  into its inputs as the live estimation does before its estimators run (`LiveEstimation._feed`'s
+  input side: an IMU packet straight to its batch row, `MessageInputs.feed_imu`, else
+  `MessageInputs.feed`: samples on the vehicle's clock), and the wake-up's IMU table
+  (`ImuBatch.of`). `the path before`: per datagram, an ImuSample per IMU message, its table built
+  from the samples.
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ import asyncio
 import time
 
 from bench.serve_cpu import packets
+from gcs.core.estimation import EstimationInput
+from gcs.core.estimators.stepping import ImuBatch, ImuRow
+from gcs.core.samples import ImuSample
 from gcs.mavlink.dialect import Encoder, MAVLink, mavlink
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
@@ -77,9 +85,12 @@ def link_and_bus(parts: list[bytes]) -> int:
     return asyncio.run(run())
 
 
-def serve_receive_path(datagrams: list[bytes], wake_every: int = 8, inputs: bool = False) -> int:
-    """`inputs`: the estimation's messages become its inputs too (`MessageInputs`, as
-    gcs.runtime.estimation feeds it), so the row runs from the datagram to the estimation's input."""
+def serve_receive_path(
+    datagrams: list[bytes], wake_every: int = 8, inputs: bool = False, per_datagram: bool = False
+) -> int:
+    """`inputs`: the estimation's messages become its inputs too (as gcs.runtime.estimation feeds
+    them), so the row runs from the datagram to the estimation's input. `per_datagram`: each
+    datagram handed to the link alone."""
 
     async def run() -> int:
         fleet = Fleet(StationConfig(connect="udpin:127.0.0.1:9"))
@@ -88,21 +99,30 @@ def serve_receive_path(datagrams: list[bytes], wake_every: int = 8, inputs: bool
         vehicle_state = bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=100_000)
         recorder = bus.subscribe("recorder", maxlen=200_000)
         replies = bus.subscribe("stream-acks", types=["COMMAND_ACK", "HEARTBEAT", "STATUSTEXT", "PARAM_VALUE"])
-        on_data = fleet.links[0]._on_data
-        feed = MessageInputs().feed
+        on_data, on_datagrams = fleet.links[0]._on_data, fleet.links[0]._on_datagrams
+        message_inputs = MessageInputs()
+        feed, feed_imu = message_inputs.feed, message_inputs.feed_imu
         n = 0
-        for k, datagram in enumerate(datagrams):
-            on_data(datagram)
-            if k % wake_every == wake_every - 1 or k == len(datagrams) - 1:
-                for item in estimation.drain():
-                    if inputs:
-                        feed(item.reading, tlog_wall_time(item.wall_time))
-                    else:
-                        item.reading  # noqa: B018 (read, as the estimation does)
-                for item in vehicle_state.drain():
-                    item.msg  # noqa: B018 (read, as the vehicle state does)
-                n += len(recorder.drain())
-                replies.drain()
+        for start in range(0, len(datagrams), wake_every):
+            wakeup = datagrams[start : start + wake_every]
+            if per_datagram:
+                for datagram in wakeup:
+                    on_data(datagram)
+            else:
+                on_datagrams(wakeup)
+            fed: list[EstimationInput | ImuRow] = []
+            for item in estimation.drain():
+                if inputs:
+                    if item.imu is None or per_datagram or not feed_imu(item.imu, fed):
+                        fed += feed(item.reading, tlog_wall_time(item.wall_time))
+                else:
+                    item.reading  # noqa: B018 (read, as the estimation does)
+            if inputs:  # the batch's IMU table, as the pipeline builds it (`ImuBatch.of`)
+                ImuBatch.of([x for x in fed if isinstance(x, ImuSample | tuple)])
+            for item in vehicle_state.drain():
+                item.msg  # noqa: B018 (read, as the vehicle state does)
+            n += len(recorder.drain())
+            replies.drain()
         return n
 
     return asyncio.run(run())
@@ -110,6 +130,14 @@ def serve_receive_path(datagrams: list[bytes], wake_every: int = 8, inputs: bool
 
 def to_inputs(datagrams: list[bytes]) -> int:
     return serve_receive_path(datagrams, inputs=True)
+
+
+def per_datagram(datagrams: list[bytes]) -> int:
+    return serve_receive_path(datagrams, per_datagram=True)
+
+
+def to_inputs_per_datagram(datagrams: list[bytes]) -> int:
+    return serve_receive_path(datagrams, inputs=True, per_datagram=True)
 
 
 def best_rate(fn, parts: list[bytes], repeats: int = 3, clock=time.perf_counter) -> tuple[float, int]:
@@ -131,7 +159,9 @@ def main() -> list[dict]:
     for name, baseline, ours, data in (
         ("link decode+dispatch", bare_pymavlink, link_and_bus, parts),
         ("serve receive path (fleet link, the station's subscriptions)", bare_pymavlink, serve_receive_path, datagrams),
+        ("serve receive path, per datagram", bare_pymavlink, per_datagram, datagrams),
         ("serve receive path to the estimation's inputs", bare_pymavlink, to_inputs, datagrams),
+        ("to the estimation's inputs, the path before", bare_pymavlink, to_inputs_per_datagram, datagrams),
     ):
         base, n_base = best_rate(baseline, data, 3, time.process_time)
         rate, n_ours = best_rate(ours, data, 3, time.process_time)

@@ -7,15 +7,13 @@ trimmed into the axes themselves, and with non-finite values (the same rejection
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import math
 import random
-import struct
 from collections import Counter
 from operator import attrgetter
 
-import numpy as np
 import pytest
+from exact import bits
 from fastcrc import crc16
 
 from bench.serve_cpu import packets as serve_stream
@@ -26,17 +24,6 @@ from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
-
-
-def bits(value: object) -> object:
-    """A value as its exact bits: floats (NaN included) and arrays compare bit for bit."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return type(value).__name__, tuple(bits(getattr(value, f.name)) for f in dataclasses.fields(value))
-    if isinstance(value, np.ndarray):
-        return value.dtype.str, value.shape, value.tobytes()
-    if isinstance(value, float):
-        return struct.pack("<d", value)
-    return value
 
 
 def pymavlink_message(raw: bytes):

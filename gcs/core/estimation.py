@@ -17,7 +17,16 @@ from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
 from gcs.core.estimators.kernels import Compiled
-from gcs.core.estimators.stepping import BatchAttitudes, Fault, ImuBatch, accepted_rows, step_batch, step_samples
+from gcs.core.estimators.stepping import (
+    BatchAttitudes,
+    Fault,
+    ImuBatch,
+    ImuRow,
+    accepted_rows,
+    imu_sample_of,
+    step_batch,
+    step_samples,
+)
 from gcs.core.gains import PresetFile
 from gcs.core.plausibility import refusal
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
@@ -121,14 +130,15 @@ class EstimationPipeline:
             return []
         return [self._reference(item)]
 
-    def feed_many(self, items: Sequence[EstimationInput]) -> list[AttitudePoint]:
+    def feed_many(self, items: Sequence[EstimationInput | ImuRow]) -> list[AttitudePoint]:
         """`feed` of every item in order: the same numbers and the same points, in the same order.
+        An IMU sample may come as its ImuBatch row (`ImuRow`, the live path's).
         The IMU samples between two inputs that reach the estimators otherwise (a GPS fix, a gain
         change) are stepped as one batch per estimator (gcs.core.estimators.stepping), and the
         comparisons get each estimator's outputs in their order with the references: the live
         estimation's tick in a few compiled calls instead of one per sample and estimator."""
         points: list[AttitudePoint] = []
-        segment: list[ImuSample | AttitudeSample] = []
+        segment: list[ImuSample | ImuRow | AttitudeSample] = []
         for item in items:
             if isinstance(item, GainChange | GpsSample):
                 if segment:
@@ -141,11 +151,13 @@ class EstimationPipeline:
             points += self._segment(segment)
         return points
 
-    def _segment(self, items: list[ImuSample | AttitudeSample]) -> list[AttitudePoint]:
-        """IMU samples and references in arrival order → the points `feed` gives."""
-        imu = [item for item in items if isinstance(item, ImuSample)]
+    def _segment(self, items: list[ImuSample | ImuRow | AttitudeSample]) -> list[AttitudePoint]:
+        """IMU samples (or their rows) and references in arrival order → the points `feed` gives."""
+        imu = [item for item in items if not isinstance(item, AttitudeSample)]
         if len(imu) < BATCH_MIN:
-            return [point for item in items for point in self.feed(item)]
+            return [
+                point for item in items for point in self.feed(imu_sample_of(item) if isinstance(item, tuple) else item)
+            ]
         batch = ImuBatch.of(imu)
         accepted = accepted_rows(batch.rows)
         if not accepted.all():
@@ -155,11 +167,11 @@ class EstimationPipeline:
         plausible = accepted.tolist()
         r = lo = kept = 0
         for item in items:
-            if isinstance(item, ImuSample):
+            if not isinstance(item, AttitudeSample):
                 if plausible[r]:
                     kept += 1
                 else:  # the same rule, for its reason
-                    self.refused[refusal(item) or "imu"] += 1
+                    self.refused[refusal(imu_sample_of(item) if isinstance(item, tuple) else item) or "imu"] += 1
                 r += 1
                 continue
             reason = refusal(item)

@@ -70,9 +70,39 @@ class MavlinkDecoder:
         waited for."""
         buf = self._buf + data if self._buf else bytes(data)
         out: list[Frame] = []
+        i = self._scan(buf, 0, final, out)
+        self._buf = buf[i:] if i < len(buf) else b""
+        return out
+
+    def datagram_frames(self, datagrams: list[bytes]) -> list[Frame]:
+        """`frames(d, final=True)` of each datagram in turn, in one list: a UDP socket's reads of
+        one wake-up. A datagram that holds one whole packet (the usual) is checked without the
+        scan's loop; the rest of one that holds more, or damage, goes through the scan."""
+        if self._buf:  # a stream's leftover (never after a datagram, which is final)
+            return [frame for data in datagrams for frame in self.frames(data, final=True)]
+        out: list[Frame] = []
+        try_frame, scan, c = self._try_frame, self._scan, self.counters
+        for data in datagrams:
+            n = len(data)
+            if not n:
+                continue
+            if data[0] not in _MARKERS:
+                scan(data, 0, True, out)
+                continue
+            verdict = try_frame(data, 0, n, True)
+            if isinstance(verdict, tuple):
+                out.append(verdict)
+                if len(verdict[0]) < n:
+                    scan(data, len(verdict[0]), True, out)
+            else:  # rejected candidate (final: never "wait"): resynchronise one byte on, as `frames`
+                c.bytes_skipped += 1
+                scan(data, 1, True, out)
+        return out
+
+    def _scan(self, buf: bytes, i: int, final: bool, out: list[Frame]) -> int:
+        """Frame buf from i on into out; returns where the bytes not yet framed start."""
         c = self.counters
         n = len(buf)
-        i = 0
         while i < n:
             if buf[i] not in _MARKERS:
                 start = self._next_marker(buf, i)
@@ -91,8 +121,7 @@ class MavlinkDecoder:
                 continue
             out.append(verdict)
             i += len(verdict[0])
-        self._buf = buf[i:] if i < n else b""
-        return out
+        return i
 
     @staticmethod
     def _next_marker(buf: bytes, i: int) -> int:

@@ -12,6 +12,7 @@ import numpy as np
 
 from gcs.core.declination import WMM_EPOCH, VehicleDeclination, decimal_year
 from gcs.core.estimation import EstimationInput, GainChange
+from gcs.core.estimators.stepping import ImuRow
 from gcs.core.samples import (
     AttitudeSample,
     BaroSample,
@@ -53,6 +54,32 @@ def _imu_from_highres_axes(t: float, axes: tuple[float, ...]) -> ImuSample:
     (float64 arrays without asking for the type, which costs as much again as building them)."""
     return ImuSample(t, np.array(axes[3:6]), np.array(axes[0:3]), np.array(axes[6:9]), "HIGHRES_IMU")
 
+
+def _row_from_scaled_axes(t: float, axes: tuple[float, ...]) -> ImuRow:
+    """`_imu_from_scaled_axes` as its ImuBatch row (the same conversions, no arrays)."""
+    xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag = axes
+    gyro = mrad_to_rads(xgyro), mrad_to_rads(ygyro), mrad_to_rads(zgyro)
+    accel = mg_to_mps2(xacc), mg_to_mps2(yacc), mg_to_mps2(zacc)
+    field = mgauss_to_gauss(xmag), mgauss_to_gauss(ymag), mgauss_to_gauss(zmag)
+    if field[0] or field[1] or field[2]:  # as `field.any()`: an all-zero field is no compass
+        return (t, *gyro, *accel, *field, 1.0)
+    return (t, *gyro, *accel, 0.0, 0.0, 0.0, 0.0)
+
+
+def _row_from_highres_axes(t: float, axes: tuple[float, ...]) -> ImuRow:
+    """`_imu_from_highres_axes` as its ImuBatch row: gyro, accel, the field (always there)."""
+    xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag = axes
+    return (t, xgyro, ygyro, zgyro, xacc, yacc, zacc, xmag, ymag, zmag, 1.0)
+
+
+#: IMU packet type → its row
+_ROWS: dict[str, Callable[[float, tuple[float, ...]], ImuRow]] = {
+    "RAW_IMU": _row_from_scaled_axes,
+    "SCALED_IMU": _row_from_scaled_axes,
+    "SCALED_IMU2": _row_from_scaled_axes,
+    "SCALED_IMU3": _row_from_scaled_axes,
+    "HIGHRES_IMU": _row_from_highres_axes,
+}
 
 _AXES = attrgetter(*IMU_AXES)
 
@@ -264,6 +291,25 @@ class MessageSampler:
             out.append(current)
         return out
 
+    def imu_row(self, packet: ImuPacket, rows: list[EstimationInput | ImuRow]) -> bool:
+        """`feed(packet)` of an IMU packet of the followed vehicle once its IMU stream is chosen
+        (the live stream nearly always), appended to `rows`: an AHRS2 waiting for its slot's time
+        comes out at the packet's, the vehicle clock moves to it and, if it is the IMU stream, its
+        row follows (not an ImuSample). False, with nothing changed, where `feed` has more to do."""
+        system = packet.sysid
+        if system != self.system or self.imu_type is None:
+            return False
+        t = packet.t
+        if self._leading is not None:
+            held, self._leading = self._leading, None
+            sample = attitude_from_message(held, t)
+            if sample is not None:
+                rows.append(sample)
+        self.clock.latest[system] = t
+        if packet.type == self.imu_type:
+            rows.append(_ROWS[packet.type](t, packet.axes))
+        return True
+
     def _sample(
         self, msg: MAVLinkMessage | ImuPacket, kind: str, now: float
     ) -> ImuSample | GpsSample | AttitudeSample | None:
@@ -344,6 +390,15 @@ class MessageInputs:
             if change is not None:
                 out.append(change)
         return out
+
+    def feed_imu(self, packet: ImuPacket, inputs: list[EstimationInput | ImuRow]) -> bool:
+        """`feed(packet)` the short way (`MessageSampler.imu_row`): its input, if any, appended to
+        `inputs` as its ImuBatch row; False, with nothing changed, where `feed` must take it (the
+        vehicle clock going back by more than REBOOT_CLOCK_JUMP, among others)."""
+        before = self.sampler.clock.latest.get(packet.sysid)
+        if before is not None and packet.t < before - REBOOT_CLOCK_JUMP:
+            return False
+        return self.sampler.imu_row(packet, inputs)
 
     def _parameter(self, msg: MAVLinkMessage) -> list[EstimationInput]:
         if self.sampler.system is not None and msg.get_srcSystem() != self.sampler.system:

@@ -2,7 +2,8 @@
 
 The link publishes from its receive callback and must never wait, so each subscriber has
 its own bounded queue; when a slow subscriber's queue is full the OLDEST message is dropped
-and counted for that subscriber alone. Publishing costs one append per interested subscriber.
+and counted for that subscriber alone. Publishing costs one append per interested subscriber;
+the link publishes what one wake-up brought in one call (`publish_many`).
 """
 
 from __future__ import annotations
@@ -177,15 +178,23 @@ class MessageBus:
         return msg_type in self._by_type
 
     def publish(self, item: Message) -> None:
-        self.published += 1
-        if item.type in INPUT_TYPES:
-            self.inputs_published += 1
-        for sub in self._all:  # (the queue's put inline: this runs for every packet)
-            sub.queue.put(item)
-            sub.delivered += 1
-        for sub in self._by_type.get(item.type, ()):
-            sub.queue.put(item)
-            sub.delivered += 1
+        self.publish_many([item])
+
+    def publish_many(self, items: list[Message]) -> None:
+        """`publish` of each item in turn: every subscriber's queue gets the same items in the same
+        order (a subscriber to every type takes them in one call)."""
+        self.published += len(items)
+        by_type, inputs = self._by_type, 0
+        for item in items:
+            if item.type in INPUT_TYPES:
+                inputs += 1
+            for sub in by_type.get(item.type, ()):
+                sub.queue.put(item)
+                sub.delivered += 1
+        self.inputs_published += inputs
+        for sub in self._all:
+            sub.queue.put_many(items)
+            sub.delivered += len(items)
 
     def subscriptions(self) -> list[Subscription]:
         seen: dict[int, Subscription] = {id(s): s for s in self._all}

@@ -30,6 +30,19 @@ class DropOldestQueue(Generic[T]):
         self._ready.set()
         return lost
 
+    def put_many(self, items: list[T]) -> None:
+        """`put` of each item in turn (the same items kept, the same count dropped), in one call."""
+        if not items:
+            return
+        queued = self.items
+        queued.extend(items)
+        over = len(queued) - self.maxlen
+        if over > 0:
+            self.dropped += over
+            for _ in range(over):
+                queued.popleft()
+        self._ready.set()
+
     async def wait(self, timeout: float | None = None) -> bool:
         """Until something is queued (True), or `timeout` s pass first (False).
 

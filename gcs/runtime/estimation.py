@@ -8,6 +8,7 @@ from collections.abc import Callable
 from gcs.core import comparison
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline
 from gcs.core.estimators import registry, stepping
+from gcs.core.estimators.stepping import ImuRow
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime import heap
@@ -109,14 +110,19 @@ class LiveEstimation:
 
     def _feed(self, items: list[Message]) -> None:
         """The batch's messages → inputs, estimated together (`EstimationPipeline.feed_many`); what
-        they gave before a declination signal is estimated before it goes out, as per message."""
+        they gave before a declination signal is estimated before it goes out, as per message. An
+        IMU message read from its bytes becomes its batch row directly (`MessageInputs.feed_imu`:
+        no ImuSample, and no declination change to look for) wherever that gives what `feed` does."""
         points: list[AttitudePoint] = []
-        inputs: list[EstimationInput] = []
+        inputs: list[EstimationInput | ImuRow] = []
         # per message: bound methods and the declination read once (MessageInputs' properties)
-        feed_inputs, feed_many = self.inputs.feed, self.pipeline.feed_many
+        feed_inputs, feed_imu, feed_many = self.inputs.feed, self.inputs.feed_imu, self.pipeline.feed_many
         declination = self.inputs.vehicle_declination
         for item in items:
             self.messages_fed += 1
+            imu = item.imu
+            if imu is not None and feed_imu(imu, inputs):
+                continue
             had_fix, source, value = declination.gps_fix, declination.source, declination.value
             # the wall time as the recording's tlog keeps it, so a replay dates the WMM the same
             inputs += feed_inputs(item.reading, tlog_wall_time(item.wall_time))

@@ -41,7 +41,8 @@ class VehicleEntry:
 
 
 class _LinkBus(MessageBus):
-    """A link's bus: its own subscribers, then the fleet's routing (synchronous, never waits)."""
+    """A link's bus: its own subscribers, then each served vehicle's view or the fleet's routing
+    (synchronous, never waits)."""
 
     def __init__(self, fleet: Fleet, index: int) -> None:
         super().__init__()
@@ -49,14 +50,30 @@ class _LinkBus(MessageBus):
         #: sysid → the view of each vehicle served on this link (set by the fleet when it adopts one)
         self.views: dict[int, VehicleLink] = {}
 
-    def publish(self, item: Message) -> None:
+    def publish_many(self, items: list[Message]) -> None:
+        """Each run of messages from a vehicle served here goes to its view in one call; a message
+        from any other system goes through the fleet's routing, after what came before it (it
+        may adopt a vehicle: the messages after it are looked up again)."""
         if self._all or self._by_type:  # the link's own subscribers (none unless a tool adds one)
-            super().publish(item)
-        view = self.views.get(item.sysid)
-        if view is not None:  # a vehicle served here: one dispatch, no routing
-            view.deliver(item)
-        else:
-            self.fleet.route(self.index, item)
+            super().publish_many(items)
+        views = self.views
+        run: list[Message] = []
+        to: VehicleLink | None = None
+        for item in items:
+            view = views.get(item.sysid)
+            if view is not to or view is None:
+                if run:
+                    assert to is not None  # a run is always some view's
+                    to.deliver_many(run)
+                    run = []
+                to = view
+                if view is None:  # not served here: routed, in order
+                    self.fleet.route(self.index, item)
+                    continue
+            run.append(item)
+        if run:
+            assert to is not None
+            to.deliver_many(run)
 
     def wants(self, msg_type: str) -> bool:
         return super().wants(msg_type) or self.fleet.wants(self.index, msg_type)

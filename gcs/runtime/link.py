@@ -20,7 +20,7 @@ from gcs.mavlink.ascii import SEED000, AsciiAttitudeDecoder, AsciiFormat
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MARKER_V2, Encoder, MAVLinkMessage, mavlink
 from gcs.mavlink.finite import nonfinite_axis, nonfinite_field
-from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.framing import Frame, MavlinkDecoder
 from gcs.mavlink.identity import is_vehicle_heartbeat
 from gcs.mavlink.imu_packets import IMU_PACKET_TYPES, imu_packet
 from gcs.mavlink.signing import Signing
@@ -29,7 +29,7 @@ from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import LinkNote, LinkSnapshot
 from gcs.transport.address import Address, parse_address
-from gcs.transport.pipes import Transport, make_transport
+from gcs.transport.pipes import BatchCallback, DataCallback, Transport, make_transport
 
 #: Baud rates tried by `baud="auto"`, most likely first (telemetry radio, then USB/companion).
 AUTO_BAUDS = (57600, 115200, 921600, 500000, 230400, 38400, 19200, 9600)
@@ -59,20 +59,22 @@ class LinkEvent:
 
 async def keep_open(
     make: Callable[[], Transport],
-    on_data: Callable[[bytes], None],
+    on_data: DataCallback,
     on_event: Callable[[str, str], None],
     on_open: Callable[[Transport | None], None],
     first_backoff: float = 0.5,
     max_backoff: float = 5.0,
+    on_batch: BatchCallback | None = None,
 ) -> None:
     """Open a transport and reopen it whenever it closes, with exponential backoff.
-    Returns when a transport that cannot be reopened (a replayed file) has ended."""
+    Returns when a transport that cannot be reopened (a replayed file) has ended.
+    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes)."""
     backoff = first_backoff
     failing = False
     while True:
         transport = make()
         try:
-            await transport.open(on_data)
+            await transport.open(on_data, on_batch)
         except OSError as exc:
             if not failing:
                 on_event("transport", f"cannot open {transport.address}: {exc}; retrying")
@@ -154,7 +156,9 @@ class Link:
         try:
             if self.address.kind == "serial" and self.baud == "auto":
                 await self._detect_baud()
-            await keep_open(self._make_transport, self._on_data, self._event, self._set_transport)
+            await keep_open(
+                self._make_transport, self._on_data, self._event, self._set_transport, on_batch=self._on_datagrams
+            )
         finally:
             for t in tasks:
                 t.cancel()
@@ -219,21 +223,46 @@ class Link:
 
     # ---- receive path -----------------------------------------------------------------
     def _on_data(self, data: bytes) -> None:
-        """Every intact packet is counted, forwarded and published as bytes; only the types a
-        subscriber asked for by name (and HEARTBEAT, which the link reads) are decoded here (the
-        IMU types only read from their bytes, gcs.mavlink.imu_packets), and those are checked for
-        non-finite values (gcs.mavlink.finite) before anything sees them."""
-        now = time.monotonic()
-        wall = time.time()
-        stats = self.stats
-        stats.bytes_in += len(data)
-        counts = stats.counts
-        signing, outputs, bus, name = self.signing, self.outputs, self.bus, self.name
+        """A chunk of a byte stream (or one datagram): its packets, as `_receive`."""
+        now, wall = time.monotonic(), time.time()
+        self.stats.bytes_in += len(data)
+        self._receive(self.decoder.frames(data, final=self._datagram), now, wall)
+
+    def _on_datagrams(self, datagrams: list[bytes]) -> None:
+        """The datagrams one wake-up of a UDP socket read, as `_receive`, stamped once: the time
+        the station read them, as a stream's chunk is stamped."""
+        now, wall = time.monotonic(), time.time()
+        stats, decoder = self.stats, self.decoder
+        for data in datagrams:
+            stats.bytes_in += len(data)
+        if isinstance(decoder, MavlinkDecoder):
+            frames = decoder.datagram_frames(datagrams)
+        else:  # seed 000-style text in datagrams
+            frames = [frame for data in datagrams for frame in decoder.frames(data, final=True)]
+        self._receive(frames, now, wall)
+
+    def _read_modes(self) -> dict[str, int]:
+        """Message type → how the receive path reads it, as of the bus's subscriptions now."""
         if self._epoch != MessageBus.epoch:  # someone subscribed or left: ask the bus again
             self._epoch = MessageBus.epoch
             self._decoded.clear()
-        decoded = self._decoded
-        for raw, msg_type, sysid, compid in self.decoder.frames(data, final=self._datagram):
+        return self._decoded
+
+    def _receive(self, frames: list[Frame], now: float, wall: float) -> None:
+        """Every intact packet is counted, forwarded and published as bytes; only the types a
+        subscriber asked for by name (and HEARTBEAT, which the link reads) are decoded here (the
+        IMU types only read from their bytes, gcs.mavlink.imu_packets), and those are checked for
+        non-finite values (gcs.mavlink.finite) before anything sees them.
+
+        The messages go to the bus in one call (`MessageBus.publish_many`) up to each HEARTBEAT,
+        which the link reads before publishing it as it did per message: what a state change
+        sets off (a request sent, the recorder's drain before it records the send) sees every
+        message before the heartbeat published, and who reads which type is asked again after."""
+        counts = self.stats.counts
+        signing, outputs, bus, name = self.signing, self.outputs, self.bus, self.name
+        decoded = self._read_modes()
+        pending: list[Message] = []
+        for raw, msg_type, sysid, compid in frames:
             if signing is not None and (why := signing.check(raw, msg_type)) is not None:
                 self._refuse_unsigned(msg_type, why)
                 continue
@@ -255,9 +284,18 @@ class Link:
                     continue
             for out in outputs:
                 out.write(raw, self, sysid)
+            item = Message(raw, msg_type, now, wall, sysid, compid, name, msg, imu)
             if msg_type == "HEARTBEAT":
+                if pending:
+                    bus.publish_many(pending)
+                    pending = []
                 self._on_heartbeat(msg, sysid, compid, now)
-            bus.publish(Message(raw, msg_type, now, wall, sysid, compid, name, msg, imu))
+                bus.publish_many([item])
+                decoded = self._read_modes()
+                continue
+            pending.append(item)
+        if pending:
+            bus.publish_many(pending)
 
     def _reject(self, msg_type: str, field: str) -> None:
         """A message with a non-finite value where the station needs a number goes nowhere;

@@ -15,7 +15,7 @@ import os
 import tty
 
 from gcs.transport.address import Address
-from gcs.transport.pipes import DataCallback, SerialTransport
+from gcs.transport.pipes import BatchCallback, DataCallback, SerialTransport
 
 
 class PtyTransport(SerialTransport):
@@ -32,7 +32,7 @@ class PtyTransport(SerialTransport):
         self._master: int | None = None
         self._slave: int | None = None
 
-    async def open(self, on_data: DataCallback) -> None:
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         if os.path.lexists(self.path) and not os.path.islink(self.path):
             raise OSError(f"{self.path} exists and is not a symlink; not replacing it")
         self._new_closed_future()

@@ -3,12 +3,15 @@
 Every transport has the same small surface, so the link and the simulator never care which one:
 
     await t.open(on_data)   # start delivering received bytes to on_data; OSError if not now
+    await t.open(on_data, on_batch)   # UDP: every datagram one wake-up read, in one on_batch call
     t.write(data)           # never blocks: what cannot be sent now is dropped and counted
     await t.wait_closed()   # returns when the pipe is gone (peer hung up, device vanished)
     t.close()
 
 Received bytes are handed over in the event loop's own callback, without a queue: the link's work
-per chunk is small and bounded, so nothing downstream can make the reader wait.
+per chunk is small and bounded, so nothing downstream can make the reader wait. A reader that
+gives `on_batch` gets what one wake-up read in one call (a UDP socket's datagrams, up to
+UDP_READ_BATCH; a stream's chunk is already one read), so its fixed costs are paid per wake-up.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from gcs.mavlink.tlog import read_tlog_records
 from gcs.transport.address import Address, parse_address
 
 DataCallback = Callable[[bytes], None]
+#: The datagrams one wake-up read, in arrival order (never empty).
+BatchCallback = Callable[[list[bytes]], None]
 
 #: Bytes a TCP peer may leave unread before further writes to it are dropped.
 TCP_WRITE_LIMIT = 1 << 20
@@ -60,7 +65,9 @@ class Transport(ABC):
         self._closed: asyncio.Future[None] | None = None
 
     @abstractmethod
-    async def open(self, on_data: DataCallback) -> None: ...
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
+        """Deliver what is received to on_data, or a wake-up's datagrams to on_batch when given
+        (a transport that reads one chunk per wake-up calls on_data)."""
 
     @abstractmethod
     def write(self, data: bytes) -> None: ...
@@ -105,8 +112,9 @@ class UdpTransport(Transport):
         self._sock: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._on_data: DataCallback | None = None
+        self._on_batch: BatchCallback | None = None
 
-    async def open(self, on_data: DataCallback) -> None:
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
         host, port = self.address.host, self.address.port
         family = socket.AF_INET6 if ":" in host else socket.AF_INET  # "localhost" is 127.0.0.1, as before
@@ -124,7 +132,7 @@ class UdpTransport(Transport):
         except OSError:
             sock.close()
             raise
-        self._sock, self._loop, self._on_data = sock, loop, on_data
+        self._sock, self._loop, self._on_data, self._on_batch = sock, loop, on_data, on_batch
         self._new_closed_future()
         loop.add_reader(sock.fileno(), self._readable)
 
@@ -135,26 +143,40 @@ class UdpTransport(Transport):
         return port
 
     def _readable(self) -> None:
-        """Read up to UDP_READ_BATCH datagrams. The drop count is cumulative, so only the last
-        datagram's is read, and every peer heard in one wake-up is stamped with its time."""
-        on_data, udpin = self._on_data, self.address.kind == "udpin"
+        """Read up to UDP_READ_BATCH datagrams, then hand them over: to on_batch in one call, else
+        one by one to on_data."""
+        datagrams = self._read()
+        if not datagrams:
+            return
+        if self._on_batch is not None:
+            self._on_batch(datagrams)
+            return
+        on_data = self._on_data
         assert on_data is not None  # set by open() before the reader exists
+        for data in datagrams:
+            on_data(data)
+
+    def _read(self) -> list[bytes]:
+        """The datagrams waiting, up to UDP_READ_BATCH. The drop count is cumulative, so only the
+        last datagram's is read, and every peer heard in one wake-up is stamped with its time."""
+        udpin = self.address.kind == "udpin"
+        datagrams: list[bytes] = []
         ancdata: list = []
         heard = None
         try:
             for _ in range(UDP_READ_BATCH):
                 sock = self._sock
                 if sock is None:
-                    return
+                    break
                 try:
                     data, anc, _flags, addr = sock.recvmsg(UDP_MAX_DATAGRAM, _DROPS_CMSG_SPACE)
                 except (BlockingIOError, InterruptedError):
-                    return
+                    break
                 except ConnectionRefusedError:
                     continue  # ICMP "port unreachable" while the peer is not listening yet
                 except OSError:
                     self.close()
-                    return
+                    break
                 ancdata = anc
                 if udpin:
                     if addr != self.peer:
@@ -162,11 +184,12 @@ class UdpTransport(Transport):
                         heard = None
                     if heard is None:
                         heard = self.peers[addr] = self._loop.time() if self._loop is not None else 0.0
-                on_data(data)
+                datagrams.append(data)
         finally:
             for level, kind, payload in ancdata:
                 if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
                     self.kernel_drops = struct.unpack("=I", payload[:4])[0]
+        return datagrams
 
     def write(self, data: bytes) -> None:
         if self._sock is None or self.peer is None:
@@ -230,7 +253,7 @@ class TcpClientTransport(Transport):
         super().__init__(address)
         self._protocol: _StreamProtocol | None = None
 
-    async def open(self, on_data: DataCallback) -> None:
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
         self._new_closed_future()
         _, self._protocol = await loop.create_connection(
@@ -258,7 +281,7 @@ class TcpServerTransport(Transport):
         self._server: asyncio.base_events.Server | None = None
         self.clients: list[_StreamProtocol] = []
 
-    async def open(self, on_data: DataCallback) -> None:
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
         self._new_closed_future()
 
@@ -320,8 +343,7 @@ class SerialTransport(Transport):
         self._port: serial.Serial | None = None
         self._fd: int | None = None
 
-    async def open(self, on_data: DataCallback) -> None:
-
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         self._new_closed_future()
         self._port = open_serial(self.address.path, self.baud)
         self._fd = self._port.fileno()
@@ -384,8 +406,7 @@ class TlogTransport(Transport):
         self.speed = speed
         self._task: asyncio.Task | None = None
 
-    async def open(self, on_data: DataCallback) -> None:
-
+    async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         self._new_closed_future()
         self._records = read_tlog_records(self.address.path)  # OSError if the file is missing
         self._task = asyncio.get_running_loop().create_task(self._play(on_data))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -40,6 +41,21 @@ T, GYRO, ACCEL, MAG, HAS_MAG, ROW = 0, 1, 4, 7, 10, 11
 Q, EULER, VALID, STEPPED, OUT = 0, 4, 7, 8, 9
 _NO_FIELD = (0.0, 0.0, 0.0, 0.0)
 
+#: One IMU sample as its ImuBatch row (the ROW columns above, Python floats): what the live path
+#: builds from an IMU message instead of an ImuSample (gcs.mavlink.sampling.MessageSampler.imu_row),
+#: when all the pipeline needs of it is the row. A plain tuple: one is built per IMU message.
+ImuRow: TypeAlias = tuple[float, ...]
+
+
+def imu_sample_of(row: ImuRow) -> ImuSample:
+    """The ImuSample a row stands for (where a part needs the sample: `feed`, a refusal's reason)."""
+    return ImuSample(
+        row[T],
+        np.array(row[GYRO:ACCEL]),
+        np.array(row[ACCEL:MAG]),
+        np.array(row[MAG:HAS_MAG]) if row[HAS_MAG] else None,
+    )
+
 
 @dataclass(frozen=True, slots=True)
 class ImuBatch:
@@ -49,9 +65,13 @@ class ImuBatch:
     rows: Floats
 
     @classmethod
-    def of(cls, samples: Sequence[ImuSample]) -> ImuBatch:
+    def of(cls, samples: Sequence[ImuSample | ImuRow]) -> ImuBatch:
+        """The table of samples, each an ImuSample or already its row."""
         flat: list[float] = []
         for sample in samples:
+            if isinstance(sample, tuple):
+                flat += sample
+                continue
             flat.append(sample.t)
             flat += sample.gyro.tolist()
             flat += sample.accel.tolist()
