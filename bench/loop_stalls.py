@@ -61,6 +61,7 @@ class Probe:
         self._samples: collections.Counter[str] = collections.Counter()
         self._gc_start = self._gc_cpu = 0.0
         self._threads_at_reset: dict[str, float] = {}
+        self._threads_while_serving: dict[str, float] = {}
         self.heap: dict[str, Any] = {}
         self._modules_at_reset: set[str] = set()
         self._stop = threading.Event()
@@ -114,6 +115,7 @@ class Probe:
 
     def look_at_heap(self, *_: object) -> None:
         """What a full collection walks while serving (SIGUSR2, before the stop releases the frozen)."""
+        self._threads_while_serving = _thread_cpu()  # the recording's writer is gone after the stop
         walked = gc.get_objects()
         self.heap = {
             "frozen": gc.get_freeze_count(),
@@ -165,7 +167,7 @@ class Probe:
             g["cpu_ms"] = round(g["cpu_ms"] + s["cpu_ms"], 1)
             g["max_ms"] = max(g["max_ms"], s["ms"])
         gcs = [ms for _, ms, _ in self.gc_pauses]
-        threads = _thread_cpu()
+        threads = self._threads_while_serving or _thread_cpu()
         return {
             "callbacks": self.callbacks,
             "slow": len(self.slow),

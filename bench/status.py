@@ -29,6 +29,7 @@ import time
 
 from starlette.requests import Request
 
+from bench.loop_trace import LoopTrace
 from bench.sched import thread_sched
 from bench.ws_latency import percentiles
 from gcs.runtime.station import Station, StationConfig, estimation_snapshot
@@ -52,7 +53,7 @@ def cpu_ms_per_call(work, calls: int) -> float:
     return 1000 * (time.thread_time() - started) / calls
 
 
-async def measure() -> dict:
+async def measure(trace: LoopTrace | None = None) -> dict:
     port = free_port()
     station = Station(StationConfig(connect=f"udpin:127.0.0.1:{port}", plan=StreamPlan(imu_hz=400, attitude_hz=50)))
     await station.start()
@@ -103,9 +104,14 @@ async def measure() -> dict:
             str(PAGES), str(POLL_S), str(POLL_FOR_S),
             stdout=subprocess.PIPE,
         )  # fmt: skip
+        if trace is not None:
+            trace.install(asyncio.get_running_loop())
+            trace.recording = True
         loop0, t0 = thread_sched(), time.monotonic()
         pages = json.loads((await client.communicate())[0])
         loop, wall = thread_sched() - loop0, time.monotonic() - t0
+        if trace is not None:
+            trace.uninstall()
         old = cpu_ms_per_call(recompute, max(10, CALLS // 10))
         imu_hz = station.link.stats.rates().get("HIGHRES_IMU", 0.0)
     finally:
@@ -119,10 +125,37 @@ async def measure() -> dict:
         "baseline_ms": round(old, 2),
         "imu_hz": round(imu_hz),
         "server_ms": pages["server_ms"],
+        "requests": pages["requests"],
         "seen_ms": pages["seen_ms"],
         # % of the polling window: the event loop's thread running, and runnable but waiting for a core
         "loop_cpu_wait_pct": [round(100 * loop.cpu_s / wall, 1), round(100 * loop.run_delay_s / wall, 1)],
         "pages_cpu_wait_pct": [round(100 * pages["cpu_s"] / wall, 1), round(100 * pages["run_delay_s"] / wall, 1)],
+    }
+
+
+def traced(slowest: int = 10) -> dict:
+    """The round trip with the event loop traced (bench.loop_trace): where the slowest requests'
+    time went, and the longest callbacks of the window."""
+    trace = LoopTrace()
+    r = asyncio.run(measure(trace))
+    requests = sorted(r["requests"], key=lambda q: q[0] - q[1])
+    spans = trace.spans
+    callbacks = [s for s in spans if s.kind != "select"]
+    return {
+        "server_p50_p99_max_ms": percentiles(r["server_ms"]),
+        "loop_cpu_wait_pct": r["loop_cpu_wait_pct"],
+        "slowest": [trace.explain(sent, answered, port) for sent, answered, port in requests[:slowest]],
+        "median_request": trace.explain(*requests[len(requests) // 2]),
+        "gc_passes_n_p50_max_ms": {
+            kind: [len(ms), *percentiles(ms)[::2]]
+            for kind in sorted({s.what for s in spans if s.kind == "gc"})
+            if (ms := [1000 * (s.end - s.start) for s in spans if s.what == kind])
+        },
+        "longest_callbacks": [
+            {"ms": round(1000 * (s.end - s.start), 2), "cpu_ms": round(1000 * s.cpu, 2), "what": s.what}
+            for s in sorted(callbacks, key=lambda s: s.start - s.end)[:15]
+        ],
+        "load_avg_1m": round(os.getloadavg()[0], 2),
     }
 
 
@@ -162,4 +195,7 @@ def main() -> list[dict]:
 
 
 if __name__ == "__main__":
-    print(main())
+    if sys.argv[1:] == ["--trace"]:
+        print(json.dumps(traced(), indent=1))
+    else:
+        print(main())

@@ -7,7 +7,8 @@ thread got to it (adding the polling process's own wait for a core and for the G
 
 One thread per page in one process, plain sockets. A page has one request outstanding at a
 time, so no later answer shares the kernel time of an earlier one. At the end one JSON object:
-`server_ms` and `seen_ms` (every request's figure, ms), the process's CPU and run-queue wait (s).
+`server_ms` and `seen_ms` (every request's figure, ms), `requests` (each one's send and answer
+times and the page's port, for bench.loop_trace), the process's CPU and run-queue wait (s).
 """
 
 from __future__ import annotations
@@ -47,18 +48,17 @@ def get(sock: socket.socket, request: bytes, offset: float) -> Timing:
     return sent, read if kernel is None else kernel - offset, read
 
 
-def page(
-    url: str, period: float, end: float, offset: float, out: list[tuple[float, float, float]], cpu: list[Sched]
-) -> None:
+def page(url: str, period: float, end: float, offset: float, out: list[tuple[Timing, int]], cpu: list[Sched]) -> None:
     parts = urllib.parse.urlsplit(url)
     sock = socket.create_connection((parts.hostname, parts.port))
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
     request = f"GET {parts.path} HTTP/1.1\r\nHost: {parts.netloc}\r\n\r\n".encode()
+    port = sock.getsockname()[1]
     start = thread_sched()
     while time.monotonic() < end:
         sent, kernel, read = get(sock, request, offset)
-        out.append((sent, kernel, read))
+        out.append(((sent, kernel, read), port))
         time.sleep(max(0.0, period - (time.monotonic() - sent)))
     cpu.append(thread_sched() - start)
     sock.close()
@@ -67,7 +67,7 @@ def page(
 def main(url: str, pages: int, period: float, seconds: float) -> None:
     offset = realtime_offset()
     end = time.monotonic() + seconds
-    got: list[Timing] = []
+    got: list[tuple[Timing, int]] = []
     cpu: list[Sched] = []
     threads = [threading.Thread(target=page, args=(url, period, end, offset, got, cpu)) for _ in range(pages)]
     for t in threads:
@@ -77,8 +77,10 @@ def main(url: str, pages: int, period: float, seconds: float) -> None:
     print(
         json.dumps(
             {
-                "server_ms": [1000 * (kernel - sent) for sent, kernel, _ in got],
-                "seen_ms": [1000 * (read - sent) for sent, _, read in got],
+                "server_ms": [1000 * (kernel - sent) for (sent, kernel, _), _ in got],
+                "seen_ms": [1000 * (read - sent) for (sent, _, read), _ in got],
+                # every request: sent, the answer in the socket (CLOCK_MONOTONIC s), the page's port
+                "requests": [(sent, kernel, port) for (sent, kernel, _), port in got],
                 "cpu_s": sum(s.cpu_s for s in cpu),
                 "run_delay_s": sum(s.run_delay_s for s in cpu),
             }

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fastapi import HTTPException
 from fastapi.testclient import TestClient
 
 from gcs.core.estimation import AttitudePoint
@@ -31,7 +32,7 @@ from gcs.runtime.snapshots import (
 )
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.app import create_app
-from gcs.server.deps import TOKEN_HEADER, token_id
+from gcs.server.deps import TOKEN_HEADER, get_station, token_id
 from gcs.server.guard import MAX_BODY
 from gcs.server.ratelimit import MAX_CLIENTS, RateLimit
 
@@ -105,6 +106,7 @@ class FakeStation:
         self.events = EventLog()
         self.params = None
         self.points: Signal[[list[AttitudePoint]]] = Signal()
+        self.published: Signal[[StationSnapshot]] = Signal()
         self.estimators = {name: registry.create(name) for name in ("dcm", "kf")}
         self.snapshot_reads = 0
         self._snapshot = canned_snapshot()
@@ -184,6 +186,24 @@ def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation)
     failed = [p for p in status["parts"] if p["state"] == "failed"]
     assert failed == [{"name": "estimation", "state": "failed", "error": "RuntimeError: boom", "since": 1.0}]
     assert status["authorised"] is True and status["clients"] == []
+
+
+def test_status_answered_before_routing_as_the_route_answers(api: TestClient, station: FakeStation):
+    """GET /api/status skips FastAPI's router and dependencies (gcs.server.status_answer), and
+    gives what the route gives: the route still answers a vehicle's path."""
+    routed = api.get(f"/api/vehicles/{station.snapshot.vehicle.sysid}/status")
+    assert routed.status_code == 200
+    api.app.dependency_overrides[get_station] = refuse  # type: ignore[attr-defined]
+    assert api.get(f"/api/vehicles/{station.snapshot.vehicle.sysid}/status").status_code == 503
+    answered = api.get("/api/status")  # the override is never reached: no dependency is solved
+    assert answered.status_code == 200
+    assert answered.content == routed.content
+    assert answered.headers == routed.headers  # content type and length, the guard's security headers
+    assert api.get("/api/status", headers={"host": "evil.example"}).status_code == 403  # the guard first
+
+
+async def refuse() -> None:
+    raise HTTPException(503, "the router ran")
 
 
 def test_estimates_report_errors_against_onboard_and_truth_only(api: TestClient):

@@ -29,6 +29,7 @@ class StationFacade(Protocol):
     events: EventLog
     params: ParamClient
     points: Signal[[list[AttitudePoint]]]
+    published: Signal[[StationSnapshot]]
     protocol: LiveProtocol | None
     onboard_logs: LogDownloader
 

@@ -23,6 +23,7 @@ from gcs.server.guard import Refusal, RequestGuard
 from gcs.server.live import LiveHub
 from gcs.server.ratelimit import default_limits
 from gcs.server.routers import ROUTERS
+from gcs.server.status_answer import StatusAnswer
 from gcs.server.status_body import StatusBodies
 from gcs.server.vehicles import serve_vehicles
 
@@ -61,17 +62,24 @@ def create_app(
     app.state.viser_port = viser_port
     app.state.status_bodies = StatusBodies()
     app.add_exception_handler(RequestValidationError, refuse_invalid)
+    app.add_middleware(StatusAnswer)  # inside the guard: the later middleware is the outer one
     app.add_middleware(
         RequestGuard,
         bound_host=bound_host,
         allow_origins=allow_origins,
         on_refused=lambda r: record_refusal(station, r),
     )
-    follow(station, hub)
+    bodies: StatusBodies = app.state.status_bodies
+
+    def follow_station(station: StationFacade, hub: LiveHub) -> None:
+        follow(station, hub)
+        station.published.connect(lambda snap: bodies.published(station, snap))
+
+    follow_station(station, hub)
     routers = [importlib.import_module(module).router for module in ROUTERS]
     for each in routers:
         app.include_router(each)
-    serve_vehicles(app, routers, fleet, hub, follow)
+    serve_vehicles(app, routers, fleet, hub, follow_station)
     app.add_api_route("/colors.js", colors_js, include_in_schema=False)
     app.mount("/vendor/uplot", StaticFiles(directory=assets.uplot), name="uplot")
     app.mount("/", StaticFiles(directory=assets.page, html=True), name="page")
