@@ -30,7 +30,9 @@ BATCH = 16
 #: per tick. The dashboard sets the tick to its live hub's frame interval (`pace`), so a sample
 #: waits no longer than it waited for its frame: the frame goes out right after the tick's points
 #: arrive. This is the tick without a dashboard (the hub's longest interval). A batch already
-#: waiting (BATCH or more) is estimated at once: the estimation is behind.
+#: waiting (BATCH or more) is estimated at once: the estimation is behind. On a UDP link the
+#: dashboard paces the reads instead (`Link.pace_reads`): each read is a turn, and no timer of the
+#: estimation's own adds a wake-up of the loop to the link's.
 TICK = 0.010
 
 
@@ -87,7 +89,8 @@ class LiveEstimation:
                 delay = next_tick - loop.time()
                 if delay > 0 and len(sub.queue) < BATCH:  # the rest of the tick's messages come too
                     await asyncio.sleep(delay)
-                next_tick = loop.time() + self.tick()
+                # a paced link's read is the tick: it brings the interval's messages at once
+                next_tick = loop.time() + (0.0 if self.link.reads_paced else self.tick())
                 self._feed(sub.drain(BATCH))
                 if len(sub.queue):  # behind: let the link read in between (its queue takes the backlog)
                     await asyncio.sleep(0)

@@ -139,6 +139,7 @@ class Link:
         if signing is not None:
             signing.sign_with(self._encoder)
         self._transport: Transport | None = None
+        self._read_interval: Callable[[], float] | None = None  # `pace_reads`: for every transport opened
         self._closed_drops = 0  # kernel drops of transports closed since
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
         #: (old, new) on every state change, in the event loop.
@@ -174,6 +175,22 @@ class Link:
     @property
     def is_open(self) -> bool:
         return self._transport is not None
+
+    def pace_reads(self, interval: Callable[[], float]) -> bool:
+        """Read the vehicle's datagrams at most once per interval() s (gcs.transport.pipes): True
+        on a UDP link, the only transport whose wake-ups the station can space out."""
+        if self.address.kind not in ("udpin", "udpout"):
+            return False
+        self._read_interval = interval
+        if self._transport is not None:
+            self._transport.pace_reads(interval)
+        return True
+
+    @property
+    def reads_paced(self) -> bool:
+        """The vehicle's datagrams come at most once per interval: a reader of this link's
+        messages gets them in batches already."""
+        return self._read_interval is not None
 
     def send(self, msg: MAVLinkMessage, mavlink1: bool | None = None) -> None:
         """Send a message from the ground station, in the protocol version the vehicle speaks
@@ -380,6 +397,8 @@ class Link:
         if self._transport is not None:  # closed: its drops stay counted
             self._closed_drops += self._transport.kernel_drops
         self._transport = transport
+        if transport is not None and self._read_interval is not None:
+            transport.pace_reads(self._read_interval)
 
     def _set_state(self, new: LinkState) -> None:
         old, self.state = self.state, new

@@ -265,7 +265,10 @@ class Station:
 
     def pace_points(self, interval: Callable[[], float]) -> None:
         """The live points are wanted at most every interval() s (the dashboard's frame interval):
-        the estimation gathers what arrives meanwhile into one turn (runtime.estimation.TICK)."""
+        a UDP link is read that often (`Link.pace_reads`), and the estimation takes each read in
+        one turn; on any other link it gathers what arrives within the interval into one turn
+        (runtime.estimation.TICK)."""
+        self.link.pace_reads(interval)
         if self.estimation is not None:
             self.estimation.pace(interval)
 

@@ -10,6 +10,7 @@ addressed to the vehicle and in the MAVLink version the vehicle speaks.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import ClassVar
 
 from gcs.mavlink.dialect import MAVLinkMessage
@@ -38,6 +39,18 @@ class VehicleLink(Link):
         self.link = link
         self.target_system, self.target_component = sysid, compid
         self._show(link)
+        if self._read_interval is not None:
+            link.pace_reads(self._read_interval)
+
+    def pace_reads(self, interval: Callable[[], float]) -> bool:
+        """Pace the reads of the link this vehicle is heard on (shared with any other vehicle
+        there: the last pace asked for holds)."""
+        self._read_interval = interval
+        return self._shown.pace_reads(interval)
+
+    @property
+    def reads_paced(self) -> bool:
+        return self._shown.reads_paced
 
     def _show(self, link: Link) -> None:
         """Report the link's address, framing counters, rejections and signing as this view's,

@@ -69,6 +69,11 @@ class Transport(ABC):
         """Deliver what is received to on_data, or a wake-up's datagrams to on_batch when given
         (a transport that reads one chunk per wake-up calls on_data)."""
 
+    def pace_reads(self, interval: Callable[[], float]) -> bool:
+        """Read at most once per interval() s while not behind, if this transport can (a UDP
+        socket): True if it does."""
+        return False
+
     @abstractmethod
     def write(self, data: bytes) -> None: ...
 
@@ -99,7 +104,11 @@ class UdpTransport(Transport):
     missing heartbeats and resumes as soon as packets return.
 
     The socket is read with recvmsg from the loop's reader callback (asyncio's datagram
-    transport hides ancillary data), up to UDP_READ_BATCH datagrams per wake-up. On Linux
+    transport hides ancillary data), up to UDP_READ_BATCH datagrams per wake-up. Paced
+    (`pace_reads`), a wake-up that read fewer than that stops watching the socket for the interval,
+    then reads what came meanwhile at once: a vehicle sending each message in its own datagram
+    would otherwise wake the loop up to a thousand times a second, where the estimation and the
+    dashboard take what arrived once per frame anyway. On Linux
     SO_RXQ_OVFL makes every datagram carry the socket's cumulative count of datagrams the
     kernel dropped for want of receive buffer: `kernel_drops`, the loss a flood or a starved
     loop causes before any sequence number can show it.
@@ -113,6 +122,8 @@ class UdpTransport(Transport):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._on_data: DataCallback | None = None
         self._on_batch: BatchCallback | None = None
+        self._read_interval: Callable[[], float] | None = None
+        self._resume: asyncio.TimerHandle | None = None
 
     async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
@@ -142,12 +153,18 @@ class UdpTransport(Transport):
         port: int = self._sock.getsockname()[1]
         return port
 
+    def pace_reads(self, interval: Callable[[], float]) -> bool:
+        self._read_interval = interval
+        return True
+
     def _readable(self) -> None:
         """Read up to UDP_READ_BATCH datagrams, then hand them over: to on_batch in one call, else
         one by one to on_data."""
         datagrams = self._read()
         if not datagrams:
             return
+        if self._read_interval is not None and len(datagrams) < UDP_READ_BATCH:
+            self._hold(self._read_interval())
         if self._on_batch is not None:
             self._on_batch(datagrams)
             return
@@ -155,6 +172,21 @@ class UdpTransport(Transport):
         assert on_data is not None  # set by open() before the reader exists
         for data in datagrams:
             on_data(data)
+
+    def _hold(self, seconds: float) -> None:
+        """Stop watching the socket for `seconds`; what arrives meanwhile waits in its buffer."""
+        if self._sock is None or self._loop is None:
+            return
+        self._loop.remove_reader(self._sock.fileno())
+        self._resume = self._loop.call_later(seconds, self._watch)
+
+    def _watch(self) -> None:
+        """Watch the socket again, and read what it holds now."""
+        self._resume = None
+        if self._sock is None or self._loop is None:
+            return
+        self._loop.add_reader(self._sock.fileno(), self._readable)
+        self._readable()
 
     def _read(self) -> list[bytes]:
         """The datagrams waiting, up to UDP_READ_BATCH. The drop count is cumulative, so only the
@@ -212,6 +244,9 @@ class UdpTransport(Transport):
         return list(self.peers)
 
     def close(self) -> None:
+        if self._resume is not None:
+            self._resume.cancel()
+            self._resume = None
         if self._sock is not None:
             if self._loop is not None and not self._loop.is_closed():
                 self._loop.remove_reader(self._sock.fileno())

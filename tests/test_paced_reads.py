@@ -1,0 +1,95 @@
+"""Paced reads: a UDP link read at most once per interval (the dashboard's frame interval), so a
+vehicle sending each message in its own datagram wakes the station's loop once per frame, not
+once per message; a read that fills a whole batch (a flood) is not held. Real sockets on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+from gcs.runtime.link import Link
+from gcs.transport.address import Address
+from gcs.transport.pipes import UDP_READ_BATCH, UdpTransport
+
+
+class Batches:
+    """What a transport hands over, call by call, with the loop time of each call."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[float, list[bytes]]] = []
+        self.changed = asyncio.Event()
+
+    def __call__(self, datagrams: list[bytes]) -> None:
+        self.calls.append((asyncio.get_running_loop().time(), list(datagrams)))
+        self.changed.set()
+
+    async def until(self, count: int, timeout: float) -> None:
+        """Until `count` datagrams have come, at most `timeout` s."""
+        async with asyncio.timeout(timeout):
+            while sum(len(d) for _, d in self.calls) < count:
+                self.changed.clear()
+                await self.changed.wait()
+
+
+def send(port: int, datagrams: list[bytes]) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        for datagram in datagrams:
+            sender.sendto(datagram, ("127.0.0.1", port))
+
+
+def test_a_paced_socket_holds_what_comes_within_the_interval_for_one_read(udp_port):
+    """The first datagram is read at once; what comes after that read waits for the interval to
+    end and is then handed over in one call, in order."""
+    interval = 0.5
+
+    async def go() -> list[tuple[float, list[bytes]]]:
+        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
+        assert transport.pace_reads(lambda: interval)
+        batches = Batches()
+        await transport.open(lambda data: None, batches)
+        try:
+            send(udp_port, [b"first"])
+            await batches.until(1, 20)
+            send(udp_port, [b"a", b"b", b"c"])  # while the socket is held
+            await batches.until(4, 20)
+        finally:
+            transport.close()
+        return batches.calls
+
+    calls = asyncio.run(go())
+    assert [d for _, d in calls] == [[b"first"], [b"a", b"b", b"c"]]
+    (first, _), (second, _) = calls
+    assert second - first >= interval - 0.002  # held for the interval (timers fire at 1 ms steps)
+
+
+def test_a_full_read_is_not_held(udp_port):
+    """A flood (a whole UDP_READ_BATCH in one read) is read again at once, not after the interval."""
+    total = UDP_READ_BATCH + 40
+
+    async def go() -> list[tuple[float, list[bytes]]]:
+        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
+        transport.pace_reads(lambda: 60.0)
+        batches = Batches()
+        await transport.open(lambda data: None, batches)
+        try:
+            send(udp_port, [k.to_bytes(2, "big") for k in range(total)])  # queued before the loop reads
+            await batches.until(total, 30)  # far sooner than the 60 s interval
+        finally:
+            transport.close()
+        return batches.calls
+
+    calls = asyncio.run(go())
+    assert [d for _, call in calls for d in call] == [k.to_bytes(2, "big") for k in range(total)]
+    assert len(calls[0][1]) == UDP_READ_BATCH
+
+
+def test_only_a_udp_link_is_paced():
+    """TCP and serial deliver a chunk per read already: their links say they are not paced, and a
+    reader (the live estimation) keeps its own tick there."""
+    udp = Link("udpin:127.0.0.1:14550")
+    assert not udp.reads_paced
+    assert udp.pace_reads(lambda: 0.01) and udp.reads_paced
+    for address in ("tcp:127.0.0.1:5760", "/dev/ttyUSB0"):
+        stream = Link(address)
+        assert not stream.pace_reads(lambda: 0.01)
+        assert not stream.reads_paced
