@@ -41,12 +41,9 @@ UINT16_UNKNOWN = 65535
 def _imu_from_scaled_axes(t: float, axes: tuple[float, ...], source: str) -> ImuSample:
     """RAW_IMU and SCALED_IMU* share field names and units (ArduPilot fills RAW_IMU scaled);
     `axes`: their `IMU_AXES`."""
-    xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag = axes
-    gyro = np.array([mrad_to_rads(xgyro), mrad_to_rads(ygyro), mrad_to_rads(zgyro)])
-    accel = np.array([mg_to_mps2(xacc), mg_to_mps2(yacc), mg_to_mps2(zacc)])
-    field = np.array([mgauss_to_gauss(xmag), mgauss_to_gauss(ymag), mgauss_to_gauss(zmag)])
-    mag = field if field.any() else None  # an all-zero field means "no compass", not a zero field
-    return ImuSample(t, gyro, accel, mag, source)
+    row = _row_from_scaled_axes(t, axes)
+    mag = np.array(row[7:10]) if row[10] else None
+    return ImuSample(t, np.array(row[1:4]), np.array(row[4:7]), mag, source)
 
 
 def _imu_from_highres_axes(t: float, axes: tuple[float, ...]) -> ImuSample:
@@ -56,12 +53,13 @@ def _imu_from_highres_axes(t: float, axes: tuple[float, ...]) -> ImuSample:
 
 
 def _row_from_scaled_axes(t: float, axes: tuple[float, ...]) -> ImuRow:
-    """`_imu_from_scaled_axes` as its ImuBatch row (the same conversions, no arrays)."""
+    """RAW_IMU / SCALED_IMU* axes as their ImuBatch row (SI units, no arrays): the one place their
+    units are converted (`_imu_from_scaled_axes` builds its ImuSample from it)."""
     xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag = axes
     gyro = mrad_to_rads(xgyro), mrad_to_rads(ygyro), mrad_to_rads(zgyro)
     accel = mg_to_mps2(xacc), mg_to_mps2(yacc), mg_to_mps2(zacc)
     field = mgauss_to_gauss(xmag), mgauss_to_gauss(ymag), mgauss_to_gauss(zmag)
-    if field[0] or field[1] or field[2]:  # as `field.any()`: an all-zero field is no compass
+    if field[0] or field[1] or field[2]:  # an all-zero field means "no compass", not a zero field
         return (t, *gyro, *accel, *field, 1.0)
     return (t, *gyro, *accel, 0.0, 0.0, 0.0, 0.0)
 
