@@ -38,8 +38,9 @@ def send(port: int, datagrams: list[bytes]) -> None:
 
 
 def test_a_paced_socket_holds_what_comes_within_the_interval_for_one_read(udp_port):
-    """The first datagram is read at once; what comes after that read waits for the interval to
-    end and is then handed over in one call, in order."""
+    """Datagrams that come closer than two intervals apart: the second is read at once (the socket
+    is watched), what comes after that read waits for the interval to end and is then handed over
+    in one call, in order."""
     interval = 0.5
 
     async def go() -> list[tuple[float, list[bytes]]]:
@@ -48,18 +49,43 @@ def test_a_paced_socket_holds_what_comes_within_the_interval_for_one_read(udp_po
         batches = Batches()
         await transport.open(lambda data: None, batches)
         try:
-            send(udp_port, [b"first"])
+            send(udp_port, [b"zero"])
             await batches.until(1, 20)
+            send(udp_port, [b"first"])
+            await batches.until(2, 20)
             send(udp_port, [b"a", b"b", b"c"])  # while the socket is held
-            await batches.until(4, 20)
+            await batches.until(5, 20)
         finally:
             transport.close()
         return batches.calls
 
     calls = asyncio.run(go())
-    assert [d for _, d in calls] == [[b"first"], [b"a", b"b", b"c"]]
-    (first, _), (second, _) = calls
+    assert [d for _, d in calls] == [[b"zero"], [b"first"], [b"a", b"b", b"c"]]
+    (zero, _), (first, _), (second, _) = calls
+    assert first - zero < 2 * interval  # the case tested: a stream denser than two intervals
     assert second - first >= interval - 0.002  # held for the interval (timers fire at 1 ms steps)
+
+
+def test_a_datagram_after_a_quiet_spell_starts_no_hold(udp_port):
+    """The first datagram after two intervals without any (here: the first ever) is read and the
+    socket kept watched: the next one is read as it comes, not after the (60 s) interval. A slow
+    stream costs the loop one wake-up per datagram, not two."""
+
+    async def go() -> list[tuple[float, list[bytes]]]:
+        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
+        transport.pace_reads(lambda: 60.0)
+        batches = Batches()
+        await transport.open(lambda data: None, batches)
+        try:
+            send(udp_port, [b"alone"])
+            await batches.until(1, 20)
+            send(udp_port, [b"next"])
+            await batches.until(2, 20)  # far sooner than the 60 s interval
+        finally:
+            transport.close()
+        return batches.calls
+
+    assert [d for _, d in asyncio.run(go())] == [[b"alone"], [b"next"]]
 
 
 def test_a_full_read_is_not_held(udp_port):
