@@ -17,6 +17,7 @@ from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
+from gcs.server.uvicorn_server import DashboardUvicorn
 from gcs.sessions.workbench import warm_up
 
 if TYPE_CHECKING:
@@ -105,7 +106,7 @@ class DashboardServer:
         config = uvicorn.Config(
             app, log_level="warning", ws=self.ws_protocol, ws_ping_interval=None, ws_per_message_deflate=False
         )
-        self._server = uvicorn.Server(config)
+        self._server = DashboardUvicorn(config)
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
         while not self._server.started:
             if self._tasks[0].done():
