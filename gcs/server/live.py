@@ -6,7 +6,7 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   opened now fills its window at once (`GET /api/history`: every sample, or min/max per plot column
   for a long window, with the estimator errors computed as the page does) and memory never grows;
 * the **pending frame**: flushed in the loop's next turn when the last flush is at least
-  `flush_interval()` old, else when it will be; encoded once (binary float arrays,
+  half a `flush_interval()` old (`FLUSH_GAP`), else when it will be; encoded once (binary float arrays,
   `gcs.server.wire`), the same bytes for every client, and written to each client in the
   flush's own turn (`ClientFeed`: no task woken per client per frame) unless a send to it is
   still waiting, when it joins that client's bounded queue (`client_max_frames`). A client that
@@ -16,12 +16,12 @@ The interval is the shortest that keeps the fan-out within `sends_per_s` (each s
 client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`, and every frame costs the
 live estimation a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one or two
 viewers, 2 ms more for each further one, 10 ms from 5 on (100 frames/s: more than a page draws).
-Points that come more often than that wait half an interval on average, and fewer viewers wait
-less. With 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per
-1000 msg/s (four pairs, docs/benchmarks.md). The
-live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
-its points come in one batch per interval and go out right after it. Figures:
-docs/benchmarks.md; data flow: docs/design.md
+Points that come sooner (a backlog's turns, back to back) wait for the gap, up to half an
+interval, so frames then come at most twice per interval; fewer viewers wait less. With 5 pages,
+10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s (four
+pairs, docs/benchmarks.md). The live estimation's tick follows this interval (the dashboard paces
+it: `Station.pace_points`), so its points come in one batch per interval and go out right after
+it. Figures: docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations
@@ -48,6 +48,11 @@ REBOOT_JUMP = 1.0
 #: References an estimator's error history is computed against (as the page's error plots).
 ERROR_REFERENCES = ("onboard", "truth")
 _SOURCE = operator.attrgetter("source")
+#: A frame goes out once this fraction of `flush_interval()` has passed since the last. The points
+#: come paced by the interval already (the link's paced reads, or the estimation's tick), so the
+#: hub's own gap only has to outlast a turn that comes a little early: waiting out the whole
+#: interval set a timer (a wake-up of its own, and 0.2-8 ms more latency) for 2 frames in 3.
+FLUSH_GAP = 0.5
 #: A ring takes its gathered samples into its arrays once it holds this many.
 SETTLE_EVERY = 256
 
@@ -308,7 +313,7 @@ class LiveHub:
         self._pending_n += len(points)
         if self._flush_handle is None:
             loop = asyncio.get_running_loop()
-            delay = self._last_flush + self.flush_interval() - now
+            delay = self._last_flush + FLUSH_GAP * self.flush_interval() - now
             self._flush_handle = loop.call_later(delay, self._flush) if delay > 0 else loop.call_soon(self._flush)
 
     def broadcast(self, message: dict) -> None:
