@@ -3,10 +3,13 @@ MAVProxy when it is installed) on the same stream, in one run.
 
 Stream (bench.serve_cpu sender, its own process, over UDP to 127.0.0.1): PX4-like, HIGHRES_IMU
 400 : ATTITUDE 100 : GPS_RAW_INT 5 : HEARTBEAT 1, scaled to the total rate asked for (vehicle
-time advances at the scaled rate too), paced every 5 ms.
+time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YAW_RATE (until
+2026-12-04's sixth session it stood still, and the 3-D view had nothing to draw).
 - ours: `gcs serve` (3 estimators, recording to a temporary folder, the 3-D view) with 5 pages'
-  traffic: 5 clients polling `GET /api/status` once a second and 5 `/ws/live` WebSocket clients
-  (bench.ws_clients), both in their own processes.
+  traffic: 5 clients polling `GET /api/status` once a second, 5 `/ws/live` WebSocket clients
+  (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D view on viser's WebSocket
+  (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures before 2026-12-04's sixth
+  session did), each kind in its own process.
 - baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
 - baseline `MAVProxy` (`mavproxy.py` from $GCS_BENCH_MAVPROXY, else PATH; not a dependency of
   gcs: `python -m venv /tmp/mavproxy-venv && /tmp/mavproxy-venv/bin/pip install MAVProxy`):
@@ -20,6 +23,7 @@ highest rate of RATES at which the receiver counted every packet sent.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -43,19 +47,30 @@ CPU_RATE = 1_000
 #: alternating rounds of the CPU figures (GCS_BENCH_ROUNDS)
 ROUNDS = int(os.environ.get("GCS_BENCH_ROUNDS", "3"))
 PAGES = 5
+#: each page's 3-D view too (a real page's iframe); GCS_BENCH_3D=0: the pages' plots and status only
+VIEWS_3D = os.environ.get("GCS_BENCH_3D", "1") != "0"
 MIX = (("HIGHRES_IMU", 400), ("ATTITUDE", 100), ("GPS_RAW_INT", 5), ("HEARTBEAT", 1))
+#: rad/s the bench vehicle turns about its vertical axis
+YAW_RATE = 0.5
 
 
 def stream_message(name: str, us: int) -> Any:
-    """One message of the mix at vehicle time `us` (µs): a still vehicle's figures."""
+    """One message of the mix at vehicle time `us` (µs): a level vehicle turning at YAW_RATE, its
+    gyro, accelerometer, magnetometer and attitude agreeing (a still one left the 3-D view
+    nothing to draw, and the estimators' outputs never moved)."""
     from gcs.mavlink.dialect import mavlink
 
-    if name == "HIGHRES_IMU":
+    yaw = 0.3 + YAW_RATE * us / 1e6
+    if name == "HIGHRES_IMU":  # the earth field (0.21, 0.02, 0.42) gauss seen from the turned body
+        c, s = math.cos(yaw), math.sin(yaw)
+        mag_x, mag_y = c * 0.21 + s * 0.02, -s * 0.21 + c * 0.02
         return mavlink.MAVLink_highres_imu_message(
-            us, 0.05, -0.03, -9.8, 0.01, -0.02, 0.005, 0.21, 0.02, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
+            us, 0.05, -0.03, -9.8, 0.01, -0.02, YAW_RATE, mag_x, mag_y, 0.42, 1000.0, 0.0, 0.0, 25.0, 0x1FFF, 0
         )
     if name == "ATTITUDE":
-        return mavlink.MAVLink_attitude_message(us // 1000, 0.01, -0.02, 0.3, 0.01, -0.02, 0.005)
+        return mavlink.MAVLink_attitude_message(
+            us // 1000, 0.01, -0.02, math.remainder(yaw, math.tau), 0.01, -0.02, YAW_RATE
+        )
     if name == "GPS_RAW_INT":
         return mavlink.MAVLink_gps_raw_int_message(us, 3, 523000000, 134000000, 50000, 100, 100, 500, 9000, 12)
     return mavlink.MAVLink_heartbeat_message(2, 12, 81, 0, 4, 3)
@@ -183,6 +198,14 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
                 stdout=subprocess.DEVNULL,
             )
         )
+        if VIEWS_3D:
+            viser_url = f"ws://127.0.0.1:{http_json(f'{base}/api/status')['viser_port']}"
+            helpers.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", "bench.viser_clients", viser_url, str(PAGES), str(seconds)],
+                    stdout=subprocess.DEVNULL,
+                )
+            )
         sender = run_sender(port, rate, seconds)
         result = measure_cpu(proc, sender, seconds) if measure else {}
         sent = int(sender.communicate()[0])
@@ -268,7 +291,8 @@ def main() -> list[dict]:
 
     rows = [
         {
-            "benchmark": f"serve CPU per 1000 msg/s ({PAGES} pages: status polls + /ws/live)",
+            "benchmark": f"serve CPU per 1000 msg/s ({PAGES} pages: status polls + /ws/live"
+            + (" + 3-D view)" if VIEWS_3D else ")"),
             "baseline": "bare pymavlink receive loop",
             "rounds": ROUNDS,
             "baseline_core_pct": pct(cpu["pymavlink"]),

@@ -14,7 +14,7 @@ import pytest
 from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process, wait_for
 from playwright.async_api import async_playwright
 
-from gcs.server.wire import wire_time
+from gcs.server.wire import wire_times
 
 SPEED = 1.0  # real time: at 2x the station (on the test's own loop) starved the page on a loaded machine
 SESSION_S = 60.0
@@ -52,7 +52,7 @@ START = time.monotonic()
 def server_count(hub, source: str, t0: float, t1: float) -> int:
     t, _ = hub.store[source].ordered()
     # as on the wire, which is where the page's t0 and t1 come from (a sample may sit on them)
-    t = np.array([wire_time(x) for x in t.tolist()])
+    t = np.array(wire_times(t.tolist()))
     return int(np.count_nonzero((t >= t0) & (t <= t1 + 1e-9)))  # as the page's Series.count
 
 

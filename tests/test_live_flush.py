@@ -60,6 +60,25 @@ def test_data_arriving_within_the_interval_is_held_and_sent_in_one_frame():
     assert second.points["onboard"][0] == (1.005, 1.01) and second.points["dcm"][0] == (1.0,)
 
 
+def test_a_turn_that_comes_a_little_early_goes_out_at_once_and_one_much_sooner_waits():
+    """The points come paced by the interval already: a turn more than half an interval after the
+    last frame is not held for the rest of it (a timer, and latency); one sooner is."""
+
+    async def run(elapsed: float) -> int:
+        hub = LiveHub(seconds=10, frame_interval=3600.0, max_frame_interval=3600.0)
+        hub.connect("test")
+        hub.on_points([point(1.0)])
+        await asyncio.sleep(0)
+        hub._last_flush -= elapsed * 3600.0  # as if that much of the interval had passed since
+        hub.on_points([point(1.01)])
+        await asyncio.sleep(0)
+        return hub.frames_out
+
+    assert asyncio.run(run(0.9)) == 2
+    assert asyncio.run(run(0.6)) == 2
+    assert asyncio.run(run(0.4)) == 1
+
+
 def test_the_interval_keeps_the_fan_out_within_its_send_budget_up_to_the_longest():
     hub = LiveHub(seconds=10, frame_interval=0.004, sends_per_s=1000, max_frame_interval=0.010)
     assert hub.flush_interval() == 0.004

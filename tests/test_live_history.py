@@ -35,15 +35,31 @@ def test_errors_interpolate_the_estimator_the_short_way_round():
     assert np.allclose(e[:, 2], [-1.0, 0.0, 2.0])  # 178 → 181 (= −179) → 184 (= −176)
 
 
+def zeros(n: int) -> list[float]:
+    return [0.0] * n
+
+
 def test_history_serves_only_the_current_boot():
     ring = SeriesRing(1000)
-    for k in range(100):
-        ring.append(k * 0.1, 0, 0, 0)
-    ring.append(9.95, 0, 0, 0)  # out of order by 50 ms: jitter, not a reboot
+    ring.extend([k * 0.1 for k in range(100)], zeros(100), zeros(100), zeros(100))
+    ring.extend([9.95], [0.0], [0.0], [0.0])  # out of order by 50 ms: jitter, not a reboot
     assert len(ring.ordered()[0]) == 101
-    for k in range(20):
-        ring.append(k * 0.1, 1, 1, 1)  # the clock back to 0: a reboot
+    # in one batch: a last sample of the old boot, then the clock back to 0 (a reboot)
+    t = [10.0] + [k * 0.1 for k in range(20)]
+    ring.extend(t, [0.0] + [1.0] * 20, [0.0] + [1.0] * 20, [0.0] + [1.0] * 20)
     t, rpy = ring.ordered()
     assert len(t) == 20 and t[0] == 0.0 and np.all(rpy == 1)
     t, _ = ring.between(0.5, 1.0)
     assert np.allclose(t, [0.6, 0.7, 0.8, 0.9, 1.0])
+
+
+def test_a_ring_keeps_the_newest_samples_in_order_across_its_end():
+    ring = SeriesRing(8)
+    ring.extend([0.0, 1.0, 2.0, 3.0, 4.0], zeros(5), zeros(5), zeros(5))
+    ring.ordered()  # read: the samples go into the arrays
+    ring.extend([5.0, 6.0, 7.0, 8.0, 9.0, 10.0], zeros(6), zeros(6), [float(k) for k in range(6)])  # wraps
+    t, rpy = ring.ordered()
+    assert list(t) == [3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+    assert list(rpy[:, 2]) == [0.0, 0.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0] and ring.count == 11
+    ring.extend([float(k) for k in range(11, 31)], zeros(20), zeros(20), zeros(20))  # more than it holds
+    assert list(ring.ordered()[0]) == [float(k) for k in range(23, 31)] and ring.count == 31

@@ -6,7 +6,7 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   opened now fills its window at once (`GET /api/history`: every sample, or min/max per plot column
   for a long window, with the estimator errors computed as the page does) and memory never grows;
 * the **pending frame**: flushed in the loop's next turn when the last flush is at least
-  `flush_interval()` old, else when it will be; encoded once (binary float arrays,
+  half a `flush_interval()` old (`FLUSH_GAP`), else when it will be; encoded once (binary float arrays,
   `gcs.server.wire`), the same bytes for every client, and written to each client in the
   flush's own turn (`ClientFeed`: no task woken per client per frame) unless a send to it is
   still waiting, when it joins that client's bounded queue (`client_max_frames`). A client that
@@ -16,12 +16,12 @@ The interval is the shortest that keeps the fan-out within `sends_per_s` (each s
 client costs the loop ~20–25 µs of CPU on uvloop, `bench.ws_fanout`, and every frame costs the
 live estimation a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one or two
 viewers, 2 ms more for each further one, 10 ms from 5 on (100 frames/s: more than a page draws).
-Points that come more often than that wait half an interval on average, and fewer viewers wait
-less. With 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per
-1000 msg/s (four pairs, docs/benchmarks.md). The
-live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`), so
-its points come in one batch per interval and go out right after it. Figures:
-docs/benchmarks.md; data flow: docs/design.md
+Points that come sooner (a backlog's turns, back to back) wait for the gap, up to half an
+interval, so frames then come at most twice per interval; fewer viewers wait less. With 5 pages,
+10 ms frames instead of 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s (four
+pairs, docs/benchmarks.md). The live estimation's tick follows this interval (the dashboard paces
+it: `Station.pace_points`), so its points come in one batch per interval and go out right after
+it. Figures: docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations
@@ -29,9 +29,11 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+import operator
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, fields
+from itertools import groupby
 from typing import Any
 
 import numpy as np
@@ -45,13 +47,25 @@ DEG = 180.0 / math.pi
 REBOOT_JUMP = 1.0
 #: References an estimator's error history is computed against (as the page's error plots).
 ERROR_REFERENCES = ("onboard", "truth")
+_SOURCE = operator.attrgetter("source")
+#: A frame goes out once this fraction of `flush_interval()` has passed since the last. The points
+#: come paced by the interval already (the link's paced reads, or the estimation's tick), so the
+#: hub's own gap only has to outlast a turn that comes a little early: waiting out the whole
+#: interval set a timer (a wake-up of its own, and 0.2-8 ms more latency) for 2 frames in 3.
+FLUSH_GAP = 0.5
+#: A ring takes its gathered samples into its arrays once it holds this many.
+SETTLE_EVERY = 256
 
 
 class SeriesRing:
     """The last `capacity` samples of one source: vehicle time (s, float64) and roll, pitch,
     yaw (degrees, float32), preallocated and touched at creation so its memory is fixed.
     `boot_start` counts the samples written before the vehicle clock last went back by more
-    than `REBOOT_JUMP` (a reboot): history serves only the current boot."""
+    than `REBOOT_JUMP` (a reboot): history serves only the current boot.
+
+    New samples gather in plain lists (a few per source per turn of the loop: numpy's per-call
+    cost would outweigh the copy) and go into the arrays every `SETTLE_EVERY` samples, or when
+    something reads the ring."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
@@ -59,20 +73,48 @@ class SeriesRing:
         self.rpy = np.full((capacity, 3), np.nan, dtype=np.float32)
         self.count = 0  # samples ever written
         self.boot_start = 0
+        self._last = -math.inf
+        self._new: tuple[list[float], list[float], list[float], list[float]] = ([], [], [], [])
 
     def last_t(self) -> float:
-        return float(self.t[(self.count - 1) % self.capacity]) if self.count else -math.inf
+        return self._last
 
-    def append(self, t: float, roll: float, pitch: float, yaw: float) -> None:
-        if t < self.last_t() - REBOOT_JUMP:
-            self.boot_start = self.count
-        i = self.count % self.capacity
-        self.t[i] = t
-        self.rpy[i] = (roll, pitch, yaw)
-        self.count += 1
+    def extend(self, t: Sequence[float], roll: Sequence[float], pitch: Sequence[float], yaw: Sequence[float]) -> None:
+        """Append samples, oldest first: times (s) and angles (degrees)."""
+        if not t:
+            return
+        last = self._last
+        if min(t) < max(last, max(t)) - REBOOT_JUMP:  # the clock may have gone back: find where
+            for i, ti in enumerate(t):
+                if ti < last - REBOOT_JUMP:
+                    self.boot_start = self.count + i
+                last = ti
+        self._last = t[-1]
+        new = self._new
+        new[0].extend(t)
+        new[1].extend(roll)
+        new[2].extend(pitch)
+        new[3].extend(yaw)
+        self.count += len(t)
+        if len(new[0]) >= SETTLE_EVERY:
+            self._settle()
+
+    def _settle(self) -> None:
+        """The gathered samples into the arrays (only the newest `capacity` of them fit)."""
+        t, roll, pitch, yaw = self._new
+        if not t:
+            return
+        self._new = ([], [], [], [])
+        n = min(len(t), self.capacity)
+        i = (self.count - n) % self.capacity
+        head = min(n, self.capacity - i)
+        times, rpy = np.array(t[-n:]), np.array((roll[-n:], pitch[-n:], yaw[-n:])).T
+        self.t[i : i + head], self.rpy[i : i + head] = times[:head], rpy[:head]
+        self.t[: n - head], self.rpy[: n - head] = times[head:], rpy[head:]
 
     def ordered(self) -> tuple[np.ndarray, np.ndarray]:
         """Times and angles of the current boot, oldest first."""
+        self._settle()
         first = max(self.boot_start, self.count - self.capacity)
         idx = np.arange(first, self.count) % self.capacity
         return self.t[idx], self.rpy[idx]
@@ -246,27 +288,32 @@ class LiveHub:
 
     # ---- producers (event loop) ----------------------------------------------------------
     def on_points(self, points: list[AttitudePoint]) -> None:
-        """LiveEstimation listener: store and queue every point; schedule a flush."""
+        """LiveEstimation listener: store and queue every point; schedule a flush. The points are
+        taken per source as columns (sorted, grouped, zipped and converted by C loops), not one at
+        a time: a served vehicle's turn brings ~30 of them at 1000 msg/s."""
         now = time.monotonic()
         self.last_arrival = now
         self.points_in += len(points)
-        for p in points:
-            roll, pitch, yaw = p.roll * DEG, p.pitch * DEG, p.yaw * DEG
-            ring = self.store.get(p.source)
+        pending = self._pending
+        for source, run in groupby(sorted(points, key=_SOURCE), key=_SOURCE):
+            t, _, roll_rad, pitch_rad, yaw_rad = zip(*run, strict=True)
+            to_deg = DEG.__mul__
+            roll, pitch, yaw = list(map(to_deg, roll_rad)), list(map(to_deg, pitch_rad)), list(map(to_deg, yaw_rad))
+            ring = self.store.get(source)
             if ring is None:
-                ring = self.store[p.source] = SeriesRing(self.capacity)
-            ring.append(p.t, roll, pitch, yaw)
-            cols = self._pending.get(p.source)
+                ring = self.store[source] = SeriesRing(self.capacity)
+            ring.extend(t, roll, pitch, yaw)
+            cols = pending.get(source)
             if cols is None:
-                cols = self._pending[p.source] = [[], [], [], []]
-            cols[0].append(p.t)
-            cols[1].append(roll)
-            cols[2].append(pitch)
-            cols[3].append(yaw)
+                cols = pending[source] = [[], [], [], []]
+            cols[0] += t
+            cols[1] += roll
+            cols[2] += pitch
+            cols[3] += yaw
         self._pending_n += len(points)
         if self._flush_handle is None:
             loop = asyncio.get_running_loop()
-            delay = self._last_flush + self.flush_interval() - now
+            delay = self._last_flush + FLUSH_GAP * self.flush_interval() - now
             self._flush_handle = loop.call_later(delay, self._flush) if delay > 0 else loop.call_soon(self._flush)
 
     def broadcast(self, message: dict) -> None:
@@ -357,10 +404,10 @@ class HistorySlice:
 
 
 def columnar(t: np.ndarray, rpy: np.ndarray) -> list[list[float]]:
-    """History columns; times rounded exactly as the live frames round them (wire.wire_time), so
+    """History columns; times rounded exactly as the live frames round them (wire.wire_times), so
     the page finds a sample it had live at the same time in the history (np.round can differ by
     an ulp, and the page then held the sample twice)."""
-    return [[wire.wire_time(x) for x in t.tolist()], *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
+    return [wire.wire_times(t.tolist()), *(np.round(rpy[:, k].astype(float), 3).tolist() for k in range(3))]
 
 
 def wrap180(d: np.ndarray) -> np.ndarray:

@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import repeat
 
 from gcs.core import strict_json
 
@@ -41,9 +42,10 @@ def _padded(data: bytes) -> bytes:
     return data + _PAD[: -len(data) % 8]
 
 
-def wire_time(t: float) -> float:
-    """A vehicle time as the page receives it, live or in history: rounded to the µs."""
-    return round(t, 6)
+def wire_times(t: Iterable[float]) -> list[float]:
+    """Vehicle times as the page receives them, live or in history: rounded to the µs (Python's
+    correctly rounded `round`; np.round can differ by an ulp)."""
+    return list(map(round, t, repeat(6)))
 
 
 def points_frame(seq: int, server_time: float, points: Mapping[str, Sequence[Sequence[float]]]) -> bytes:
@@ -53,7 +55,7 @@ def points_frame(seq: int, server_time: float, points: Mapping[str, Sequence[Seq
         name = source.encode()
         parts.append(_SERIES.pack(len(name), 0, len(t)) + _padded(name))
         n = len(t)
-        parts.append(struct.pack(f"<{n}d", *[wire_time(x) for x in t]))
+        parts.append(struct.pack(f"<{n}d", *wire_times(t)))
         parts.append(_padded(struct.pack(f"<{3 * n}f", *roll, *pitch, *yaw)))
     size = _FRAME.size + sum(len(p) for p in parts)
     parts[0] = _FRAME.pack(size, POINTS, VERSION, len(points))
