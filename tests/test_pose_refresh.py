@@ -16,8 +16,8 @@ import websockets
 import zstandard
 from conftest import free_port
 from live import dashboard, running_station
-from viser import _messages as viser_messages
 
+from bench.viser_clients import camera_message
 from gcs.core.rotation import euler_to_quat
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.server.scene import PoseView, display_wxyz, turned
@@ -47,18 +47,7 @@ class ViserViewer:
         self._unzip = zstandard.ZstdDecompressor()
 
     async def connect(self) -> None:
-        camera = viser_messages.ViewerCameraMessage(
-            wxyz=(1.0, 0.0, 0.0, 0.0),
-            position=(-2.2, -2.2, 1.4),
-            fov=1.0,
-            near=0.01,
-            far=100.0,
-            image_height=480,
-            image_width=640,
-            look_at=(0.0, 0.0, 0.0),
-            up_direction=(0.0, 0.0, 1.0),
-        )
-        await self.ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        await self.ws.send(camera_message())
 
     async def read(self) -> None:
         async for frame in self.ws:
@@ -93,7 +82,8 @@ def test_a_viewer_connecting_later_sees_the_current_pose(udp_port):
                 return turned(display_wxyz(euler_to_quat(point.roll, point.pitch, point.yaw)), shown(pose)) < 1e-4
 
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as vehicle:
-                async with asyncio.timeout(30):  # sent until the station's socket is open and it came
+                # sent until the station's socket is open and it came (its kernels may compile first: ~60 s)
+                async with asyncio.timeout(180):
                     k = 0
                     while not onboard_is(FIRST):
                         vehicle.sendto(attitude(encoder, FIRST, 1000 + 50 * k), ("127.0.0.1", udp_port))
