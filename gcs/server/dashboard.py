@@ -1,6 +1,7 @@
 """Run the dashboard next to a Station in the current event loop: uvicorn serving the
 FastAPI app, viser (its own thread and port, same host) with the pose view and gain panel, and
-the 30 Hz pose update. `gcs serve`, `gcs demo`, the tests and the benchmarks all use this."""
+the pose view's refresh (gcs.server.pose_refresh). `gcs serve`, `gcs demo`, the tests and the
+benchmarks all use this."""
 
 from __future__ import annotations
 
@@ -16,14 +17,16 @@ from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
+from gcs.server.uvicorn_server import DashboardUvicorn
 from gcs.sessions.workbench import warm_up
 
 if TYPE_CHECKING:
     from viser import ViserServer
 
     from gcs.server.fleet_scene import FleetScene
+    from gcs.server.pose_refresh import PoseRefresh
 
-#: Pose view refresh, Hz (the eye does not need the 200 Hz the plots get).
+#: Pose view refresh at most, Hz (the eye does not need the 200 Hz the plots get).
 POSE_HZ = 30.0
 
 
@@ -103,30 +106,27 @@ class DashboardServer:
         config = uvicorn.Config(
             app, log_level="warning", ws=self.ws_protocol, ws_ping_interval=None, ws_per_message_deflate=False
         )
-        self._server = uvicorn.Server(config)
+        self._server = DashboardUvicorn(config)
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
         while not self._server.started:
             if self._tasks[0].done():
                 self._tasks[0].result()  # raises why uvicorn did not start
             await asyncio.sleep(0.01)
         if self.viser is not None:
-            self._tasks.append(asyncio.create_task(self._pose_loop()))
+            self._tasks.append(asyncio.create_task(self.pose_refresh.run()))
         self._tasks.append(asyncio.create_task(self.station.in_worker(warm_up), name="gcs:warm-worker"))
         heap.freeze()  # the app, uvicorn and viser: no full collection walks them again
 
     def _start_viser(self) -> None:
         from gcs.server.fleet_scene import FleetScene  # noqa: PLC0415 - imports viser
+        from gcs.server.pose_refresh import PoseRefresh  # noqa: PLC0415 - imports viser
         from gcs.server.scene import LocalViserServer  # noqa: PLC0415
 
         server = LocalViserServer(self.host, self.viser_port or self.port + 1)
         self.viser = server
         self.viser_port = server.get_port()
         self.scene: FleetScene = FleetScene(server, self.station, self.fleet)
-
-    async def _pose_loop(self) -> None:
-        while True:
-            self.scene.update()
-            await asyncio.sleep(1.0 / POSE_HZ)
+        self.pose_refresh: PoseRefresh = PoseRefresh(server, self.scene, POSE_HZ)
 
     async def stop(self) -> None:
         if self._server is not None:

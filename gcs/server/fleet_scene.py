@@ -12,7 +12,9 @@ from dataclasses import dataclass
 
 import viser
 
+from gcs.core.estimation import AttitudePoint
 from gcs.runtime.facade import FleetFacade, StationFacade, VehicleFacade
+from gcs.runtime.signal import Signal
 from gcs.server.scene import GainTable, PoseView, add_ground
 
 #: Metres between two vehicles' bodies in the scene.
@@ -32,6 +34,8 @@ class FleetScene:
     def __init__(self, server: viser.ViserServer, first: StationFacade, fleet: FleetFacade | None) -> None:
         self.server, self.fleet = server, fleet
         self.views: list[VehicleView] = []
+        #: any vehicle's new attitudes (its station's points), so the view is redrawn only then
+        self.arrived: Signal[[list[AttitudePoint]]] = Signal()
         self._add(first)
         if fleet is not None:
             fleet.vehicle_added.connect(self._vehicle_added)
@@ -52,6 +56,7 @@ class FleetScene:
         self.server.scene.add_frame(root, show_axes=False, position=(0.0, -SPACING * k, 0.0))
         gains = GainTable(self.server, station)
         station.events.recorded.connect(gains.reflect)
+        station.points.connect(self.arrived.emit)
         self.views.append(VehicleView(station, PoseView(self.server, station.estimator_names(), root), gains, root))
         add_ground(self.server, height=4.0 + SPACING * k, y=-SPACING * k / 2)
 

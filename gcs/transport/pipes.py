@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import math
 import os
 import socket
 import struct
@@ -108,7 +109,10 @@ class UdpTransport(Transport):
     (`pace_reads`), a wake-up that read fewer than that stops watching the socket for the interval,
     then reads what came meanwhile at once: a vehicle sending each message in its own datagram
     would otherwise wake the loop up to a thousand times a second, where the estimation and the
-    dashboard take what arrived once per frame anyway. On Linux
+    dashboard take what arrived once per frame anyway. A read that follows two intervals without
+    any starts no hold: datagrams that come that seldom are read as they come, and the hold's
+    timer would be a second wake-up for each of them (~0.1 ms of CPU each, docs/benchmarks.md,
+    "`gcs serve` when little arrives"). On Linux
     SO_RXQ_OVFL makes every datagram carry the socket's cumulative count of datagrams the
     kernel dropped for want of receive buffer: `kernel_drops`, the loss a flood or a starved
     loop causes before any sequence number can show it.
@@ -124,6 +128,7 @@ class UdpTransport(Transport):
         self._on_batch: BatchCallback | None = None
         self._read_interval: Callable[[], float] | None = None
         self._resume: asyncio.TimerHandle | None = None
+        self._last_read = -math.inf  # loop time of the last read that brought datagrams
 
     async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
@@ -163,8 +168,11 @@ class UdpTransport(Transport):
         datagrams = self._read()
         if not datagrams:
             return
-        if self._read_interval is not None and len(datagrams) < UDP_READ_BATCH:
-            self._hold(self._read_interval())
+        if self._read_interval is not None and len(datagrams) < UDP_READ_BATCH and self._loop is not None:
+            interval, now = self._read_interval(), self._loop.time()
+            if now - self._last_read < 2 * interval:  # they come faster than that: hold
+                self._hold(interval)
+            self._last_read = now
         if self._on_batch is not None:
             self._on_batch(datagrams)
             return

@@ -1,0 +1,120 @@
+"""The 3-D view is drawn only while someone watches it (gcs.server.pose_refresh), and a viewer
+that connects later still sees the vehicle's current pose: what arrived while nobody watched is
+drawn as soon as it connects, and what arrives while it watches follows. The viewer is a real
+viser client on viser's real WebSocket (its wire format: zstd-compressed msgpack), fed by the
+station from ATTITUDE messages on a real UDP socket."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+
+import msgspec
+import viser
+import websockets
+import zstandard
+from conftest import free_port
+from live import dashboard, running_station
+from viser import _messages as viser_messages
+
+from gcs.core.rotation import euler_to_quat
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.server.scene import PoseView, display_wxyz, turned
+
+ONBOARD = "/vehicle0/onboard"
+#: two attitudes (roll, pitch, yaw in degrees), far from the level pose the view starts with
+FIRST, SECOND = (20.0, -10.0, 120.0), (-15.0, 25.0, -60.0)
+
+
+def attitude(encoder: Encoder, pose: tuple[float, float, float], time_boot_ms: int) -> bytes:
+    roll, pitch, yaw = (math.radians(a) for a in pose)
+    return encoder.encode(mavlink.MAVLink_attitude_message(time_boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
+
+
+def shown(pose: tuple[float, float, float]) -> tuple[float, float, float, float]:
+    return display_wxyz(euler_to_quat(*(math.radians(a) for a in pose)))
+
+
+class ViserViewer:
+    """A viser client: announces its camera (viser counts a client as connected from then on) and
+    keeps the orientations the server sends for ONBOARD, in order."""
+
+    def __init__(self, ws: websockets.ClientConnection) -> None:
+        self.ws = ws
+        self.onboard: list[tuple[float, float, float, float]] = []
+        self.changed = asyncio.Event()
+        self._unzip = zstandard.ZstdDecompressor()
+
+    async def connect(self) -> None:
+        camera = viser_messages.ViewerCameraMessage(
+            wxyz=(1.0, 0.0, 0.0, 0.0),
+            position=(-2.2, -2.2, 1.4),
+            fov=1.0,
+            near=0.01,
+            far=100.0,
+            image_height=480,
+            image_width=640,
+            look_at=(0.0, 0.0, 0.0),
+            up_direction=(0.0, 0.0, 1.0),
+        )
+        await self.ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+
+    async def read(self) -> None:
+        async for frame in self.ws:
+            assert isinstance(frame, bytes)
+            size, packed = int.from_bytes(frame[:8], "little"), int.from_bytes(frame[8:16], "little")
+            inner = msgspec.msgpack.decode(self._unzip.decompress(frame[16 : 16 + packed], max_output_size=size))
+            for message in inner["messages"]:
+                if message["type"] == "SetOrientationMessage" and message["name"] == ONBOARD:
+                    self.onboard.append(tuple(message["wxyz"]))
+                    self.changed.set()
+
+    async def until_shown(self, pose: tuple[float, float, float], timeout: float) -> None:
+        """Until the last orientation received for ONBOARD is `pose` as drawn."""
+        async with asyncio.timeout(timeout):
+            while not (self.onboard and turned(self.onboard[-1], shown(pose)) <= PoseView.MIN_TURN):
+                self.changed.clear()
+                await self.changed.wait()
+
+
+def test_a_viewer_connecting_later_sees_the_current_pose(udp_port):
+    async def go() -> None:
+        encoder = Encoder(1, 1)
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+            dashboard(station, viser_port=free_port(socket.SOCK_STREAM)) as server,
+        ):
+
+            def onboard_is(pose: tuple[float, float, float]) -> bool:
+                point = station.latest_attitudes()[0].get("onboard")
+                if point is None:
+                    return False
+                return turned(display_wxyz(euler_to_quat(point.roll, point.pitch, point.yaw)), shown(pose)) < 1e-4
+
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as vehicle:
+                async with asyncio.timeout(30):  # sent until the station's socket is open and it came
+                    k = 0
+                    while not onboard_is(FIRST):
+                        vehicle.sendto(attitude(encoder, FIRST, 1000 + 50 * k), ("127.0.0.1", udp_port))
+                        k += 1
+                        await asyncio.sleep(0.05)  # the vehicle's pace
+                # nobody watches: nothing drawn, the view still at its level start
+                assert server.pose_refresh.drawn == 0
+                assert turned(tuple(server.scene.views[0].pose.onboard.wxyz), shown((0.0, 0.0, 0.0))) < 1e-9
+
+                uri = f"ws://127.0.0.1:{server.viser_port}"
+                async with websockets.connect(uri, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:
+                    viewer = ViserViewer(ws)
+                    reading = asyncio.create_task(viewer.read())
+                    try:
+                        await viewer.connect()
+                        # no attitude arrives after it connected: it is shown the one that came before
+                        await viewer.until_shown(FIRST, 30)
+                        vehicle.sendto(attitude(encoder, SECOND, 1000 + 50 * k), ("127.0.0.1", udp_port))
+                        await viewer.until_shown(SECOND, 30)  # and follows what arrives while it watches
+                    finally:
+                        reading.cancel()
+                        await asyncio.gather(reading, return_exceptions=True)
+
+    asyncio.run(go())
