@@ -47,7 +47,7 @@ RSS_LIMIT_MB = 1500.0
 #: vehicle clock (3 s of the ~5 Hz the vehicle streams after the fuzz), and rounds of the JSON and
 #: RSS checks and WebSocket frames meanwhile
 GOOD_SAMPLES = 15
-GOOD_POLLS = 10
+GOOD_POLLS = 5
 ESTIMATION_INPUTS = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "ATTITUDE", "AHRS2", "SIMSTATE")
 REFUSING_TYPES = {"ATTITUDE", "AHRS2", "SIMSTATE", "HIGHRES_IMU", "PARAM_VALUE"}
 
