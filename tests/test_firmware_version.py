@@ -10,6 +10,7 @@ from live import running_sim, running_station, wait_for
 
 from gcs.mavlink.dialect import mavlink
 from gcs.runtime.firmware import banner_version, version_of
+from gcs.runtime.station import Station, StationConfig
 from gcs.sessions import layout
 
 
@@ -54,14 +55,25 @@ def test_pixhawk_version_requested_at_connect_reaches_the_metadata(udp_port, tmp
 
 def test_apm25_version_from_its_banner(udp_port):
     async def scenario():
-        async with (
-            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="apm25"),
-            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
-        ):
-            assert await station.link.wait_connected(10)
-            await asyncio.sleep(0.5)
-            assert station.vehicle.firmware is None  # no AUTOPILOT_VERSION on an APM 2.5
-            await station.params.download(60)
-            return station.vehicle.firmware
+        async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="apm25"):
+            station = Station(StationConfig(connect=f"udpin:127.0.0.1:{udp_port}", estimate=False))
+            acks = station.bus.subscribe("test-acks", types=["COMMAND_ACK"])  # before anything is sent
+            answered: list[int] = []
+
+            def version_request_answered() -> bool:
+                answered.extend(m.msg.command for m in acks.drain())
+                return mavlink.MAV_CMD_REQUEST_MESSAGE in answered
+
+            await station.start()
+            try:
+                await wait_for(version_request_answered, 20, "the answer to the AUTOPILOT_VERSION request")
+                # whatever the vehicle sent with its answer came before its next heartbeat
+                heartbeats = station.vehicle.heartbeats
+                await wait_for(lambda: station.vehicle.heartbeats > heartbeats, 10, "the next heartbeat")
+                assert station.vehicle.firmware is None  # no AUTOPILOT_VERSION on an APM 2.5
+                await station.params.download(60)
+                return station.vehicle.firmware
+            finally:
+                await station.stop()
 
     assert asyncio.run(scenario()) == "APM:Copter 3.2.1 (36b405fb)"

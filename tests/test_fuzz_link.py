@@ -43,6 +43,11 @@ RESUME_LIMIT_S = 1.0
 BACKLOG_LIMIT_S = 10.0
 RSS_GROWTH_LIMIT_MB = 150.0  # after warm-up, through the fuzz and the recovery
 RSS_LIMIT_MB = 1500.0
+#: The stretch of good data only, after the estimators resumed: points each estimator made on the
+#: vehicle clock (3 s of the ~5 Hz the vehicle streams after the fuzz), and rounds of the JSON and
+#: RSS checks and WebSocket frames meanwhile
+GOOD_SAMPLES = 15
+GOOD_POLLS = 5
 ESTIMATION_INPUTS = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "ATTITUDE", "AHRS2", "SIMSTATE")
 REFUSING_TYPES = {"ATTITUDE", "AHRS2", "SIMSTATE", "HIGHRES_IMU", "PARAM_VALUE"}
 
@@ -199,7 +204,32 @@ async def scenario(udp_port: int, http_port: int, pid: int) -> dict:
                 # station's delay in working through the hostile backlog, for comparison
                 await wait_for(alive(lambda: resumed({"onboard"}) is not None), 30, "onboard back on the clock")
                 report["onboard_resume_s"] = round(resumed({"onboard"}) or math.inf, 3)
-                await asyncio.sleep(3.0)  # good data only: JSON, RSS and parts keep being checked
+                # good data only, a stretch of it counted in estimates, not seconds: JSON, RSS and
+                # parts keep being checked meanwhile
+                t_good, answers, ws_frames, good_from = sim.t, report["json_answers"], report["ws_frames"], len(frames)
+
+                def estimated_since() -> int:
+                    """The fewest points any estimator has on the vehicle clock after t_good."""
+                    counts = dict.fromkeys(names, 0)
+                    for _, f in frames[good_from:]:
+                        for source, cols in f.get("points", {}).items():
+                            if source in counts:
+                                counts[source] += sum(1 for t in cols[0] if t_good < t < t_good + 120)
+                    return min(counts.values())
+
+                await wait_for(
+                    alive(
+                        lambda: (
+                            estimated_since() >= GOOD_SAMPLES
+                            and report["json_answers"] >= answers + 3 * GOOD_POLLS
+                            and report["ws_frames"] >= ws_frames + GOOD_POLLS
+                        )
+                    ),
+                    60,
+                    f"{GOOD_SAMPLES} samples estimated by each estimator, {GOOD_POLLS} polls and frames",
+                    poll=0.2,
+                )
+                report["good_stretch_s"] = round(sim.t - t_good, 2)  # of the vehicle's clock
                 alive(lambda: True)()
                 poller.cancel()
                 reader.cancel()

@@ -7,6 +7,10 @@ from __future__ import annotations
 import asyncio
 import socket
 
+from live import wait_for
+
+from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.link import Link
 from gcs.transport.address import Address
 from gcs.transport.pipes import UDP_READ_BATCH, UdpTransport
@@ -95,3 +99,51 @@ def test_only_a_udp_link_is_paced():
         stream = Link(address)
         assert not stream.pace_reads(lambda: 0.01)
         assert not stream.reads_paced
+
+
+def imu_datagram(encoder: Encoder, k: int) -> bytes:
+    """A HIGHRES_IMU packet at k x 2.5 ms of vehicle time, level and still."""
+    msg = mavlink.MAVLink_highres_imu_message(
+        k * 2500, 0.0, 0.0, -9.81, 0.01, 0.0, 0.0, 0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 20.0, 0x1FFF
+    )
+    return encoder.encode(msg)
+
+
+def test_the_estimation_takes_each_paced_read_in_one_turn_with_no_tick_of_its_own(udp_port):
+    """On a paced link each read is the estimation's tick: its messages are estimated in the turn
+    that read them, one feed per read. The estimation's own tick is 60 s here: had it kept it, every
+    read after the first would wait in its queue, and `fed` would lag `read` (not a deadline: the
+    turn right after each read is looked at)."""
+    groups = [1, 1, 3, 1, 2]  # datagrams sent together (one read each: no await between the sends)
+
+    async def go() -> tuple[list[tuple[int, int]], list[int]]:
+        link = Link(f"udpin:127.0.0.1:{udp_port}")
+        assert link.pace_reads(lambda: 0.05)
+        estimation = LiveEstimation(link, tick=60.0)
+        emitted: list[int] = []
+        estimation.points.connect(lambda points: emitted.append(len(points)))
+        tasks = [asyncio.create_task(link.run()), asyncio.create_task(estimation.run())]
+        encoder, sent = Encoder(1, 1), 0
+        try:
+            await wait_for(lambda: link.is_open and link.bus.wants("HIGHRES_IMU"), 10, "the socket and the estimation")
+            reads = link.bus.subscribe("test-reads", types=["HIGHRES_IMU"])  # after the estimation's
+            seen: list[tuple[int, int]] = []  # (messages read, messages estimated) the turn after each read
+            for n in groups:
+                send(udp_port, [imu_datagram(encoder, sent + i) for i in range(n)])
+                sent += n
+                assert await reads.get(30) is not None, "the datagrams read"
+                reads.drain()
+                if not seen:  # the first message waits for the kernels, off the loop
+                    await wait_for(lambda: estimation.messages_fed == 1, 120, "the kernels loaded")
+                await asyncio.sleep(0)  # the estimation's turn: woken by the same read, before this task
+                seen.append((reads.delivered, estimation.messages_fed))
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        return seen, emitted
+
+    seen, emitted = asyncio.run(go())
+    read = [sum(groups[: i + 1]) for i in range(len(groups))]
+    assert seen == [(n, n) for n in read]  # every read estimated in its own turn
+    assert emitted == [3 * n for n in groups]  # one feed per read, of all its messages (3 estimators each)

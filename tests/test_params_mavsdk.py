@@ -7,7 +7,7 @@ import asyncio
 
 import pytest
 from conftest import free_port
-from live import running_sim, running_station
+from live import running_sim, running_station, wait_for
 
 from gcs.runtime.tuning import open_session
 
@@ -34,8 +34,11 @@ def test_mavsdk_sees_values_gcs_tunes(udp_port, profile, gain, new):
                     seen_before = await param.get_param_float(gain)
                     autostart = await param.get_param_int("SYS_AUTOSTART") if profile == "px4" else None
                     # gcs tunes while MAVSDK downloads the whole table
+                    lists = sim.received.get("PARAM_REQUEST_LIST", 0)  # gcs's own download's
                     everything = asyncio.ensure_future(param.get_all_params())
-                    await asyncio.sleep(0.3)
+                    await wait_for(
+                        lambda: sim.received.get("PARAM_REQUEST_LIST", 0) > lists, 15, "MAVSDK's download asked for"
+                    )
                     await session.set(gain, new, "test")
                     table = await everything
                     seen_after = await param.get_param_float(gain)

@@ -20,6 +20,8 @@ from live import dashboard, running_station
 from bench.viser_clients import camera_message
 from gcs.core.rotation import euler_to_quat
 from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.signal import Signal
+from gcs.server.pose_refresh import PoseRefresh
 from gcs.server.scene import PoseView, display_wxyz, turned
 
 ONBOARD = "/vehicle0/onboard"
@@ -108,3 +110,82 @@ def test_a_viewer_connecting_later_sees_the_current_pose(udp_port):
                         await asyncio.gather(reading, return_exceptions=True)
 
     asyncio.run(go())
+
+
+class TurnLoop(asyncio.SelectorEventLoop):
+    """asyncio's loop on a clock the test moves, counting the timers set on it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.now = 1000.0
+        self.timers = 0
+
+    def time(self) -> float:
+        return self.now
+
+    def call_at(self, when, callback, *args, context=None):  # type: ignore[no-untyped-def]
+        self.timers += 1
+        return super().call_at(when, callback, *args, context=context)
+
+
+class Watched:
+    """What PoseRefresh asks of viser's server (who watches), with one viewer connected; viser
+    itself is covered by test_a_viewer_connecting_later_sees_the_current_pose."""
+
+    def on_client_connect(self, callback) -> None:  # type: ignore[no-untyped-def]
+        self.connect = callback
+
+    def on_client_disconnect(self, callback) -> None:  # type: ignore[no-untyped-def]
+        pass
+
+    def get_clients(self) -> dict[int, object]:
+        return {1: object()}
+
+
+class CountedScene:
+    def __init__(self) -> None:
+        self.arrived: Signal[[list]] = Signal()
+        self.drawn_at: list[float] = []
+
+    def update(self) -> None:
+        self.drawn_at.append(asyncio.get_running_loop().time())
+
+
+def test_attitudes_that_keep_coming_are_drawn_in_their_own_turns_with_no_timer():
+    """Arrivals every 1.2 periods: each is drawn in its own turn and nothing sets a timer; an
+    arrival sooner than a period after a drawing is drawn a period later if nothing follows it."""
+    period = 1 / 30
+
+    async def turns() -> None:
+        for _ in range(5):
+            await asyncio.sleep(0)
+
+    async def go(loop: TurnLoop) -> tuple[list[float], list[float], int, list[float]]:
+        scene = CountedScene()
+        refresh = PoseRefresh(Watched(), scene, 30)  # type: ignore[arg-type]
+        drawing = asyncio.create_task(refresh.run())
+        refresh.server.connect(None)  # type: ignore[attr-defined]  # a viewer connects
+        await turns()
+        arrivals = []
+        for _ in range(10):
+            loop.now += 1.2 * period
+            arrivals.append(loop.now)
+            scene.arrived.emit([])
+            await turns()
+        drawn, timers = list(scene.drawn_at), loop.timers
+        loop.now += 0.5 * period  # too soon after the last drawing, and nothing after it
+        scene.arrived.emit([])
+        loop.now = arrivals[-1] + 2 * period - 1e-6
+        await turns()
+        assert len(scene.drawn_at) == len(drawn)  # not yet: a period after the next may-draw time
+        loop.now += 2e-6
+        while len(scene.drawn_at) == len(drawn):  # the timer is due: the loop runs it
+            await asyncio.sleep(0)
+        drawing.cancel()
+        return drawn, arrivals, timers, scene.drawn_at[len(drawn) :]
+
+    with asyncio.Runner(loop_factory=TurnLoop) as runner:
+        loop = runner.get_loop()
+        drawn, arrivals, timers, late = runner.run(go(loop))  # type: ignore[arg-type]
+    assert drawn[1:] == arrivals and timers == 0
+    assert late == [arrivals[-1] + 2 * period + 1e-6]

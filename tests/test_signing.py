@@ -100,8 +100,14 @@ def test_wrong_key_nothing_accepted_and_rejections_counted(udp_port):
             running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", signing_key=KEY) as sim,
             running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False, signing_key=WRONG) as station,
         ):
-            assert not await station.link.wait_connected(4)
-            await wait_for(lambda: sim.signature_rejected >= 3, 10, "the vehicle refusing our heartbeats")
+            # a stretch of packets both ways, every one refused by the other side (3 of our 1 Hz
+            # heartbeats by the vehicle), not a 4 s wait for a connection that must not come
+            refused = station.link.signing.counters.rejected
+            await wait_for(
+                lambda: sim.signature_rejected >= 3 and refused.get("bad signature", 0) >= 4,
+                30,
+                "packets refused by each side",
+            )
             return station.publish()
 
     snapshot = asyncio.run(scenario())
@@ -109,6 +115,7 @@ def test_wrong_key_nothing_accepted_and_rejections_counted(udp_port):
     assert signing is not None and signing.good == 0
     assert signing.rejected.get("bad signature", 0) >= 4  # the vehicle's heartbeats, at least
     assert snapshot.link.stats.counts == {} and snapshot.vehicle.heartbeats == 0  # framed, then refused
+    assert snapshot.link.state != "connected"
     assert any("bad signature" in e.detail for e in snapshot.link.events)
 
 

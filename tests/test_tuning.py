@@ -127,6 +127,10 @@ def test_session_refuses_writes_audits_them_and_reverts_exactly():
             session = await open_session(station.params)
             assert session.profile.name == "arducopter-4" and station.params.complete  # despite 10 % dropped
             sim.param_drop = 0.0  # from here on the rules are under test, not retries (their own tests)
+            # the limiter's clock moves only when the test says: a write's round trip, however long a
+            # loaded machine makes it, never lets the interval pass, nor does the test wait it out
+            now = [0.0]
+            session.limiter.clock = lambda: now[0]
             before = sim.params.as_dict()
             assert session.preflight["AHRS_RP_P"] == before["AHRS_RP_P"]
 
@@ -145,7 +149,7 @@ def test_session_refuses_writes_audits_them_and_reverts_exactly():
             await session.set("AHRS_YAW_P", 0.15, "viser")
             with pytest.raises(ParamMismatch, match="ATC_RAT_PIT_P: vehicle stored 0.14, asked 0.15"):
                 await session.set("ATC_RAT_PIT_P", 0.15, "test")
-            await asyncio.sleep(PER_PARAM_INTERVAL)
+            now[0] += PER_PARAM_INTERVAL  # ATC_RAT_RLL_P's interval has passed
             await session.set("ATC_RAT_RLL_P", 0.165, "api:10.0.0.2")
             assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(0.165)
             assert sim.autopilot.secondary.kp == pytest.approx(0.25)  # the DCM took the new gain

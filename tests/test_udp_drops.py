@@ -17,14 +17,24 @@ from gcs.runtime.link import Link
 FLOOD = 20_000  # datagrams: far more than a 4 MiB receive buffer holds (~1 KiB of kernel memory each)
 
 
-def proc_udp_drops(port: int) -> int:
-    """The kernel's drop count of the IPv4 UDP socket bound to 127.0.0.1:port (/proc/net/udp)."""
+def proc_udp_socket(port: int) -> list[str]:
+    """The /proc/net/udp fields of the IPv4 UDP socket bound to 127.0.0.1:port."""
     local = f"0100007F:{port:04X}"
     for line in Path("/proc/net/udp").read_text().splitlines()[1:]:
         fields = line.split()
         if fields[1] == local:
-            return int(fields[-1])
+            return fields
     raise AssertionError(f"no UDP socket on 127.0.0.1:{port} in /proc/net/udp")
+
+
+def proc_udp_drops(port: int) -> int:
+    """The kernel's drop count of that socket."""
+    return int(proc_udp_socket(port)[-1])
+
+
+def proc_udp_queued(port: int) -> int:
+    """Bytes the kernel holds in that socket's receive queue (tx_queue:rx_queue, in hex)."""
+    return int(proc_udp_socket(port)[4].split(":")[1], 16)
 
 
 def test_flood_kernel_drops_are_counted_and_match_the_kernel(udp_port):
@@ -50,10 +60,9 @@ async def flood(udp_port: int) -> dict:
         for packet in packets[:-1]:  # no await: the event loop cannot read meanwhile
             sender.sendto(packet, ("127.0.0.1", udp_port))
         await wait_for(lambda: link.stats.framing.packets > 0, 30, "the flood's first packets")
-        settled = -1
-        while settled != link.stats.framing.packets:  # read everything the kernel kept
-            settled = link.stats.framing.packets
-            await asyncio.sleep(0.2)
+        # everything the kernel kept has been read (a read hands its datagrams to the link at once)
+        await wait_for(lambda: proc_udp_queued(udp_port) == 0, 60, "the socket's receive queue read empty")
+        settled = link.stats.framing.packets
         # the drop count travels with each datagram: one more carries the flood's total
         sender.sendto(packets[-1], ("127.0.0.1", udp_port))
         await wait_for(lambda: link.stats.framing.packets == settled + 1, 10, "the last packet")
