@@ -129,8 +129,11 @@ class TurnLoop(asyncio.SelectorEventLoop):
 
 
 class Watched:
-    """What PoseRefresh asks of viser's server (who watches), with one viewer connected; viser
+    """What PoseRefresh asks of viser's server (who watches), with `viewers` connected; viser
     itself is covered by test_a_viewer_connecting_later_sees_the_current_pose."""
+
+    def __init__(self, viewers: int = 1) -> None:
+        self.viewers = viewers
 
     def on_client_connect(self, callback) -> None:  # type: ignore[no-untyped-def]
         self.connect = callback
@@ -139,7 +142,7 @@ class Watched:
         pass
 
     def get_clients(self) -> dict[int, object]:
-        return {1: object()}
+        return {k: object() for k in range(self.viewers)}
 
 
 class CountedScene:
@@ -189,3 +192,28 @@ def test_attitudes_that_keep_coming_are_drawn_in_their_own_turns_with_no_timer()
         drawn, arrivals, timers, late = runner.run(go(loop))  # type: ignore[arg-type]
     assert drawn[1:] == arrivals and timers == 0
     assert late == [arrivals[-1] + 2 * period + 1e-6]
+
+
+def test_more_viewers_are_drawn_for_less_often_within_the_fan_out_budget():
+    """Attitudes every 5 ms for 1 s: one viewer is drawn for at 30 Hz, five at 20 Hz (100
+    viewer-windows a second), ten at 10 Hz; never two drawings closer than that."""
+
+    async def go(loop: TurnLoop, viewers: int) -> list[float]:
+        scene = CountedScene()
+        refresh = PoseRefresh(Watched(viewers), scene, 30, windows_per_s=100)  # type: ignore[arg-type]
+        drawing = asyncio.create_task(refresh.run())
+        refresh.server.connect(None)  # type: ignore[attr-defined]
+        for _ in range(200):
+            loop.now += 0.005
+            scene.arrived.emit([])
+            for _ in range(5):
+                await asyncio.sleep(0)
+        drawing.cancel()
+        return scene.drawn_at
+
+    for viewers, hz in ((1, 30), (5, 20), (10, 10)):
+        with asyncio.Runner(loop_factory=TurnLoop) as runner:
+            drawn = runner.run(go(runner.get_loop(), viewers))  # type: ignore[arg-type]
+        gaps = [b - a for a, b in zip(drawn, drawn[1:], strict=False)]
+        assert min(gaps) >= 1 / hz - 1e-9, (viewers, min(gaps))
+        assert abs(len(drawn) - hz) <= 2, (viewers, len(drawn))

@@ -41,9 +41,12 @@ class FleetScene:
             fleet.vehicle_added.connect(self._vehicle_added)
 
     def update(self) -> None:
-        """Every vehicle's bodies to its latest attitudes (the pose loop, event loop)."""
-        for view in self.views:
-            view.pose.update(*view.station.latest_attitudes())
+        """Every vehicle's bodies to its latest attitudes (the pose loop, event loop), as one
+        window of viser messages: one wake-up of viser's loop and one encoding per viewer, where
+        each moved body alone cost both (viser wakes its loop on every message outside `atomic`)."""
+        with self.server.atomic():
+            for view in self.views:
+                view.pose.update(*view.station.latest_attitudes())
 
     def _vehicle_added(self, entry: VehicleFacade) -> None:
         if all(view.station is not entry.station for view in self.views):  # not the first core binding
