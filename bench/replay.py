@@ -129,7 +129,7 @@ def bin_replay_row() -> dict:
         "decode_cpu_s": round(decode_after, 4),
         "decode_cpu_s_before": round(decode_before, 4),
         "decode_ratio": round(decode_before / decode_after, 1),
-        "x_real_time_printed_by_gcs_replay_fast": printed_x_real_time(BIN),
+        **printed_row(BIN),
         "load_avg_1m": round(os.getloadavg()[0], 2),
     }
 
@@ -143,12 +143,23 @@ def replay_per_sample(path: Path, estimators: list[str] | None) -> tuple[float, 
     return time.perf_counter() - started, session.pipeline.imu_samples, source.duration
 
 
-def printed_x_real_time(path: Path) -> float:
-    """The "× real time" `gcs replay --fast` prints (a process of its own)."""
+def printed_x_real_time(path: Path) -> tuple[float, float]:
+    """The "× real time" `gcs replay --fast` prints (a process of its own): the replay's own, file
+    to table, and the one that counts the process's start-up too (numba's set-up, kernels loaded)."""
     out = subprocess.run(
         [sys.executable, "-m", "gcs", "replay", str(path), "--fast"], capture_output=True, text=True, check=True
     ).stdout
-    return float(re.search(r"\(([0-9.]+)x real time", out).group(1))  # type: ignore[union-attr]
+    own = re.search(r"\(([0-9.]+)x real time", out)
+    with_start_up = re.search(r"([0-9.]+)x real time with it", out)
+    return float(own.group(1)), float(with_start_up.group(1))  # type: ignore[union-attr]
+
+
+def printed_row(path: Path) -> dict[str, float]:
+    own, with_start_up = printed_x_real_time(path)
+    return {
+        "x_real_time_printed_by_gcs_replay_fast": own,
+        "x_real_time_printed_with_start_up": with_start_up,
+    }
 
 
 def simulated_session(path: Path, seconds: float = SESSION_S) -> None:
@@ -190,7 +201,7 @@ def main() -> list[dict]:
     cpu = time.process_time() - cpu
     decode = min(decode_cpu(ULOG) for _ in range(3))
     per_sample, _, _ = replay_per_sample(ULOG, None)
-    printed = printed_x_real_time(ULOG)
+    printed = printed_row(ULOG)
     base = time.perf_counter()
     ULog(str(ULOG))
     base = time.perf_counter() - base
@@ -206,7 +217,7 @@ def main() -> list[dict]:
             "x_real_time": round(duration / ours, 1),
             "x_real_time_cpu": round(duration / cpu, 1),
             "x_real_time_per_sample_pipeline": round(duration / per_sample, 1),
-            "x_real_time_printed_by_gcs_replay_fast": printed,
+            **printed,
             "target": "≥ 1000× real time",
             "n": samples,
             "load_avg_1m": round(os.getloadavg()[0], 2),

@@ -241,3 +241,8 @@ def read_dataflash(path: str, wanted: Mapping[str, Collection[str]]) -> Dataflas
         contents.positions[name] = positions
     contents.damage.sort(key=lambda d: d.offset)
     return contents
+
+
+def warm() -> None:
+    """Load (or, the first time, compile) the record walk now: a replay's start-up, not its decoding."""
+    record_index(np.zeros(0, dtype=np.uint8), np.zeros(256, dtype=np.int64))

@@ -326,3 +326,8 @@ def _gather(
     contents.changed_parameters = [
         (int(t), name, value) for t, (_, name, value) in zip(latest.tolist(), parameters, strict=True)
     ]
+
+
+def warm() -> None:
+    """Load (or, the first time, compile) the header walk now: a replay's start-up, not its decoding."""
+    message_index(np.zeros(0, dtype=np.uint8), 0, 0, np.zeros(256, dtype=np.bool_))
