@@ -4,8 +4,9 @@
 which maps a quaternion (w, x, y, z) to (w, x, −y, −z) (`display_wxyz`); seen from above, north is +x.
 The scene: a ground grid, the vehicle at the onboard attitude (solid, body axes) and one translucent
 ghost per estimator at the same origin, so a disagreement shows as a split; `PoseView.update` runs
-on the event loop (viser handles are thread-safe) at most 30 Hz, only while a viewer is connected
-and after new attitudes came (gcs.server.pose_refresh), and moves only what visibly turned.
+on the event loop (viser handles are thread-safe) at most 30 Hz (less with many viewers), only
+while a viewer is connected and after new attitudes came (gcs.server.pose_refresh), and moves only
+what visibly turned.
 The panel, minimized at start so it does not cover the scene (hidden in a phone's frame): every
 estimator's gains as read-only text in their own units, following the gain events (viser has no
 authentication: changes are made on the page).
