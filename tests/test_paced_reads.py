@@ -147,3 +147,26 @@ def test_the_estimation_takes_each_paced_read_in_one_turn_with_no_tick_of_its_ow
     read = [sum(groups[: i + 1]) for i in range(len(groups))]
     assert seen == [(n, n) for n in read]  # every read estimated in its own turn
     assert emitted == [3 * n for n in groups]  # one feed per read, of all its messages (3 estimators each)
+
+
+def test_a_link_shared_by_vehicles_is_read_at_the_shortest_interval_asked(udp_port):
+    """The vehicles of a fleet heard on one link each ask for their own interval (here 0.2 s, then
+    60 s): the shortest holds, whatever the order, so none gets its messages later than it asked.
+    Had the last one asked held, the third datagram would wait 60 s in the held socket."""
+
+    async def go() -> None:
+        link = Link(f"udpin:127.0.0.1:{udp_port}")
+        assert link.pace_reads(lambda: 0.2) and link.pace_reads(lambda: 60.0)
+        reads = link.bus.subscribe("test-reads", types=["HIGHRES_IMU"])
+        running = asyncio.create_task(link.run())
+        encoder = Encoder(1, 1)
+        try:
+            await wait_for(lambda: link.is_open, 10, "the socket")
+            for k in range(3):  # the second is read at once and starts a hold; the third waits it out
+                send(udp_port, [imu_datagram(encoder, k)])
+                assert await reads.get(30) is not None, f"datagram {k} read"
+        finally:
+            running.cancel()
+            await asyncio.gather(running, return_exceptions=True)
+
+    asyncio.run(go())

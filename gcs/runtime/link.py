@@ -139,7 +139,7 @@ class Link:
         if signing is not None:
             signing.sign_with(self._encoder)
         self._transport: Transport | None = None
-        self._read_interval: Callable[[], float] | None = None  # `pace_reads`: for every transport opened
+        self._read_intervals: list[Callable[[], float]] = []  # `pace_reads`: for every transport opened
         self._closed_drops = 0  # kernel drops of transports closed since
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
         #: (old, new) on every state change, in the event loop.
@@ -181,19 +181,26 @@ class Link:
 
     def pace_reads(self, interval: Callable[[], float]) -> bool:
         """Read the vehicle's datagrams at most once per interval() s (gcs.transport.pipes): True
-        on a UDP link, the only transport whose wake-ups the station can space out."""
+        on a UDP link, the only transport whose wake-ups the station can space out. Every vehicle
+        of a fleet heard here asks for its own (its dashboard's frame interval): the shortest
+        holds, so that none gets its messages later than it asked."""
         if self.address.kind not in ("udpin", "udpout"):
             return False
-        self._read_interval = interval
+        if interval not in self._read_intervals:
+            self._read_intervals.append(interval)
         if self._transport is not None:
-            self._transport.pace_reads(interval)
+            self._transport.pace_reads(self._read_interval)
         return True
 
     @property
     def reads_paced(self) -> bool:
         """The vehicle's datagrams come at most once per interval: a reader of this link's
         messages gets them in batches already."""
-        return self._read_interval is not None
+        return bool(self._read_intervals)
+
+    def _read_interval(self) -> float:
+        """The shortest interval asked for (`pace_reads`), s."""
+        return min(interval() for interval in self._read_intervals)
 
     def send(self, msg: MAVLinkMessage, mavlink1: bool | None = None) -> None:
         """Send a message from the ground station, in the protocol version the vehicle speaks
@@ -426,7 +433,7 @@ class Link:
         if self._transport is not None:  # closed: its drops stay counted
             self._closed_drops += self._transport.kernel_drops
         self._transport = transport
-        if transport is not None and self._read_interval is not None:
+        if transport is not None and self._read_intervals:
             transport.pace_reads(self._read_interval)
 
     def _set_state(self, new: LinkState) -> None:

@@ -31,6 +31,7 @@ class VehicleLink(Link):
     def __init__(self, link: Link) -> None:
         super().__init__(link.address, bus=MessageBus(), heartbeat_timeout=link.heartbeat_timeout, name=link.name)
         self.link: Link | None = None
+        self._pace: Callable[[], float] | None = None  # `pace_reads`: asked of the link it is heard on
         self._shown = link
         self._show(link)
 
@@ -39,13 +40,13 @@ class VehicleLink(Link):
         self.link = link
         self.target_system, self.target_component = sysid, compid
         self._show(link)
-        if self._read_interval is not None:
-            link.pace_reads(self._read_interval)
+        if self._pace is not None:
+            link.pace_reads(self._pace)
 
     def pace_reads(self, interval: Callable[[], float]) -> bool:
         """Pace the reads of the link this vehicle is heard on (shared with any other vehicle
-        there: the last pace asked for holds)."""
-        self._read_interval = interval
+        there: the shortest interval asked for holds)."""
+        self._pace = interval
         return self._shown.pace_reads(interval)
 
     @property
