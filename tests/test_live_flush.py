@@ -1,8 +1,9 @@
 """When the live hub flushes its pending frame (gcs.server.live): new data goes out in the loop's
 next turn once the last flush is old enough, data arriving sooner is held and sent in one frame,
 the interval keeps the fan-out within its send budget, and no sample is lost or sent twice on
-the way, whatever the bursts; a viewer's counters as GET /api/status lists them. No timing is
-asserted: only what was sent, and in which turn."""
+the way, whatever the bursts; a viewer's counters and the data age as GET /api/status lists
+them. No timing is asserted: only what was sent, and in which turn (the hub's clock, where the
+gap matters, is the test's)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,17 @@ from gcs.server.live import ClientFeed, ClientSnapshot, LiveHub
 
 def point(t: float, source: str = "onboard") -> AttitudePoint:
     return AttitudePoint(t, source, 0.1, -0.2, 0.3)
+
+
+class Clock:
+    """The hub's clock, moved by the test: the time a flush waits for passes at once, whatever
+    the load (the loop's own timers still run on real time)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
 
 
 def decoded(feed: ClientFeed) -> list[wire.PointsFrame]:
@@ -65,11 +77,12 @@ def test_a_turn_that_comes_a_little_early_goes_out_at_once_and_one_much_sooner_w
     last frame is not held for the rest of it (a timer, and latency); one sooner is."""
 
     async def run(elapsed: float) -> int:
-        hub = LiveHub(seconds=10, frame_interval=3600.0, max_frame_interval=3600.0)
+        clock = Clock()
+        hub = LiveHub(seconds=10, frame_interval=3600.0, max_frame_interval=3600.0, clock=clock)
         hub.connect("test")
         hub.on_points([point(1.0)])
         await asyncio.sleep(0)
-        hub._last_flush -= elapsed * 3600.0  # as if that much of the interval had passed since
+        clock.now += elapsed * 3600.0  # that much of the interval has passed since the flush
         hub.on_points([point(1.01)])
         await asyncio.sleep(0)
         return hub.frames_out
@@ -162,6 +175,18 @@ def test_every_sample_reaches_a_reading_client_once_and_in_order():
     assert sum(map(len, sent.values())) > 1000
     for source in sources:
         assert got[source] == sent[source], source
+
+
+def test_the_data_age_is_the_hub_clocks_time_since_the_newest_point():
+    async def run() -> tuple[float | None, float | None]:
+        clock = Clock()
+        hub = LiveHub(seconds=10, clock=clock)
+        before = hub.data_age()
+        hub.on_points([point(1.0)])
+        clock.now += 0.25
+        return before, hub.data_age()
+
+    assert asyncio.run(run()) == (None, 0.25)
 
 
 def test_a_viewers_counters_as_the_status_lists_them():

@@ -4,11 +4,12 @@ station's budget (predicted rates, back-off on a filling buffer) and a log downl
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 
 import httpx
 import pytest
-from live import running_station, wait_for
+from live import running_sim, running_station, wait_for
 
 from gcs.commands.status import format_report
 from gcs.mavlink.dialect import Encoder, mavlink
@@ -128,6 +129,47 @@ def test_station_backs_off_when_the_radio_buffer_fills(udp_port):
     r = snapshot.radio
     print(f"\n{r.choice}; RAW_IMU requested {r.streams['RAW_IMU'].requested_hz}")
     assert r.scale < 1.0 and r.streams["RAW_IMU"].requested_hz < 50  # the station lowered its requests
+
+
+def test_streams_go_back_to_as_wanted_once_the_radio_is_gone(udp_port):
+    """A radio heard for a while, then gone (unplugged, or a stray RADIO_STATUS: the fuzz test's
+    left the pixhawk sim at 5 Hz for good) must not cap the streams for the rest of the session:
+    once none has come for STATUS_TIMEOUT the station asks for the wanted rates again, and the
+    vehicle sends them."""
+
+    async def scenario() -> tuple[float, str]:
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim,
+            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
+        ):
+
+            def raw_imu_hz() -> tuple[float | None, float | None]:
+                return station.streams.requested.get("RAW_IMU"), sim.stream_rates().get("RAW_IMU")
+
+            def capped() -> bool:
+                return 5.0 < (raw_imu_hz()[1] or 0.0) < 50.0
+
+            await wait_for(lambda: raw_imu_hz() == (50.0, 50.0), 30, "RAW_IMU requested and sent at 50 Hz")
+            await radio_status_until(udp_port, capped, 30, "RAW_IMU capped to the 57600 budget")
+            capped_hz = raw_imu_hz()[1] or 0.0
+            await wait_for(lambda: raw_imu_hz() == (50.0, 50.0), 30, "RAW_IMU at 50 Hz again")
+            return capped_hz, station.radio.choice
+
+    capped_hz, choice = asyncio.run(scenario())
+    assert 5.0 < capped_hz < 50.0  # the radio's budget did apply while it was there
+    assert choice.startswith("radio gone")
+
+
+async def radio_status_until(port: int, done, timeout: float, what: str) -> None:
+    """A SiK radio's RADIO_STATUS (its ids, its buffer all free) twice a second, as long as
+    `done()` is false, then none: a radio unplugged once the test saw what it waited for."""
+    deadline = time.monotonic() + timeout
+    status = Encoder(51, 68).encode(mavlink.MAVLink_radio_status_message(200, 200, 100, 20, 20, 0, 0))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        while not done():
+            assert time.monotonic() < deadline, f"timed out after {timeout} s waiting for {what}"
+            sender.sendto(status, ("127.0.0.1", port))
+            await asyncio.sleep(0.5)
 
 
 def test_two_vehicles_behind_one_radio_share_its_budget(udp_port):

@@ -10,7 +10,9 @@ A radio is taken to be there once a RADIO_STATUS arrives (SiK radios inject one 
    streams by BACK_OFF and asks again, at most once per ADJUST_INTERVAL; after CALM_INTERVALS
    checks above HIGH_TXBUF it climbs back by STEP_UP towards the prediction, never above it nor,
    for CEILING_MEMORY, above BACK_OFF × the rate that last filled the buffer (no see-saw); after
-   that long without a fill, straight back to the prediction.
+   that long without a fill, straight back to the prediction;
+3. no RADIO_STATUS for STATUS_TIMEOUT: the radio is gone (unplugged, or a stray RADIO_STATUS on a
+   link with none) and the streams are requested as wanted again.
 Every decision is written in `choice` and the event log, so the engineer sees what was chosen and why.
 """
 
@@ -55,6 +57,7 @@ class RadioGovernor:
         self._calm = 0
         self._ceiling = 1.0 / BACK_OFF  # the scale that last filled the buffer (none yet)
         self._ceiling_at = 0.0
+        self._capping = False  # the requests were capped for a radio not yet seen gone
 
     @property
     def budget_bps(self) -> float:
@@ -110,7 +113,7 @@ class RadioGovernor:
                     self._status_at = time.monotonic()
                     self.status = RadioStatus(m.rssi, m.remrssi, m.noise, m.remnoise, m.txbuf, m.rxerrors, m.fixed, 0.0)
                     if first:
-                        self.scale, self._ceiling = 1.0, 1.0 / BACK_OFF
+                        self.scale, self._ceiling, self._capping = 1.0, 1.0 / BACK_OFF, True
                         self._decide("radio found: requesting the rates predicted to fit")
                 if time.monotonic() >= next_check:
                     next_check = time.monotonic() + ADJUST_INTERVAL
@@ -119,6 +122,10 @@ class RadioGovernor:
             sub.close()
 
     def _adjust(self) -> None:
+        if self._capping and not self.present:
+            self._capping, self.scale, self.prediction = False, 1.0, None
+            self._decide(f"radio gone (no RADIO_STATUS for {STATUS_TIMEOUT:g} s): requesting the rates as wanted")
+            return
         if not self.present or self.status is None or not self.wanted:
             return
         txbuf = self.status.txbuf

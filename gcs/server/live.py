@@ -267,6 +267,7 @@ class LiveHub:
         client_max_frames: int = 1000,
         sends_per_s: float = 500.0,
         max_frame_interval: float = 0.010,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.capacity = int(seconds * max_rate)
         self.seconds = seconds
@@ -274,14 +275,16 @@ class LiveHub:
         self.sends_per_s = sends_per_s
         self.max_frame_interval = max_frame_interval
         self.client_max_frames = client_max_frames
+        #: host seconds for the flush gap and the data age (a test moves it by hand)
+        self.clock = clock
         self.store: dict[str, SeriesRing] = {}
         self.clients: dict[int, ClientFeed] = {}
         self.points_in = 0
         self.frames_out = 0
-        self.last_arrival: float | None = None  # host monotonic s of the newest point
+        self.last_arrival: float | None = None  # `clock` s at the newest point
         self._pending: dict[str, list[list[float]]] = {}
         self._pending_n = 0
-        self._last_flush = 0.0
+        self._last_flush = -math.inf  # none yet: the first points go out in the next turn
         self._flush_handle: asyncio.Handle | None = None
         self._seq = itertools.count(1)
         self._ids = itertools.count(1)
@@ -291,7 +294,7 @@ class LiveHub:
         """LiveEstimation listener: store and queue every point; schedule a flush. The points are
         taken per source as columns (sorted, grouped, zipped and converted by C loops), not one at
         a time: a served vehicle's turn brings ~30 of them at 1000 msg/s."""
-        now = time.monotonic()
+        now = self.clock()
         self.last_arrival = now
         self.points_in += len(points)
         pending = self._pending
@@ -334,7 +337,7 @@ class LiveHub:
         self._flush_handle = None
         if not self._pending_n:
             return
-        self._last_flush = time.monotonic()
+        self._last_flush = self.clock()
         n = self._pending_n
         pending, self._pending, self._pending_n = self._pending, {}, 0
         if not self.clients:  # nobody to send it to (a page opening later reads the store)
@@ -357,7 +360,7 @@ class LiveHub:
     # ---- readers -------------------------------------------------------------------------
     def data_age(self) -> float | None:
         """Seconds since the newest point arrived (None before the first)."""
-        return None if self.last_arrival is None else time.monotonic() - self.last_arrival
+        return None if self.last_arrival is None else self.clock() - self.last_arrival
 
     def newest(self) -> float | None:
         """The vehicle time of the newest sample of the current boot (None before the first)."""

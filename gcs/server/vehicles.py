@@ -70,6 +70,7 @@ def serve_vehicles(
                 client_max_frames=hub.client_max_frames,
                 sends_per_s=hub.sends_per_s,
                 max_frame_interval=hub.max_frame_interval,
+                clock=hub.clock,
             )
             app.state.hubs[id(entry.station)] = vehicle_hub
             follow(entry.station, vehicle_hub)
