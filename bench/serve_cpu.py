@@ -9,7 +9,9 @@ time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YA
   traffic: 5 clients polling `GET /api/status` once a second, 5 `/ws/live` WebSocket clients
   (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D view on viser's WebSocket
   (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures before 2026-12-04's sixth
-  session did), each kind in its own process.
+  session did), each kind in its own process. `view_windows_per_viewer_s`: the windows of viser
+  messages each viewer received a second (one per drawing: 20 for 5 viewers since the seventh
+  session's drawing budget, gcs.server.pose_refresh; 30 before).
 - baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
 - baseline `MAVProxy` (`mavproxy.py` from $GCS_BENCH_MAVPROXY, else PATH; not a dependency of
   gcs: `python -m venv /tmp/mavproxy-venv && /tmp/mavproxy-venv/bin/pip install MAVProxy`):
@@ -198,13 +200,13 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
                 stdout=subprocess.DEVNULL,
             )
         )
+        views = None
         if VIEWS_3D:
             viser_url = f"ws://127.0.0.1:{http_json(f'{base}/api/status')['viser_port']}"
-            helpers.append(
-                subprocess.Popen(
-                    [sys.executable, "-m", "bench.viser_clients", viser_url, str(PAGES), str(seconds)],
-                    stdout=subprocess.DEVNULL,
-                )
+            views = subprocess.Popen(
+                [sys.executable, "-m", "bench.viser_clients", viser_url, str(PAGES), str(seconds)],
+                stdout=subprocess.PIPE,
+                text=True,
             )
         sender = run_sender(port, rate, seconds)
         result = measure_cpu(proc, sender, seconds) if measure else {}
@@ -213,9 +215,11 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
         received = http_json(f"{base}/api/status")["link"]["packets"]
         for h in helpers:
             h.wait(30)
+        # the 3-D view's drawings each viewer got per second (messages: one window of viser's each)
+        view_hz = [m / seconds for m, _ in json.loads(views.communicate(timeout=30)[0])] if views else []
         server.send_signal(signal.SIGINT)  # as Ctrl-C: a clean stop (and a profile written)
         server.wait(60)
-    return {**result, "sent": sent, "received": received}
+    return {**result, "sent": sent, "received": received, "view_hz": view_hz}
 
 
 def measure_cpu(proc: psutil.Process, sender: subprocess.Popen, seconds: float) -> dict:
@@ -269,9 +273,11 @@ def cpu_rounds(seconds: float, rounds: int) -> dict[str, list[float]]:
     """Core fraction of each receiver in `rounds` alternating rounds (ours, bare, MAVProxy when
     installed): one 10 s window swings by ±30 % on a shared machine, so each figure is the median
     of its rounds, and each ratio the median of the rounds' own ratios."""
-    cpu: dict[str, list[float]] = {"serve": [], "pymavlink": [], "MAVProxy": []}
+    cpu: dict[str, list[float]] = {"serve": [], "pymavlink": [], "MAVProxy": [], "view_hz": []}
     for _ in range(rounds):
-        cpu["serve"].append(serve(CPU_RATE, seconds, True)["cpu"])
+        served = serve(CPU_RATE, seconds, True)
+        cpu["serve"].append(served["cpu"])
+        cpu["view_hz"] += served["view_hz"]
         cpu["pymavlink"].append(bare(CPU_RATE, seconds, True)["cpu"])
         if mavproxy_exe():
             cpu["MAVProxy"].append(mavproxy(CPU_RATE, seconds)["cpu"])
@@ -299,6 +305,7 @@ def main() -> list[dict]:
             "ours_core_pct": pct(cpu["serve"]),
             "ours_core_pct_each": [round(100 * c / per_k, 1) for c in cpu["serve"]],
             "ratio": ratio("pymavlink"),
+            "view_windows_per_viewer_s": round(statistics.median(cpu["view_hz"]), 1) if cpu["view_hz"] else None,
             "target": "≤ 15 % and ≤ 2× bare",
             "load_avg_1m": round(os.getloadavg()[0], 2),
         }
