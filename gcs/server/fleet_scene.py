@@ -41,9 +41,9 @@ class FleetScene:
             fleet.vehicle_added.connect(self._vehicle_added)
 
     def update(self) -> None:
-        """Every vehicle's bodies to its latest attitudes (the pose loop, event loop), as one
-        window of viser messages: one wake-up of viser's loop and one encoding per viewer, where
-        each moved body alone cost both (viser wakes its loop on every message outside `atomic`)."""
+        """Every vehicle's bodies to its latest attitudes (the pose loop, event loop), in one
+        `atomic` block: viser sends a drawing's bodies to each viewer in one window, together,
+        whatever the fleet's size."""
         with self.server.atomic():
             for view in self.views:
                 view.pose.update(*view.station.latest_attitudes())
