@@ -4,14 +4,16 @@ each of 4 sources every 5 ms (200 Hz, as ATTITUDE and three estimators), with 0 
 (bench.ws_readers, their own process). µs per send = (loop CPU with N − with 0) / sends, so it
 holds each send's share of the frame's encoding and flush (without clients nothing is encoded).
 
-    python -m bench.ws_fanout [--clients 20] [--seconds 8] [--loop asyncio] [--ws websockets] [--shipped]
+    python -m bench.ws_fanout [--clients 20] [--seconds 8] [--loop asyncio] [--ws direct] [--baseline websockets-sansio]
 
-The station is started without traffic (its link idle): the points are the hub's only work.
-Rows: the shipped interval (gcs.server.live.LiveHub.flush_interval) and a fixed 10 ms (the
-interval before), each with its frames/s and loop CPU (% of a core); `--shipped` only the first.
-The loop is the station's (`gcs.runtime.event_loop`: uvloop where installed) unless `--loop
-asyncio`; `--ws` picks uvicorn's WebSocket implementation (`websockets-sansio`, `websockets`,
-`wsproto` where installed; `auto` as shipped).
+The station is started without traffic (its link idle): the points are the hub's only work, at
+the shipped interval (gcs.server.live.LiveHub.flush_interval). Rows: the shipped protocol
+(`direct`: frames written straight to each socket, gcs.server.ws_direct) and, in the same run,
+the baseline (uvicorn's own sans-I/O protocol, every send through ASGI), each with its frames/s,
+loop CPU (% of a core), µs per send and the share of messages written directly. The loop is the
+station's (`gcs.runtime.event_loop`: uvloop where installed) unless `--loop asyncio`; `--ws` and
+`--baseline` take any `DashboardServer(ws_protocol=...)`: `direct`, or uvicorn's
+`websockets-sansio`, `websockets`, `wsproto` (where installed), `auto`.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from gcs.server.dashboard import DashboardServer
 from gcs.transport.address import free_port
 
 SOURCES = ("onboard", "dcm", "kf", "ekf")
+#: uvicorn's own sans-I/O protocol: every send through ASGI (what "direct" adds to)
+BASELINE_WS = "websockets-sansio"
 PERIOD_S = 0.005
 
 
@@ -68,6 +72,8 @@ async def measure(clients: int, seconds: float, fixed_interval: float | None, ws
         await asyncio.sleep(seconds - 2.0)
         frames, cpu, wall = server.hub.frames_out - frames0, time.thread_time() - cpu0, time.monotonic() - wall0
         interval = server.hub.flush_interval()
+        feeds = list(server.hub.clients.values())
+        direct = sum(f.direct_writes for f in feeds) / max(1, sum(f.sent_messages for f in feeds))
         if readers is not None:
             await readers.communicate()
     finally:
@@ -75,31 +81,40 @@ async def measure(clients: int, seconds: float, fixed_interval: float | None, ws
         await server.stop()
         await station.stop()
     kind = type(loop).__module__.split(".")[0]  # uvloop or asyncio
-    return {"frames_per_s": frames / wall, "cpu_pct": 100 * cpu / wall, "interval_ms": 1000 * interval, "loop": kind}
+    return {
+        "frames_per_s": frames / wall,
+        "cpu_pct": 100 * cpu / wall,
+        "interval_ms": 1000 * interval,
+        "loop": kind,
+        "direct_share": direct,
+    }
 
 
 def main(
-    clients: int = 20, seconds: float = 8.0, loop: str = "station", ws: str = "auto", shipped: bool = False
+    clients: int = 20, seconds: float = 8.0, loop: str = "station", ws: str = "direct", baseline: str = BASELINE_WS
 ) -> list[dict[str, Any]]:
     run = asyncio.run if loop == "asyncio" else event_loop.run
     rows = []
-    for name, fixed in (("shipped", None), ("fixed 10 ms", 0.010))[: 1 if shipped else 2]:
-        idle = run(measure(0, seconds, fixed, ws))
-        busy = run(measure(clients, seconds, fixed, ws))
-        per_send = 1e4 * (busy["cpu_pct"] - idle["cpu_pct"]) / max(busy["frames_per_s"] * clients, 1e-9)
+    per_send: dict[str, float] = {}
+    for kind in (ws, baseline):
+        idle = run(measure(0, seconds, None, kind))
+        busy = run(measure(clients, seconds, None, kind))
+        per_send[kind] = 1e4 * (busy["cpu_pct"] - idle["cpu_pct"]) / max(busy["frames_per_s"] * clients, 1e-9)
         rows.append(
             {
-                "benchmark": f"ws fan-out, {clients} clients, 4 sources at 200 Hz, interval {name}",
+                "benchmark": f"ws fan-out, {clients} clients, 4 sources at 200 Hz, ws {kind}",
                 "loop": busy["loop"],
-                "ws": ws,
+                "ws": kind,
                 "interval_ms": round(busy["interval_ms"], 1),
                 "frames_per_s": round(busy["frames_per_s"], 1),
                 "loop_cpu_pct": round(busy["cpu_pct"], 2),
                 "loop_cpu_pct_no_clients": round(idle["cpu_pct"], 2),
-                "cpu_us_per_send": round(per_send, 1),
+                "cpu_us_per_send": round(per_send[kind], 1),
+                "direct_share": round(busy["direct_share"], 3),
                 "load_avg_1m": round(os.getloadavg()[0], 2),
             }
         )
+    rows[0]["ratio_to_baseline"] = round(per_send[ws] / max(per_send[baseline], 1e-9), 2)
     return rows
 
 
@@ -108,8 +123,10 @@ if __name__ == "__main__":
     parser.add_argument("--clients", type=int, default=20)
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--loop", choices=("station", "asyncio"), default="station")
-    parser.add_argument("--ws", default="auto", help="uvicorn's WebSocket implementation")
-    parser.add_argument("--shipped", action="store_true", help="the shipped interval only")
+    parser.add_argument(
+        "--ws", default="direct", help="the server's WebSocket protocol (DashboardServer's ws_protocol)"
+    )
+    parser.add_argument("--baseline", default=BASELINE_WS, help="the protocol measured against it, in the same run")
     a = parser.parse_args()
-    for row in main(a.clients, a.seconds, a.loop, a.ws, a.shipped):
+    for row in main(a.clients, a.seconds, a.loop, a.ws, a.baseline):
         print(json.dumps(row))

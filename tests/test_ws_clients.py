@@ -36,6 +36,9 @@ def test_twenty_clients_one_stuck(udp_port):
     print(f"\n20 clients: {r}")
     assert min(r["reader_share"]) >= 0.95, r
     assert r["stuck_dropped"] > 0 and r["stuck_queued"] <= r["max_frames"], r
+    # its first frames went straight to its socket (gcs.server.ws_direct), the rest to its queue
+    # once the socket was full: a direct write never blocks or bypasses the queue
+    assert r["stuck_direct_writes"] > 0, r
     assert r["estimation_drops"] == 0 and r["lost"] == 0 and r["crc_errors"] == 0 and r["malformed"] == 0, r
 
 
@@ -116,6 +119,7 @@ async def twenty_clients(udp_port: int, count: int = ATTITUDE_WINDOW) -> dict:
                     ),
                     "stuck_dropped": stuck_feed.dropped_points,
                     "stuck_queued": len(stuck_feed.frames),
+                    "stuck_direct_writes": stuck_feed.direct_writes,
                     "max_frames": server.hub.client_max_frames,
                     "estimation_drops": sum(s.dropped for s in station.bus.subscriptions() if s.name == "estimation"),
                     "lost": station.link.stats.packets_lost(),

@@ -18,6 +18,7 @@ from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
 from gcs.server.uvicorn_server import DashboardUvicorn
+from gcs.server.ws_direct import DirectFrameProtocol
 from gcs.sessions.workbench import warm_up
 
 if TYPE_CHECKING:
@@ -48,7 +49,7 @@ class DashboardServer:
         allow_origins: tuple[str, ...] = (),
         token: str | None = None,
         fleet: FleetFacade | None = None,
-        ws_protocol: str = "auto",
+        ws_protocol: str = "direct",
     ) -> None:
         self.station = station
         self.fleet = fleet
@@ -103,9 +104,10 @@ class DashboardServer:
             app.state.viser_port = self.viser_port
         # no permessage-deflate: the live frames are small and frequent, and compressing each one
         # for each client cost the loop more CPU than the bytes it saved (docs/benchmarks.md)
-        config = uvicorn.Config(
-            app, log_level="warning", ws=self.ws_protocol, ws_ping_interval=None, ws_per_message_deflate=False
-        )
+        # "direct": uvicorn's sans-I/O protocol with /ws/live's direct writes (gcs.server.ws_direct);
+        # else one of uvicorn's own ("auto", "websockets-sansio", "websockets", "wsproto")
+        ws = DirectFrameProtocol if self.ws_protocol == "direct" else self.ws_protocol
+        config = uvicorn.Config(app, log_level="warning", ws=ws, ws_ping_interval=None, ws_per_message_deflate=False)
         self._server = DashboardUvicorn(config)
         self._tasks.append(asyncio.create_task(self._server.serve(sockets=[sock])))
         while not self._server.started:

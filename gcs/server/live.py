@@ -9,7 +9,9 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   half a `flush_interval()` old (`FLUSH_GAP`), else when it will be; encoded once (binary float arrays,
   `gcs.server.wire`), the same bytes for every client, and written to each client in the
   flush's own turn (`ClientFeed`: no task woken per client per frame) unless a send to it is
-  still waiting, when it joins that client's bounded queue (`client_max_frames`). A client that
+  still waiting, when it joins that client's bounded queue (`client_max_frames`). Where the
+  server offers it (`gcs.server.ws_direct`), the frame is also framed as a WebSocket message
+  once, and those bytes go straight to each client's socket. A client that
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
@@ -41,6 +43,7 @@ import numpy as np
 from gcs.core.estimation import AttitudePoint
 from gcs.runtime.dropqueue import DropOldestQueue
 from gcs.server import eager, wire
+from gcs.server.ws_direct import DirectWrite, binary_frame
 
 DEG = 180.0 / math.pi
 #: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.vehicle).
@@ -157,10 +160,12 @@ class ClientFeed:
     """One WebSocket client's encoded frames (`gcs.server.wire`) and its counters.
 
     Once it has a writer (the route attaches one), a frame offered while nothing is on its way
-    to this client is written at once, in the flush's own turn (`eager.start`: no task when the socket
-    accepts it). While a send waits (a slow client: its transport paused), frames wait in the
-    bounded queue, the oldest dropped and counted when it is full, and go out together as one
-    message when the send is done; the flush, the link and the other clients never wait for it."""
+    to this client is written at once, in the flush's own turn: straight to the socket, already
+    framed, where the server offers a direct write (`gcs.server.ws_direct`) and the socket takes
+    it, else through the writer (`eager.start`: no task when the socket accepts it). While a
+    send waits (a slow client: its transport paused), frames wait in the bounded queue, the
+    oldest dropped and counted when it is full, and go out together as one message when the
+    send is done; the flush, the link and the other clients never wait for it."""
 
     id: int
     address: str
@@ -168,6 +173,8 @@ class ClientFeed:
 
     def __post_init__(self) -> None:
         self.writer: Writer | None = None
+        self.direct: DirectWrite | None = None
+        self.direct_writes = 0  # messages written straight to the socket (gcs.server.ws_direct)
         self.frames: DropOldestQueue[tuple[bytes, int]] = DropOldestQueue(self.max_frames)
         self.queued_points = 0
         self.sent_points = 0
@@ -181,12 +188,17 @@ class ClientFeed:
     def dropped_frames(self) -> int:
         return self.frames.dropped
 
-    def offer(self, frame: bytes, points: int) -> None:
+    def offer(self, frame: bytes, points: int, framed: bytes | None = None) -> None:
         """Write a frame now if nothing is on its way to this client, else queue it without
-        waiting; when the queue is full, the oldest frame is dropped and counted."""
+        waiting; when the queue is full, the oldest frame is dropped and counted. `framed`: the
+        frame as a whole WebSocket message (`ws_direct.binary_frame`), for a direct write."""
         if self.closed:
             return
         if self.writer is not None and self._sending is None and not self.frames:
+            if self.direct is not None and self.direct(binary_frame(frame) if framed is None else framed):
+                self.direct_writes += 1
+                self.sent(points)
+                return
             self._write(frame, points)
             return
         lost = self.frames.put((frame, points))
@@ -195,9 +207,10 @@ class ClientFeed:
             self.queued_points -= lost[1]
             self.dropped_points += lost[1]
 
-    def attach(self, writer: Writer) -> None:
-        """Start writing to the client: what was queued since it connected, then every frame."""
-        self.writer = writer
+    def attach(self, writer: Writer, direct: DirectWrite | None = None) -> None:
+        """Start writing to the client: what was queued since it connected, then every frame;
+        with `direct`, each frame straight to its socket whenever that takes it at once."""
+        self.writer, self.direct = writer, direct
         if self.frames and self._sending is None and not self.closed:
             self._write(*self.take())
 
@@ -325,8 +338,9 @@ class LiveHub:
             self._flush_handle.cancel()
         self._flush()
         frame = wire.message_frame(message)
+        framed = binary_frame(frame)
         for client in self.clients.values():
-            client.offer(frame, 0)
+            client.offer(frame, 0, framed)
 
     def flush_interval(self) -> float:
         """Seconds between flushes: the fan-out within `sends_per_s`, between `frame_interval`
@@ -343,9 +357,10 @@ class LiveHub:
         if not self.clients:  # nobody to send it to (a page opening later reads the store)
             return
         frame = wire.points_frame(next(self._seq), self._last_flush, pending)
+        framed = binary_frame(frame)  # once for every client
         self.frames_out += 1
         for client in self.clients.values():
-            client.offer(frame, n)
+            client.offer(frame, n, framed)
 
     # ---- clients -------------------------------------------------------------------------
     def connect(self, address: str) -> ClientFeed:

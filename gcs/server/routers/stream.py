@@ -22,6 +22,7 @@ from gcs.core import strict_json
 from gcs.server.deps import HubDep, StationDep
 from gcs.server.live import ClientFeed
 from gcs.server.models import History
+from gcs.server.ws_direct import direct_write
 
 router = APIRouter(tags=["live"])
 
@@ -57,7 +58,9 @@ async def live(ws: WebSocket, hub: HubDep) -> None:
     stats: asyncio.Task[None] | None = None
     try:
         await ws.send_text(strict_json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
-        feed.attach(ws.send_bytes)  # the hub writes the frames from here on (gcs.server.live.ClientFeed)
+        # the hub writes the frames from here on (gcs.server.live.ClientFeed), straight to the
+        # socket where the server offers it (gcs.server.ws_direct)
+        feed.attach(ws.send_bytes, direct_write(ws.scope))
         stats = asyncio.create_task(send_stats(ws, feed))
         # The page sends nothing we need; reading notices the disconnect. Whatever a client sends
         # (text or binary) is read and ignored, never an error.
