@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
-from websockets.http11 import Request
+
+if TYPE_CHECKING:
+    from websockets.http11 import Request
 
 #: the ASGI scope extension's name; its value is {"write": DirectWrite}
 DIRECT_WRITE = "gcs.direct_write"
