@@ -170,3 +170,48 @@ def test_a_link_shared_by_vehicles_is_read_at_the_shortest_interval_asked(udp_po
             await asyncio.gather(running, return_exceptions=True)
 
     asyncio.run(go())
+
+
+class WatchCountingLoop(asyncio.SelectorEventLoop):
+    """asyncio's own loop, counting the watches put on a socket (each an epoll_ctl, and with the
+    hold's removal a second one)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.watches = 0
+
+    def add_reader(self, fd, callback, *args) -> None:  # type: ignore[no-untyped-def]
+        self.watches += 1
+        super().add_reader(fd, callback, *args)
+
+
+def test_a_steady_stream_is_read_on_the_hold_timer_without_watching_the_socket_again(udp_port):
+    """Datagrams every 10 ms, paced at 50 ms: after the first hold each read holds again, so the
+    stream is read once per interval on the timer alone; the socket is watched at the open and
+    once more when the stream stops (a read that finds nothing), not again at every interval."""
+    interval, count, every = 0.05, 60, 0.01
+
+    async def go() -> tuple[int, list[tuple[float, list[bytes]]]]:
+        loop = asyncio.get_running_loop()
+        assert isinstance(loop, WatchCountingLoop)
+        transport = UdpTransport(Address("udpin", host="127.0.0.1", port=udp_port))
+        transport.pace_reads(lambda: interval)
+        batches = Batches()
+        await transport.open(lambda data: None, batches)
+        sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            for k in range(count):
+                loop.call_later(k * every, sender.sendto, k.to_bytes(2, "big"), ("127.0.0.1", udp_port))
+            await batches.until(count, 30)
+            # the read after the last one finds nothing and watches the socket again
+            await wait_for(lambda: loop.watches >= 2, 10, "the socket watched again once the stream stopped")
+        finally:
+            sender.close()
+            transport.close()
+        return loop.watches, batches.calls
+
+    with asyncio.Runner(loop_factory=WatchCountingLoop) as runner:
+        watches, calls = runner.run(go())
+    assert [d for _, call in calls for d in call] == [k.to_bytes(2, "big") for k in range(count)]
+    assert len(calls) >= 5  # read in several paced reads, not in one
+    assert watches <= 3, (watches, len(calls))  # the open, the stop; one to spare for a late timer

@@ -107,7 +107,8 @@ class UdpTransport(Transport):
     The socket is read with recvmsg from the loop's reader callback (asyncio's datagram
     transport hides ancillary data), up to UDP_READ_BATCH datagrams per wake-up. Paced
     (`pace_reads`), a wake-up that read fewer than that stops watching the socket for the interval,
-    then reads what came meanwhile at once: a vehicle sending each message in its own datagram
+    then reads what came meanwhile at once, and goes on reading once per interval on that timer
+    while datagrams keep coming (`_poll`): a vehicle sending each message in its own datagram
     would otherwise wake the loop up to a thousand times a second, where the estimation and the
     dashboard take what arrived once per frame anyway. A read that follows two intervals without
     any starts no hold: datagrams that come that seldom are read as they come, and the hold's
@@ -128,6 +129,7 @@ class UdpTransport(Transport):
         self._on_batch: BatchCallback | None = None
         self._read_interval: Callable[[], float] | None = None
         self._resume: asyncio.TimerHandle | None = None
+        self._watched = False  # the loop's reader is on the socket
         self._last_read = -math.inf  # loop time of the last read that brought datagrams
 
     async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
@@ -151,6 +153,7 @@ class UdpTransport(Transport):
         self._sock, self._loop, self._on_data, self._on_batch = sock, loop, on_data, on_batch
         self._new_closed_future()
         loop.add_reader(sock.fileno(), self._readable)
+        self._watched = True
 
     @property
     def local_port(self) -> int:
@@ -182,19 +185,27 @@ class UdpTransport(Transport):
             on_data(data)
 
     def _hold(self, seconds: float) -> None:
-        """Stop watching the socket for `seconds`; what arrives meanwhile waits in its buffer."""
+        """Leave the socket unwatched for `seconds`, then read it (`_poll`); what arrives meanwhile
+        waits in its buffer."""
         if self._sock is None or self._loop is None:
             return
-        self._loop.remove_reader(self._sock.fileno())
-        self._resume = self._loop.call_later(seconds, self._watch)
+        if self._watched:
+            self._loop.remove_reader(self._sock.fileno())
+            self._watched = False
+        self._resume = self._loop.call_later(seconds, self._poll)
 
-    def _watch(self) -> None:
-        """Watch the socket again, and read what it holds now."""
+    def _poll(self) -> None:
+        """Read what came during a hold. While datagrams keep coming, each read holds again and
+        the socket stays unwatched: a steady stream is read on this timer alone, without the
+        watch's two epoll_ctl calls per interval. A read that finds nothing (the stream paused)
+        or a whole batch (a flood: more is waiting) watches the socket again."""
         self._resume = None
         if self._sock is None or self._loop is None:
             return
-        self._loop.add_reader(self._sock.fileno(), self._readable)
         self._readable()
+        if self._resume is None and self._sock is not None:  # not held again
+            self._loop.add_reader(self._sock.fileno(), self._readable)
+            self._watched = True
 
     def _read(self) -> list[bytes]:
         """The datagrams waiting, up to UDP_READ_BATCH. The drop count is cumulative, so only the
