@@ -3,8 +3,9 @@ once per flush and the same bytes go to every client, one `transport.write` each
 
 Why: through the ASGI `send` (Starlette's WebSocket, its exception wrapper, uvicorn's protocol,
 the websockets library framing the message anew for each client) a send cost the event loop
-~30 µs of CPU per client per frame; with 5 pages at 100 frames/s that was the largest single
-item of `gcs serve`'s loop after the estimation and the link (docs/benchmarks.md).
+46 µs of CPU per client per frame in `gcs serve` (26 written directly); with 5 pages at 100
+frames/s that was the largest single item of its loop after the estimation and the link
+(docs/benchmarks.md).
 
 How: `DirectFrameProtocol` is uvicorn's sans-I/O WebSocket protocol offering the app an ASGI
 extension (`DIRECT_WRITE` in the connection scope's "extensions", as the ASGI spec lets a
