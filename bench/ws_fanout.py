@@ -39,12 +39,10 @@ BASELINE_WS = "websockets-sansio"
 PERIOD_S = 0.005
 
 
-async def measure(clients: int, seconds: float, fixed_interval: float | None, ws: str = "auto") -> dict[str, Any]:
+async def measure(clients: int, seconds: float, ws: str) -> dict[str, Any]:
     station = Station(StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", request_streams=False))
     await station.start()
     server = DashboardServer(station, port=0, viser=False, ws_protocol=ws)
-    if fixed_interval is not None:
-        server.hub.frame_interval = server.hub.max_frame_interval = fixed_interval
     await server.start()
     loop = asyncio.get_running_loop()
     ticks = 0
@@ -97,8 +95,8 @@ def main(
     rows = []
     per_send: dict[str, float] = {}
     for kind in (ws, baseline):
-        idle = run(measure(0, seconds, None, kind))
-        busy = run(measure(clients, seconds, None, kind))
+        idle = run(measure(0, seconds, kind))
+        busy = run(measure(clients, seconds, kind))
         per_send[kind] = 1e4 * (busy["cpu_pct"] - idle["cpu_pct"]) / max(busy["frames_per_s"] * clients, 1e-9)
         rows.append(
             {
