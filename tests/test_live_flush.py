@@ -105,10 +105,12 @@ def test_the_interval_keeps_the_fan_out_within_its_send_budget_up_to_the_longest
     assert hub.flush_interval() == 0.004  # 2 clients: 500 sends/s at the shortest interval
 
 
-def test_by_default_five_pages_get_a_frame_every_10_ms_and_one_page_every_4_ms():
+def test_by_default_five_pages_get_a_frame_every_15_ms_and_one_page_every_4_ms():
     hub = LiveHub(seconds=10)
     feeds = [hub.connect(str(k)) for k in range(5)]
-    assert hub.flush_interval() == 0.010  # 500 sends/s
+    assert hub.flush_interval() == 0.015  # 333 sends/s
+    hub.disconnect(feeds.pop())
+    assert hub.flush_interval() == 4 / 333
     for feed in feeds[1:]:
         hub.disconnect(feed)
     assert hub.flush_interval() == 0.004
