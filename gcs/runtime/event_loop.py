@@ -8,7 +8,8 @@ and its socket transports take a fraction of the CPU of asyncio's pure-Python on
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -27,3 +28,22 @@ def run(main: Coroutine[Any, Any, T]) -> T:
     """asyncio.run(main) on the fastest loop available."""
     with asyncio.Runner(loop_factory=loop_factory()) as runner:
         return runner.run(main)
+
+
+@contextmanager
+def loops_made_fast() -> Iterator[None]:
+    """Within: `asyncio.new_event_loop()` makes the loop `run` runs on (for a library that makes
+    its own loop in its own thread, such as viser's server, which makes it before its constructor
+    returns). The process's policy is put back after."""
+    factory = loop_factory()
+    if factory is None:
+        yield
+        return
+    import uvloop  # noqa: PLC0415 (loop_factory found it)
+
+    before = asyncio.get_event_loop_policy()
+    asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())
+    try:
+        yield
+    finally:
+        asyncio.set_event_loop_policy(before)

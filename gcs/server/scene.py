@@ -21,6 +21,7 @@ import viser
 
 from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import euler_to_quat
+from gcs.runtime.event_loop import loops_made_fast
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.server.colors import COLORS, OTHER
@@ -49,7 +50,8 @@ class LocalViserServer(viser.ViserServer):
     request refused."""
 
     def __init__(self, host: str, port: int) -> None:
-        super().__init__(host=host, port=port, verbose=False, label="gcs pose")
+        with loops_made_fast():  # viser's thread makes its loop before this returns
+            super().__init__(host=host, port=port, verbose=False, label="gcs pose")
         self.gui.configure_theme(show_share_button=False, show_logo=False)
         # The page's gain panel is the control: viser's panel starts minimized to its title bar, so
         # it never covers the vehicle (at 600 px and wider); narrower, it is hidden (EMBEDDED_STYLE).
