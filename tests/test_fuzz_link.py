@@ -44,10 +44,10 @@ BACKLOG_LIMIT_S = 10.0
 RSS_GROWTH_LIMIT_MB = 150.0  # after warm-up, through the fuzz and the recovery
 RSS_LIMIT_MB = 1500.0
 #: The stretch of good data only, after the estimators resumed: points each estimator made on the
-#: vehicle clock (3 s at 5 Hz: the fuzz's RADIO_STATUS packets, on a link the station takes to
-#: carry 57600 baud, hold the streams at the radio budget's 5 Hz floor until that radio is taken
-#: to be gone, 5-8 s after the fuzz), and rounds of the JSON and RSS checks and WebSocket frames
-#: meanwhile
+#: vehicle clock (3 s at 5 Hz, the radio budget's floor: the fuzz's RADIO_STATUS packets held the
+#: streams there until that radio was taken to be gone, 5-8 s after the fuzz, when the station took
+#: any RADIO_STATUS for a radio's; they come from the vehicle's ids, no radio's, and are ignored
+#: now), and rounds of the JSON and RSS checks and WebSocket frames meanwhile
 GOOD_SAMPLES = 15
 GOOD_POLLS = 5
 ESTIMATION_INPUTS = ("RAW_IMU", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "ATTITUDE", "AHRS2", "SIMSTATE")

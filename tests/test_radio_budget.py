@@ -160,6 +160,39 @@ def test_streams_go_back_to_as_wanted_once_the_radio_is_gone(udp_port):
     assert choice.startswith("radio gone")
 
 
+def test_a_radio_status_from_no_radio_component_caps_nothing(udp_port):
+    """RADIO_STATUS with a full buffer from the vehicle's own ids and from another ground station:
+    no radio of this link (a radio reports as component 68), so no radio is found, each sender is
+    named once in the event log and every packet counted; the SiK radio's own, after them, is
+    taken at once."""
+
+    async def scenario():
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim,
+            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
+        ):
+            await wait_for(lambda: sim.stream_rates().get("RAW_IMU") == 50.0, 30, "RAW_IMU sent at 50 Hz")
+            full = mavlink.MAVLink_radio_status_message(200, 200, 0, 20, 20, 0, 0)  # txbuf 0 % free
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+                for k in range(10):  # the radio reads at most 20 waiting
+                    ids = (1, 1) if k % 2 else (255, 190)
+                    sender.sendto(Encoder(*ids).encode(full), ("127.0.0.1", udp_port))
+                sender.sendto(Encoder(51, 68).encode(full), ("127.0.0.1", udp_port))  # then the radio's
+                await wait_for(lambda: station.radio.present, 30, "a RADIO_STATUS taken")
+            radio_events = [e.data for e in station.events.recent if e.kind == "radio"]
+            return radio_events, station.publish().radio
+
+    radio_events, snap = asyncio.run(scenario())
+    # each foreign sender named once, and only the radio's own packet found a radio
+    said = [e.get("ignored", e.get("choice")) for e in radio_events]
+    assert sorted(said[:2]) == [
+        "RADIO_STATUS from system 1 component 1: no radio (a radio reports as component 68)",
+        "RADIO_STATUS from system 255 component 190: no radio (a radio reports as component 68)",
+    ]
+    assert said[2:] == ["radio found: requesting the rates predicted to fit"]
+    assert snap is not None and snap.ignored_status == 10
+
+
 async def radio_status_until(port: int, done, timeout: float, what: str) -> None:
     """A SiK radio's RADIO_STATUS (its ids, its buffer all free) twice a second, as long as
     `done()` is false, then none: a radio unplugged once the test saw what it waited for."""

@@ -2,7 +2,12 @@
 costs against what the link carries, the rates predicted to fit before they are requested, and a
 station that backs off when the radio's buffer fills instead of flooding it.
 
-A radio is taken to be there once a RADIO_STATUS arrives (SiK radios inject one a second). Then:
+A radio is taken to be there once a RADIO_STATUS arrives from a radio's component
+(MAV_COMP_ID_TELEMETRY_RADIO, 68: SiK, RFD900 and mLRS inject one a second as system 51). One from
+any other component is counted and named in the event log once per sender, and changes nothing:
+an autopilot does not forward its own radio's (ArduPilot's routing drops RADIO_STATUS), so it is
+some other part's report (a companion's link, a second ground station) or a corrupt packet, and
+the streams must not be capped for a radio this link does not have. Then:
 1. predict: the wanted rates scaled so that streams + the other traffic fit BUDGET_SHARE of the
    link's capacity (gcs.mavlink.radio), split evenly between the vehicles heard on the link (two
    vehicles behind one radio each plan on half); those are requested (StreamRequester.rate_cap);
@@ -40,6 +45,8 @@ CEILING_MEMORY = 60.0
 KEEP_HZ = 5.0
 #: A RADIO_STATUS older than this (s): the radio is taken to be gone.
 STATUS_TIMEOUT = 5.0
+#: MAV_COMP_ID_TELEMETRY_RADIO: the component a radio's own RADIO_STATUS comes from.
+RADIO_COMPONENT = 68
 
 
 class RadioGovernor:
@@ -58,6 +65,8 @@ class RadioGovernor:
         self._ceiling = 1.0 / BACK_OFF  # the scale that last filled the buffer (none yet)
         self._ceiling_at = 0.0
         self._capping = False  # the requests were capped for a radio not yet seen gone
+        #: RADIO_STATUS packets from another component than a radio's, by (sysid, compid)
+        self.ignored: dict[tuple[int, int], int] = {}
 
     @property
     def budget_bps(self) -> float:
@@ -107,7 +116,9 @@ class RadioGovernor:
         try:
             while True:
                 item = await sub.get(timeout=ADJUST_INTERVAL)
-                if item is not None:
+                if item is not None and item.compid != RADIO_COMPONENT:
+                    self._ignore(item.sysid, item.compid)
+                elif item is not None:
                     first = not self.present
                     m = item.msg
                     self._status_at = time.monotonic()
@@ -156,6 +167,18 @@ class RadioGovernor:
         fastest = max(self.wanted.values(), default=KEEP_HZ)
         return min(KEEP_HZ / fastest, 1.0)
 
+    def _ignore(self, sysid: int, compid: int) -> None:
+        sender = (sysid, compid)
+        self.ignored[sender] = self.ignored.get(sender, 0) + 1
+        if self.ignored[sender] == 1:
+            self.events.record(
+                "radio",
+                "station",
+                ignored=f"RADIO_STATUS from system {sysid} component {compid}: "
+                f"no radio (a radio reports as component {RADIO_COMPONENT})",
+                scale=round(self.scale, 3),
+            )
+
     def _decide(self, why: str) -> None:
         self.choice = why
         self.events.record("radio", "station", choice=why, scale=round(self.scale, 3))
@@ -191,4 +214,5 @@ class RadioGovernor:
             scale=round(self.scale, 3),
             choice=self.choice,
             streams=rows,
+            ignored_status=sum(self.ignored.values()),
         )

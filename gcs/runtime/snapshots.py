@@ -243,6 +243,7 @@ class RadioSnapshot:
     scale: float
     choice: str
     streams: dict[str, RadioStream]
+    ignored_status: int = 0  # RADIO_STATUS packets from another component than a radio's
 
 
 @dataclass(frozen=True, slots=True)
