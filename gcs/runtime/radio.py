@@ -176,7 +176,6 @@ class RadioGovernor:
                 "station",
                 ignored=f"RADIO_STATUS from system {sysid} component {compid}: "
                 f"no radio (a radio reports as component {RADIO_COMPONENT})",
-                scale=round(self.scale, 3),
             )
 
     def _decide(self, why: str) -> None:

@@ -15,17 +15,18 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
 The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~26 µs of CPU, `bench.ws_fanout`, and every frame costs the live estimation
-and the link a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one viewer, 6 for two, 3 ms
-more for each further one, 15 ms from 5 on (67 frames/s: more than a 60 Hz page draws). Points
-that come sooner (a backlog's turns, back to back) wait for the gap, up to half an interval, so
-frames then come at most twice per interval; fewer viewers wait less. The longest interval is the
-dial between CPU and latency: with 5 pages, 10 ms frames instead of 5 ms took `gcs serve` from
-21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms from 19.4 to 16.5 % (medians
-of six alternating pairs), while the WebSocket p99 with 20 clients under a CPU hog went from 11.6
-to 17.1 ms, within the 20 ms the issue asks (docs/benchmarks.md). The live estimation's tick
-follows this interval (the dashboard paces it: `Station.pace_points`), so its points come in one
-batch per interval and go out right after it. Figures: docs/benchmarks.md; data flow: docs/design.md
+client costs the loop ~26 µs of CPU, `bench.ws_fanout`, and every frame costs the live
+estimation and the link a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one
+viewer, 6 for two, 3 ms more for each further one, 15 ms from 5 on (67 frames/s: more than a
+60 Hz page draws). Points that come sooner (a backlog's turns, back to back) wait for the gap,
+up to half an interval, so frames then come at most twice per interval; fewer viewers wait less.
+The longest interval is the dial between CPU and latency: with 5 pages, 10 ms frames instead of
+5 ms took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms
+from 19.4 to 16.5 % (medians of six alternating pairs), while the WebSocket p99 with 20 clients
+under a CPU hog went from 11.6 to 17.1 ms, within the 20 ms the issue asks (docs/benchmarks.md).
+The live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`),
+so its points come in one batch per interval and go out right after it. Figures:
+docs/benchmarks.md; data flow: docs/design.md
 """
 
 from __future__ import annotations

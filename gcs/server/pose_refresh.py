@@ -11,7 +11,8 @@ to it, and what arrived while nobody watched is drawn as soon as viser says it c
 
 Every drawing is a window of messages viser's own thread encodes and sends to each viewer, at
 ~0.3 ms of CPU per viewer (its loop, websockets' send path, msgpack and zstd: 4.2 % of a core
-for 5 viewers at 27 Hz, docs/benchmarks.md). Like the live hub's frames, the drawings keep that
+for 5 viewers at 27 Hz on asyncio's loop, docs/benchmarks.md; less on uvloop, which it runs on
+now, gcs.server.scene.LocalViserServer). Like the live hub's frames, the drawings keep that
 fan-out within a budget, `windows_per_s` viewer-windows a second: 30 Hz for up to 3 viewers,
 20 Hz for 5, 10 Hz for 10, at most: a drawing comes in the first turn that brings attitudes a
 whole period after the last, so on the live hub's 15 ms turns (5 pages) it comes every 60 ms,
