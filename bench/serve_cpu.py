@@ -10,8 +10,9 @@ time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YA
   (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D view on viser's WebSocket
   (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures before 2026-12-04's sixth
   session did), each kind in its own process. `view_windows_per_viewer_s`: the windows of viser
-  messages each viewer received a second (one per drawing: 20 for 5 viewers since the seventh
-  session's drawing budget, gcs.server.pose_refresh; 30 before).
+  messages each viewer received a second (one per drawing: at most 20 for 5 viewers since the
+  seventh session's drawing budget, gcs.server.pose_refresh, 30 before; ~16 since the ninth
+  session's 15 ms frames, the turns the drawings land on).
 - baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
 - baseline `MAVProxy` (`mavproxy.py` from $GCS_BENCH_MAVPROXY, else PATH; not a dependency of
   gcs: `python -m venv /tmp/mavproxy-venv && /tmp/mavproxy-venv/bin/pip install MAVProxy`):
