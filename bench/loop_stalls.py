@@ -268,7 +268,7 @@ def run(seconds: float, rate: int, pages: int, ws: int, hog: bool) -> dict[str, 
         helpers = [run_sender(port, rate, seconds + 4)]
         time.sleep(2.0)  # the estimators' kernels load; streams start
         spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if hog else None
-        helpers.append(pollers(f"{base}/api/status", seconds, pages))
+        helpers.append(pollers(base, seconds, pages))
         helpers.append(
             subprocess.Popen(
                 [sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{http}/ws/live", str(ws), str(seconds)],

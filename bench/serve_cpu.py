@@ -6,7 +6,8 @@ Stream (bench.serve_cpu sender, its own process, over UDP to 127.0.0.1): PX4-lik
 time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YAW_RATE (until
 2026-12-04's sixth session it stood still, and the 3-D view had nothing to draw).
 - ours: `gcs serve` (3 estimators, recording to a temporary folder, the 3-D view) with 5 pages'
-  traffic: 5 clients polling `GET /api/status` once a second, 5 `/ws/live` WebSocket clients
+  traffic: 5 clients polling `GET /api/status` and `GET /api/estimates` once a second as the page
+  does (until 2026-12-04's tenth session only the first), 5 `/ws/live` WebSocket clients
   (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D view on viser's WebSocket
   (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures before 2026-12-04's sixth
   session did), each kind in its own process. `view_windows_per_viewer_s`: the windows of viser
@@ -51,6 +52,8 @@ CPU_RATE = 1_000
 #: alternating rounds of the CPU figures (GCS_BENCH_ROUNDS)
 ROUNDS = int(os.environ.get("GCS_BENCH_ROUNDS", "3"))
 PAGES = 5
+#: what each page asks for once a second (web/public/dashboard.js, pollStatus)
+PAGE_POLLS = ("/api/status", "/api/estimates")
 #: each page's 3-D view too (a real page's iframe); GCS_BENCH_3D=0: the pages' plots and status only
 VIEWS_3D = os.environ.get("GCS_BENCH_3D", "1") != "0"
 MIX = (("HIGHRES_IMU", 400), ("ATTITUDE", 100), ("GPS_RAW_INT", 5), ("HEARTBEAT", 1))
@@ -154,14 +157,16 @@ def http_json(url: str) -> dict:
         return json.loads(r.read())
 
 
-def pollers(url: str, seconds: float, pages: int = PAGES) -> subprocess.Popen:
-    """`pages` clients polling GET url once a second each, in one process."""
+def pollers(base: str, seconds: float, pages: int = PAGES) -> subprocess.Popen:
+    """`pages` clients asking once a second for what a dashboard page polls (dashboard.js's
+    pollStatus: GET /api/status and GET /api/estimates, together), in one process."""
     code = (
         "import time, threading, urllib.request\n"
         f"end = time.monotonic() + {seconds}\n"
         "def poll():\n"
         "    while time.monotonic() < end:\n"
-        f"        urllib.request.urlopen({url!r}, timeout=10).read(); time.sleep(1.0)\n"
+        f"        for path in {PAGE_POLLS!r}: urllib.request.urlopen({base!r} + path, timeout=10).read()\n"
+        "        time.sleep(1.0)\n"
         f"ts = [threading.Thread(target=poll) for _ in range({pages})]\n"
         "[t.start() for t in ts]; [t.join() for t in ts]\n"
     )
@@ -195,7 +200,7 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
         base = f"http://127.0.0.1:{http}"
         wait_until_serving(base)
         time.sleep(2.0)  # the estimators' kernels load
-        helpers = [pollers(f"{base}/api/status", seconds + 2)]
+        helpers = [pollers(base, seconds + 2)]
         helpers.append(
             subprocess.Popen(
                 [sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{http}/ws/live", str(PAGES), str(seconds)],

@@ -182,6 +182,7 @@ async function pollStatus() {
   try {
     const [status, est] = await Promise.all([api("GET", "/api/status"), api("GET", "/api/estimates")]);
     showStatus(status); showNumbers(est, status); showVehicle(status.vehicle, status.link);
+    document.dispatchEvent(new CustomEvent("gcs:status", { detail: status }));  // radio.js, without a poll of its own
   } catch (e) { $("link-state").textContent = "server unreachable"; console.warn("status:", e.message); }
   $("fps").textContent = `${plots.fps} fps`;
   gcsStats.fps = plots.fps;
