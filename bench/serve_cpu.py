@@ -6,14 +6,15 @@ Stream (bench.serve_cpu sender, its own process, over UDP to 127.0.0.1): PX4-lik
 time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YAW_RATE (until
 2026-12-04's sixth session it stood still, and the 3-D view had nothing to draw).
 - ours: `gcs serve` (3 estimators, recording to a temporary folder, the 3-D view) with 5 pages'
-  traffic: 5 clients polling `GET /api/status` and `GET /api/estimates` once a second as the page
-  does (until 2026-12-04's tenth session only the first), 5 `/ws/live` WebSocket clients
-  (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D view on viser's WebSocket
-  (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures before 2026-12-04's sixth
-  session did), each kind in its own process. `view_windows_per_viewer_s`: the windows of viser
-  messages each viewer received a second (one per drawing: at most 20 for 5 viewers since the
-  seventh session's drawing budget, gcs.server.pose_refresh, 30 before; ~16 since the ninth
-  session's 15 ms frames, the turns the drawings land on).
+  traffic: 5 clients polling what the page polls (`GET /api/status` and `GET /api/estimates` every
+  second, `GET /api/vehicles` every 2 s; until 2026-12-04's tenth session only the status), 5
+  `/ws/live` WebSocket clients (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D
+  view on viser's WebSocket (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures
+  before 2026-12-04's sixth session did), each kind in its own process.
+  `view_windows_per_viewer_s`: the windows of viser messages each viewer received a second (one
+  per drawing: at most 20 for 5 viewers since the seventh session's drawing budget,
+  gcs.server.pose_refresh, 30 before; ~16 since the ninth session's 15 ms frames, the turns the
+  drawings land on).
 - baseline `pymavlink`: a bare receive loop (socket recv + `MAVLink.parse_buffer` + `get_type`).
 - baseline `MAVProxy` (`mavproxy.py` from $GCS_BENCH_MAVPROXY, else PATH; not a dependency of
   gcs: `python -m venv /tmp/mavproxy-venv && /tmp/mavproxy-venv/bin/pip install MAVProxy`):
@@ -52,8 +53,9 @@ CPU_RATE = 1_000
 #: alternating rounds of the CPU figures (GCS_BENCH_ROUNDS)
 ROUNDS = int(os.environ.get("GCS_BENCH_ROUNDS", "3"))
 PAGES = 5
-#: what each page asks for once a second (web/public/dashboard.js, pollStatus)
-PAGE_POLLS = ("/api/status", "/api/estimates")
+#: what each page asks for, and every how many seconds: dashboard.js's pollStatus, vehicles.js's
+#: vehicle list
+PAGE_POLLS = (("/api/status", 1), ("/api/estimates", 1), ("/api/vehicles", 2))
 #: each page's 3-D view too (a real page's iframe); GCS_BENCH_3D=0: the pages' plots and status only
 VIEWS_3D = os.environ.get("GCS_BENCH_3D", "1") != "0"
 MIX = (("HIGHRES_IMU", 400), ("ATTITUDE", 100), ("GPS_RAW_INT", 5), ("HEARTBEAT", 1))
@@ -158,15 +160,16 @@ def http_json(url: str) -> dict:
 
 
 def pollers(base: str, seconds: float, pages: int = PAGES) -> subprocess.Popen:
-    """`pages` clients asking once a second for what a dashboard page polls (dashboard.js's
-    pollStatus: GET /api/status and GET /api/estimates, together), in one process."""
+    """`pages` clients asking for what a dashboard page polls (PAGE_POLLS), in one process."""
     code = (
         "import time, threading, urllib.request\n"
         f"end = time.monotonic() + {seconds}\n"
         "def poll():\n"
+        "    k = 0\n"
         "    while time.monotonic() < end:\n"
-        f"        for path in {PAGE_POLLS!r}: urllib.request.urlopen({base!r} + path, timeout=10).read()\n"
-        "        time.sleep(1.0)\n"
+        f"        for path, every in {PAGE_POLLS!r}:\n"
+        f"            if k % every == 0: urllib.request.urlopen({base!r} + path, timeout=10).read()\n"
+        "        k += 1; time.sleep(1.0)\n"
         f"ts = [threading.Thread(target=poll) for _ in range({pages})]\n"
         "[t.start() for t in ts]; [t.join() for t in ts]\n"
     )
