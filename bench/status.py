@@ -35,8 +35,9 @@ from bench.ws_latency import percentiles
 from gcs.runtime.station import Station, StationConfig, estimation_snapshot
 from gcs.runtime.streams import StreamPlan
 from gcs.server.dashboard import DashboardServer
+from gcs.server.json_body import encode
 from gcs.server.routers.status import get_status
-from gcs.server.status_body import encode, snapshot_status
+from gcs.server.status_body import snapshot_status
 from gcs.transport.address import free_port
 
 WARMUP_S = 35.0

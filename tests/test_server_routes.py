@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from fastapi import HTTPException
 from fastapi.testclient import TestClient
+from starlette.responses import PlainTextResponse
+from starlette.routing import Route
 
 from gcs.core.estimation import AttitudePoint
 from gcs.core.estimators import registry
@@ -34,6 +36,7 @@ from gcs.runtime.supervisor import PartStatus
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER, get_station, token_id
 from gcs.server.guard import MAX_BODY
+from gcs.server.models import VehicleSummary
 from gcs.server.ratelimit import MAX_CLIENTS, RateLimit
 
 RECORDING_OFF = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
@@ -188,18 +191,36 @@ def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation)
     assert status["authorised"] is True and status["clients"] == []
 
 
-def test_status_answered_before_routing_as_the_route_answers(api: TestClient, station: FakeStation):
-    """GET /api/status skips FastAPI's router and dependencies (gcs.server.status_answer), and
-    gives what the route gives: the route still answers a vehicle's path."""
-    routed = api.get(f"/api/vehicles/{station.snapshot.vehicle.sysid}/status")
+@pytest.mark.parametrize("path", ["/status", "/estimates"])
+def test_polls_answered_before_routing_as_the_route_answers(api: TestClient, station: FakeStation, path: str):
+    """GET /api/status and /api/estimates skip FastAPI's router and dependencies
+    (gcs.server.polled_answers), and give what the route gives: the route still answers a
+    vehicle's path."""
+    vehicle_path = f"/api/vehicles/{station.snapshot.vehicle.sysid}{path}"
+    routed = api.get(vehicle_path)
     assert routed.status_code == 200
     api.app.dependency_overrides[get_station] = refuse  # type: ignore[attr-defined]
-    assert api.get(f"/api/vehicles/{station.snapshot.vehicle.sysid}/status").status_code == 503
-    answered = api.get("/api/status")  # the override is never reached: no dependency is solved
+    assert api.get(vehicle_path).status_code == 503
+    answered = api.get(f"/api{path}")  # the override is never reached: no dependency is solved
     assert answered.status_code == 200
     assert answered.content == routed.content
     assert answered.headers == routed.headers  # content type and length, the guard's security headers
-    assert api.get("/api/status", headers={"host": "evil.example"}).status_code == 403  # the guard first
+    assert api.get(f"/api{path}", headers={"host": "evil.example"}).status_code == 403  # the guard first
+
+
+def test_vehicle_list_answered_before_routing(api: TestClient, station: FakeStation):
+    """GET /api/vehicles (vehicles.js polls it every 2 s) skips the router too, with the route's
+    fields, and the guard still applies."""
+    # a route ahead of every other: whatever the router gives /api/vehicles now refuses
+    api.app.router.routes.insert(0, Route("/api/vehicles", PlainTextResponse("the router ran", 503)))  # type: ignore[attr-defined]
+    answered = api.get("/api/vehicles")
+    assert answered.status_code == 200 and answered.headers["content-type"] == "application/json"
+    (vehicle,) = answered.json()
+    assert vehicle["sysid"] == station.snapshot.vehicle.sysid and vehicle["first"] is True
+    assert vehicle["prefix"] == f"/api/vehicles/{station.snapshot.vehicle.sysid}"
+    assert set(vehicle) == set(VehicleSummary.model_fields)
+    assert "x-content-type-options" in answered.headers  # the guard's security headers
+    assert api.get("/api/vehicles", headers={"host": "evil.example"}).status_code == 403
 
 
 async def refuse() -> None:

@@ -14,16 +14,17 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from gcs import __version__
-from gcs.core import strict_json
 from gcs.runtime.events import Client, Event
 from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.assets import web_assets
 from gcs.server.colors import colors_script
+from gcs.server.estimates_body import EstimatesBodies
 from gcs.server.guard import Refusal, RequestGuard
+from gcs.server.json_body import encode
 from gcs.server.live import LiveHub
+from gcs.server.polled_answers import PolledAnswers
 from gcs.server.ratelimit import default_limits
 from gcs.server.routers import ROUTERS
-from gcs.server.status_answer import StatusAnswer
 from gcs.server.status_body import StatusBodies
 from gcs.server.vehicles import serve_vehicles
 
@@ -61,8 +62,9 @@ def create_app(
     app.state.rate_limits = default_limits()
     app.state.viser_port = viser_port
     app.state.status_bodies = StatusBodies()
+    app.state.estimates_bodies = EstimatesBodies()
     app.add_exception_handler(RequestValidationError, refuse_invalid)
-    app.add_middleware(StatusAnswer)  # inside the guard: the later middleware is the outer one
+    app.add_middleware(PolledAnswers)  # inside the guard: the later middleware is the outer one
     app.add_middleware(
         RequestGuard,
         bound_host=bound_host,
@@ -91,8 +93,7 @@ class StrictJSONResponse(JSONResponse):
     never an invalid `NaN` token nor a 500 from Starlette's own allow_nan=False."""
 
     def render(self, content: Any) -> bytes:
-        # a lone surrogate (from a \\ud800 escape in a request) cannot be UTF-8: it becomes "?"
-        return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode(errors="replace")
+        return encode(content)
 
 
 async def refuse_invalid(request: Request, exc: Exception) -> Response:

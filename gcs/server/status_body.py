@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import asyncio
 
-from gcs.core import strict_json
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.snapshots import StationSnapshot
+from gcs.server.json_body import encode
 from gcs.server.live import LiveHub
 from gcs.server.models import EstimatorStatus, LinkStatus, StatusResponse
 
@@ -63,11 +63,6 @@ class StatusBodies:
             }
         )
         return cached[1][:-1] + b"," + own[1:]
-
-
-def encode(content: dict) -> bytes:
-    """As every REST answer (server.app.StrictJSONResponse): strict JSON, UTF-8."""
-    return strict_json.dumps(content, ensure_ascii=False, separators=(",", ":")).encode(errors="replace")
 
 
 def snapshot_status(snap: StationSnapshot) -> dict:

@@ -11,6 +11,7 @@ from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
 from fastapi.routing import APIRoute, APIWebSocketRoute
+from starlette.datastructures import State
 from starlette.routing import compile_path
 
 from gcs.runtime.facade import FleetFacade, StationFacade
@@ -25,10 +26,14 @@ router = APIRouter(tags=["vehicles"])
 
 @router.get("/api/vehicles", response_model=list[VehicleSummary])
 async def list_vehicles(request: Request) -> list[VehicleSummary]:
+    return vehicle_summaries(request.app.state)
+
+
+def vehicle_summaries(state: State) -> list[VehicleSummary]:
     """Every vehicle the station hears, in the order heard (GCS and companion components are not
     vehicles); each one's routes are under its `prefix`."""
-    fleet: FleetFacade | None = request.app.state.fleet
-    first: StationFacade = request.app.state.station
+    fleet: FleetFacade | None = state.fleet
+    first: StationFacade = state.station
     entries = [(e.station, e.link) for e in fleet.vehicles()] if fleet is not None else [(first, None)]
     return [summary(station, link, station is first) for station, link in entries]
 
