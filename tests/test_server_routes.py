@@ -37,6 +37,7 @@ from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER, get_station, token_id
 from gcs.server.guard import MAX_BODY
 from gcs.server.models import VehicleSummary
+from gcs.server.polled_answers import PolledAnswers
 from gcs.server.ratelimit import MAX_CLIENTS, RateLimit
 
 RECORDING_OFF = RecordingSnapshot("off", None, None, 0, None, 0, 0, 0, None)
@@ -192,20 +193,34 @@ def test_status_is_the_published_snapshot(api: TestClient, station: FakeStation)
 
 
 @pytest.mark.parametrize("path", ["/status", "/estimates"])
-def test_polls_answered_before_routing_as_the_route_answers(api: TestClient, station: FakeStation, path: str):
-    """GET /api/status and /api/estimates skip FastAPI's router and dependencies
-    (gcs.server.polled_answers), and give what the route gives: the route still answers a
-    vehicle's path."""
-    vehicle_path = f"/api/vehicles/{station.snapshot.vehicle.sysid}{path}"
-    routed = api.get(vehicle_path)
+@pytest.mark.parametrize("vehicle", [False, True])
+def test_polls_answered_before_routing_as_the_route_answers(
+    api: TestClient, station: FakeStation, path: str, vehicle: bool
+):
+    """GET /api/status and /api/estimates, and the same under /api/vehicles/{sysid}/ (a page
+    opened for one vehicle), skip FastAPI's router and dependencies (gcs.server.polled_answers)
+    and give what the route gives: the same bytes and headers as the app without the middleware."""
+    url = f"/api/vehicles/{station.snapshot.vehicle.sysid}{path}" if vehicle else f"/api{path}"
+    routed_api = client_of(station)
+    routed_api.app.user_middleware = [  # type: ignore[attr-defined]
+        m
+        for m in routed_api.app.user_middleware  # type: ignore[attr-defined]
+        if m.cls is not PolledAnswers
+    ]
+    routed = routed_api.get(url)
     assert routed.status_code == 200
     api.app.dependency_overrides[get_station] = refuse  # type: ignore[attr-defined]
-    assert api.get(vehicle_path).status_code == 503
-    answered = api.get(f"/api{path}")  # the override is never reached: no dependency is solved
+    answered = api.get(url)  # the override is never reached: no dependency is solved
     assert answered.status_code == 200
     assert answered.content == routed.content
     assert answered.headers == routed.headers  # content type and length, the guard's security headers
-    assert api.get(f"/api{path}", headers={"host": "evil.example"}).status_code == 403  # the guard first
+    assert api.get(url, headers={"host": "evil.example"}).status_code == 403  # the guard first
+
+
+def test_a_vehicle_not_heard_is_left_to_the_router(api: TestClient):
+    """Its 404 names the vehicle list, as every route under /api/vehicles/{sysid}/ does."""
+    missing = api.get("/api/vehicles/99/status")
+    assert missing.status_code == 404 and "no vehicle with sysid 99" in missing.json()["detail"]
 
 
 def test_vehicle_list_answered_before_routing(api: TestClient, station: FakeStation):

@@ -1,6 +1,6 @@
 """What every open page polls, answered before FastAPI's routing and dependency solving:
-`GET /api/status` and `GET /api/estimates` once a second (dashboard.js), `GET /api/vehicles`
-every 2 s (vehicles.js).
+`GET /api/status` and `GET /api/estimates` once a second (dashboard.js; a vehicle's own under
+/api/vehicles/{sysid}/ on a page opened for it), `GET /api/vehicles` every 2 s (vehicles.js).
 
 Through FastAPI such a request cost 0.12 ms of CPU on a quiet loop (0.3–0.7 ms on a busy one),
 nearly all of it the router matching its routes (each /api route twice, with its per-vehicle
@@ -11,43 +11,44 @@ their requests come together and each waited for the others (docs/benchmarks.md,
 as the status is (0.20–0.23 ms).
 This middleware sits inside the request guard (Host, Origin and the security headers still
 apply) and answers those paths itself, with the bytes, status and headers their routes give; the
-routes stay for every other path that reaches them (a vehicle's /api/vehicles/{sysid}/status)
-and for the OpenAPI schema.
+routes stay for the OpenAPI schema and for what reaches them (a vehicle not heard: their 404).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import re
 
+from fastapi import HTTPException
 from starlette.requests import HTTPConnection
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from gcs.server.deps import is_authorised
+from gcs.server.deps import is_authorised, vehicle_station
 from gcs.server.json_body import encode
 from gcs.server.vehicles import vehicle_summaries
 
-
-def _status(scope: Scope) -> bytes:
-    state = scope["app"].state
-    authorised = is_authorised(HTTPConnection(scope))
-    return state.status_bodies.body(state.station, state.hub, state.viser_port, authorised)
+#: a vehicle's own status and estimates (the page opened with ?vehicle=N polls these)
+VEHICLE_POLL = re.compile(r"/api/vehicles/([0-9]+)(/status|/estimates)")
 
 
-def _estimates(scope: Scope) -> bytes:
-    state = scope["app"].state
-    return state.estimates_bodies.body(state.station)
-
-
-def _vehicles(scope: Scope) -> bytes:
-    return encode([v.model_dump(mode="json") for v in vehicle_summaries(scope["app"].state)])
-
-
-#: path -> its JSON body, for this request
-ANSWERS: dict[str, Callable[[Scope], bytes]] = {
-    "/api/status": _status,
-    "/api/estimates": _estimates,
-    "/api/vehicles": _vehicles,
-}
+def answer(scope: Scope) -> bytes | None:
+    """The JSON body of a polled path, None for any other (and for a vehicle not heard: the
+    router then answers it, with its 404)."""
+    state, path = scope["app"].state, scope["path"]
+    if path == "/api/vehicles":
+        return encode([v.model_dump(mode="json") for v in vehicle_summaries(state)])
+    station, hub = state.station, state.hub
+    vehicle = VEHICLE_POLL.fullmatch(path)
+    if vehicle is not None:
+        try:
+            station = vehicle_station(HTTPConnection(scope), int(vehicle[1]))
+        except HTTPException:
+            return None
+        hub, path = state.hubs[id(station)], "/api" + vehicle[2]
+    if path == "/api/status":
+        return state.status_bodies.body(station, hub, state.viser_port, is_authorised(HTTPConnection(scope)))
+    if path == "/api/estimates":
+        return state.estimates_bodies.body(station)
+    return None
 
 
 class PolledAnswers:
@@ -55,11 +56,10 @@ class PolledAnswers:
         self.app = app
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        answer = ANSWERS.get(scope["path"]) if scope["type"] == "http" and scope["method"] == "GET" else None
-        if answer is None:
+        body = answer(scope) if scope["type"] == "http" and scope["method"] == "GET" else None
+        if body is None:
             await self.app(scope, receive, send)
             return
-        body = answer(scope)
         await send(
             {
                 "type": "http.response.start",
