@@ -206,3 +206,32 @@ def test_tlog_declination_is_applied_and_reported(tmp_path):
     assert runs["pinned"][0] == "gcs estimate: declination 0.00 deg from --gain declination"
     yaw_wmm, yaw_mag = float(runs["wmm"][1][-1][7]), float(runs["pinned"][1][-1][7])
     assert math.degrees(math.remainder(math.radians(yaw_wmm - yaw_mag), 2 * math.pi)) == pytest.approx(12.69, abs=1.0)
+
+
+def test_a_spreadsheet_csv_with_a_byte_order_mark_is_read(tmp_path):
+    """Excel's "CSV UTF-8" starts with a byte-order mark and ends its lines with CRLF; the header's
+    `t` must not become '\\ufefft' (found by auditing: "header lacks column(s) t" for such a file)."""
+    rows = ["t,gx,gy,gz,ax,ay,az,mx,my,mz", "0,0,0,0,0,0,-9.8,,,", "0.01,0,0,0,0,0,-9.8,,,"]
+    (tmp_path / "excel.csv").write_bytes(b"\xef\xbb\xbf" + "\r\n".join(rows).encode() + b"\r\n")
+    assert estimate(tmp_path / "excel.csv", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
+    assert read_out(tmp_path / "out.csv")[0] == HEADER and len(read_out(tmp_path / "out.csv")[1]) == 2
+
+
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        (bytes(range(128, 256)) * 40, "line 1: not UTF-8 text (byte 0x80); is this a CSV?"),
+        (b"t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n\xff\xfe\n", "line 3: not UTF-8 text (byte 0xff)"),
+        (b't,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n"' + b"a" * 200_000 + b"\n", "line 3: field larger than"),
+    ],
+)
+def test_a_binary_or_broken_csv_is_a_clear_error(tmp_path, capsys, content, expected):
+    """Bytes that are not a CSV (a binary file named .csv) end in one line naming file and line,
+    not a UnicodeDecodeError or csv.Error traceback (found by auditing with random bytes)."""
+    (tmp_path / "bad.csv").write_bytes(content)
+    keep = tmp_path / "out.csv"
+    keep.write_text("earlier results\n")
+    assert estimate(tmp_path / "bad.csv", "-e", "dcm", "-o", keep) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gcs estimate: error: {tmp_path / 'bad.csv'}: ") and expected in err, err
+    assert keep.read_text() == "earlier results\n"
