@@ -12,6 +12,7 @@ from synthetic import Z_UP, angle_between, spinning
 
 from gcs.commands import estimate as offline
 from gcs.core.rotation import euler_to_quat
+from gcs.mavlink.tlog import read_tlog_records
 
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -235,3 +236,29 @@ def test_a_binary_or_broken_csv_is_a_clear_error(tmp_path, capsys, content, expe
     err = capsys.readouterr().err
     assert err.startswith(f"gcs estimate: error: {tmp_path / 'bad.csv'}: ") and expected in err, err
     assert keep.read_text() == "earlier results\n"
+
+
+def test_a_damaged_tlog_is_estimated_up_to_the_damage_and_says_where(tmp_path):
+    """The contract's "one line on stderr saying where" for a .tlog too, as for .bin and .ulg: a
+    copy of the hop cut mid-record, and one with junk bytes in the middle (found by auditing: a
+    truncated .tlog was estimated with no word of the damage)."""
+    hop = (LOGS / "arducopter-sitl-hop.tlog").read_bytes()
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(hop[:300_000])
+    records = read_tlog_records(LOGS / "arducopter-sitl-hop.tlog").records()
+    at = next(offset - 8 for offset, _, _ in records if offset > 200_000)  # a record's first byte
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(hop[:at] + b"\x00" * 100 + hop[at:])
+    for log, expected in (
+        (cut, f"gcs estimate: damage: {cut}: offset 299986: last record incomplete; estimated up to it"),
+        (junk, f"gcs estimate: damage: {junk}: offset {at}: 100 damaged bytes skipped (1 places)"),
+    ):
+        proc = subprocess.run(
+            [sys.executable, "-m", "gcs", "estimate", str(log), "-e", "dcm", "-o", str(tmp_path / "o.csv")],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert proc.returncode == 0, proc.stderr
+        assert any(line.startswith(expected) for line in proc.stderr.splitlines()), proc.stderr
+        assert len(read_out(tmp_path / "o.csv")[1]) > 100

@@ -40,6 +40,7 @@ from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.readers import READERS, Sample, read_samples
 from gcs.logs.tlog import read_tlog
 from gcs.mavlink.sampling import MessageInputs
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions.export import write_beside
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -128,9 +129,10 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
     deg = 57.29577951308232
     is_tlog = os.path.splitext(input_path)[1].lower() == ".tlog" and os.path.isfile(input_path)
     samples: Iterable[Sample]
-    if is_tlog:
+    records = read_tlog_records(input_path) if is_tlog else None
+    if records is not None:
         inputs = MessageInputs()
-        samples, source = read_tlog(input_path, imu, inputs), inputs.vehicle_declination
+        samples, source = read_tlog(input_path, imu, inputs, records), inputs.vehicle_declination
     else:
         samples = read_samples(input_path, imu)
         source = samples.declination if isinstance(samples, LogFile) else VehicleDeclination()
@@ -145,11 +147,13 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
                 f"{roll * deg:.6f},{pitch * deg:.6f},{yaw * deg:.6f}\n"
             )
             rows += 1
+    damage = records.damage("estimated up to it") if records is not None else None
     if isinstance(samples, LogFile):
         for note in samples.notes:
             print(f"gcs estimate: note: {note}", file=sys.stderr)
-        if samples.damage:
-            print(f"gcs estimate: damage: {samples.damage}", file=sys.stderr)
+        damage = samples.damage
+    if damage:
+        print(f"gcs estimate: damage: {damage}", file=sys.stderr)
     return rows
 
 
