@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from live import running_station, sim_process, wait_for
 
 from gcs.commands.cli import build_parser
@@ -117,6 +118,47 @@ def test_a_missing_serial_port_fails_at_once_in_one_line():
     assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
     lines = done.stderr.strip().splitlines()
     assert lines == ["gcs status: error: cannot open serial port /dev/ttyUSB9: No such file or directory"], lines
+
+
+def test_a_missing_tlog_fails_at_once_in_one_line(tmp_path):
+    """A mistyped .tlog to replay as a link is refused as a missing serial port is (found by
+    auditing: `gcs status --connect flihgt.tlog` waited out its duration, then printed a report of
+    "None"s with no word of the missing file)."""
+    missing = tmp_path / "flihgt.tlog"
+    started = time.monotonic()
+    done = subprocess.run(
+        GCS + ["status", "--connect", str(missing), "--duration", "30"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
+    assert done.stderr.strip().splitlines() == [f"gcs status: error: {missing}: no such file"], done.stderr
+    assert done.stdout == ""
+
+
+LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["status", "--speed", "-1"], "gcs status: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
+        (["status", "--speed", "nan"], "gcs status: --speed nan: give a number >= 0 (0 = as fast as possible)"),
+        (["status", "--imu-rate", "-5"], "gcs status: --imu-rate -5.0: give a rate >= 0 Hz (0 = off)"),
+        (["status", "--gps-rate", "inf"], "gcs status: --gps-rate inf: give a rate >= 0 Hz (0 = off)"),
+        (["status", "--heartbeat-timeout", "0"], "gcs status: --heartbeat-timeout 0.0: give seconds > 0"),
+        (["replay", "--speed", "-1"], "gcs replay: error: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
+        (["replay", "--speed", "nan"], "gcs replay: error: --speed nan: give a number >= 0 (0 = as fast as possible)"),
+    ],
+)
+def test_a_negative_or_not_finite_number_option_is_refused_in_one_line(argv, expected):
+    """Found by auditing: `gcs replay --speed -1` (or nan) replayed as fast as possible, a negative
+    or NaN --imu-rate asked the vehicle to stop the stream, --heartbeat-timeout 0 called a live
+    link lost; each now ends at once with the option and what it takes."""
+    hop = str(LOGS / "arducopter-sitl-hop.tlog")
+    link = ["--connect", hop, "--duration", "30"] if argv[0] == "status" else [hop]
+    started = time.monotonic()
+    done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and time.monotonic() - started < 20
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
 
 
 def test_a_failed_estimate_never_clobbers_its_output(tmp_path):
