@@ -175,6 +175,22 @@ def test_a_failed_estimate_never_clobbers_its_output(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.csv", "keep.csv"]  # no temporary left
 
 
+@pytest.mark.parametrize(
+    "command",
+    [["estimate", "-e", "dcm"], ["export", "--format", "mat"], ["export", "--format", "mcap"], ["report"]],
+)
+def test_an_unwritable_output_is_named_as_the_user_gave_it(command, tmp_path):
+    """--out under a regular file (or on a read-only file system): the one line names the file
+    asked for, not the temporary beside it (found by auditing: the clean-up's unlink failed too,
+    with ENOTDIR or EROFS, and its error replaced the first, naming `.o.mat.PID-HEX.tmp`)."""
+    (tmp_path / "results").write_text("not a folder\n")
+    out = tmp_path / "results" / "o.out"
+    hop = str(LOGS / "arducopter-sitl-hop.tlog")
+    done = subprocess.run(GCS + [command[0], hop, *command[1:], "--out", str(out)], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"gcs {command[0]}: error: {out}: Not a directory"], done.stderr
+
+
 # ---- recording only when asked, and only what arrived -------------------------------------------
 def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     quiet = tmp_path / "quiet"
