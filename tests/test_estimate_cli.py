@@ -96,6 +96,14 @@ def test_list(capsys):
         "declination",
     ):
         assert text in out
+    # each estimator is described by what it is, not by a compiled class's docstring cut mid-sentence
+    # (found by auditing: "dcm: `dcm` with its per-sample update compiled; ... health as")
+    described = [line for line in out.splitlines() if not line.startswith(" ")]
+    assert described == [
+        "dcm: Direction cosine matrix filter with PI drift correction (Premerlani & Bizard 2009).",
+        "kf: KF-A: linear Kalman filter on Euler angles and their rates (seed 004, §5.2.2).",
+        "ekf: Error-state (multiplicative) Kalman filter of attitude, velocity and gyro bias.",
+    ], described
 
 
 @pytest.mark.parametrize(

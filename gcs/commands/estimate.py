@@ -64,6 +64,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--list", action="store_true", help="list estimators, presets and gains, then exit")
 
 
+def describe(cls: type) -> str:
+    """The first line of the estimator's readable reference's docstring: a compiled class's own
+    says only that it is compiled, and over two lines."""
+    from gcs.core.estimators.kernels import Compiled  # noqa: PLC0415  (loaded by registry.get already)
+
+    reference = next(k for k in cls.__mro__ if not issubclass(k, Compiled))
+    return (reference.__doc__ or "").strip().splitlines()[0]
+
+
 def list_estimators() -> str:
     """Every registered estimator with its presets and gain declarations."""
 
@@ -74,7 +83,7 @@ def list_estimators() -> str:
         except Exception as exc:  # one broken module must not hide the others
             lines.append(f"{name}: unavailable ({exc})")
             continue
-        lines.append(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
+        lines.append(f"{name}: {describe(cls)}")
         presets = ", ".join(f"{p}{' (default)' if p == cls.DEFAULT_PRESET else ''}" for p in cls.PRESETS)
         lines.append(f"  presets: {presets}")
         for g in cls.GAINS:
