@@ -191,6 +191,15 @@ def test_an_unwritable_output_is_named_as_the_user_gave_it(command, tmp_path):
     assert done.stderr.strip().splitlines() == [f"gcs {command[0]}: error: {out}: Not a directory"], done.stderr
 
 
+def test_a_fleet_report_of_no_dataset_names_the_dataset(tmp_path):
+    """Found by auditing: `gcs fleet report MISSING --out fleet.html` said
+    "error: fleet.html: None" (an OSError made from a message alone has no filename or strerror)."""
+    missing, page = tmp_path / "fleet", tmp_path / "fleet.html"
+    done = subprocess.run(GCS + ["fleet", "report", str(missing), "--out", str(page)], capture_output=True, text=True)
+    assert done.returncode == 2 and not page.exists()
+    assert done.stderr.strip().splitlines() == [f"gcs fleet report: error: {missing}: no flights in the dataset"]
+
+
 # ---- recording only when asked, and only what arrived -------------------------------------------
 def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     quiet = tmp_path / "quiet"
