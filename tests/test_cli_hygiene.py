@@ -200,6 +200,17 @@ def test_a_fleet_report_of_no_dataset_names_the_dataset(tmp_path):
     assert done.stderr.strip().splitlines() == [f"gcs fleet report: error: {missing}: no flights in the dataset"]
 
 
+def test_a_sweep_without_held_out_flights_prints_no_nan(tmp_path):
+    """Found by auditing: a sweep with no --holdout ended "mean on held-out flights: current nan,
+    best nan deg"; the line is left out when no flight was held out."""
+    log = str(LOGS / "ardupilot-fragment.bin")
+    args = ["sweep", log, "-e", "dcm", "--gain", "kp_rp=0.05:1.0", "--trials", "1", "--workers", "1"]
+    done = subprocess.run(GCS + [*args, "--out", str(tmp_path / "fleet")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "mean on training flights: current " in done.stdout
+    assert "held-out" not in done.stdout and "nan" not in done.stdout, done.stdout
+
+
 # ---- recording only when asked, and only what arrived -------------------------------------------
 def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     quiet = tmp_path / "quiet"
