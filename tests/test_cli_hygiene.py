@@ -251,6 +251,21 @@ def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     assert (session / layout.TLOG).stat().st_size > 0
 
 
+def test_status_of_a_silent_link_says_nothing_was_heard_without_nones():
+    """Found by auditing `gcs status` on a link nobody sends to: its report read "heartbeat age
+    None s", "sysid None  None  None  MAVLink None" and "via None"."""
+    address = f"udpin:127.0.0.1:{free_port()}"
+    done = subprocess.run(
+        GCS + ["status", "--connect", address, "--duration", "1"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 1  # no heartbeat
+    lines = done.stdout.splitlines()
+    assert "None" not in done.stdout, done.stdout
+    assert lines[0] == f"link       {address}  state waiting  no heartbeat yet", lines
+    assert lines[1] == "vehicle    none heard", lines
+    assert lines[3] == "streams    none requested yet", lines
+
+
 # ---- SIGTERM is Ctrl-C ----------------------------------------------------------------------
 def test_sigterm_closes_the_session_as_ctrl_c_does(tmp_path):
     port = free_port()
