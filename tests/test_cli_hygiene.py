@@ -8,16 +8,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
-from live import running_station, sim_process, wait_for
+from live import running_station, sim_process, stop_process, wait_for
 
 from gcs.commands.cli import build_parser
 from gcs.commands.common import tidy
@@ -209,6 +212,46 @@ def test_a_sweep_without_held_out_flights_prints_no_nan(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "mean on training flights: current " in done.stdout
     assert "held-out" not in done.stdout and "nan" not in done.stdout, done.stdout
+
+
+def _listener_below_a_free_port() -> tuple[socket.socket, int]:
+    """A listening socket on port P - 1 and the free port P above it."""
+    while True:
+        busy = socket.socket()
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        above = busy.getsockname()[1] + 1
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", above))
+                return busy, above
+            except OSError:
+                busy.close()
+
+
+def test_a_taken_3d_view_port_never_takes_the_dashboards(tmp_path):
+    """viser moves to the next port when its own is taken; with --viser-port P-1 taken that is the
+    dashboard's P, which was bound but not yet listening when viser started: viser took it, the
+    printed dashboard URL served viser's page and every /api/ route was 404 (found by auditing
+    `gcs serve --port 8701 --viser-port 8700` with 8700 in use)."""
+    busy, port = _listener_below_a_free_port()
+    taken = port - 1
+    serve = GCS + ["serve", "--connect", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}", "--no-record"]
+    proc = subprocess.Popen(
+        serve + ["--port", str(port), "--viser-port", str(taken)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT
+    )
+    try:
+        deadline, answer = time.monotonic() + 60, None
+        while answer is None or answer.status_code != 200:
+            assert time.monotonic() < deadline, f"no dashboard on {port}: {answer and answer.status_code}"
+            assert proc.poll() is None, proc.stdout.read().decode() if proc.stdout else ""
+            with contextlib.suppress(httpx.TransportError):
+                answer = httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=5)
+            time.sleep(0.2)
+        assert answer.json()["viser_port"] not in (port, taken)
+    finally:
+        stop_process(proc)
+        busy.close()
 
 
 # ---- recording only when asked, and only what arrived -------------------------------------------

@@ -90,6 +90,9 @@ class DashboardServer:
         # seconds instead of minutes of send-buffer autotuning.
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
         sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
+        # listening before viser starts: viser moves to the next port when its own is taken, and
+        # a port only bound (SO_REUSEADDR) looked free to it. uvicorn's listen() sets the backlog.
+        sock.listen()
         self.port = sock.getsockname()[1]
         app = create_app(
             self.station,
