@@ -254,6 +254,26 @@ def test_a_taken_3d_view_port_never_takes_the_dashboards(tmp_path):
         busy.close()
 
 
+@pytest.mark.parametrize("command", ["demo", "serve"])
+def test_a_taken_dashboard_port_is_one_line_naming_it(command):
+    """Found by auditing `gcs demo --port 8700` with 8700 in use: a traceback ending in
+    "OSError: [Errno 98] Address already in use" (`gcs serve` said that line alone, no port)."""
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    port = busy.getsockname()[1]
+    link = ["--connect", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}"] if command == "serve" else []
+    try:
+        done = subprocess.run(
+            GCS + [command, *link, "--no-record", "--port", str(port)], capture_output=True, text=True, timeout=60
+        )
+    finally:
+        busy.close()
+    assert done.returncode == 2, done.stderr
+    expected = f"gcs {command}: error: cannot serve the dashboard on 127.0.0.1:{port} (--port): Address already in use"
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
 # ---- recording only when asked, and only what arrived -------------------------------------------
 def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     quiet = tmp_path / "quiet"
