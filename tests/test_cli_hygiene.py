@@ -8,15 +8,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import httpx
 import numpy as np
-from live import running_station, sim_process, wait_for
+import pytest
+from live import running_station, sim_process, stop_process, wait_for
 
 from gcs.commands.cli import build_parser
 from gcs.commands.common import tidy
@@ -119,6 +123,47 @@ def test_a_missing_serial_port_fails_at_once_in_one_line():
     assert lines == ["gcs status: error: cannot open serial port /dev/ttyUSB9: No such file or directory"], lines
 
 
+def test_a_missing_tlog_fails_at_once_in_one_line(tmp_path):
+    """A mistyped .tlog to replay as a link is refused as a missing serial port is (found by
+    auditing: `gcs status --connect flihgt.tlog` waited out its duration, then printed a report of
+    "None"s with no word of the missing file)."""
+    missing = tmp_path / "flihgt.tlog"
+    started = time.monotonic()
+    done = subprocess.run(
+        GCS + ["status", "--connect", str(missing), "--duration", "30"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
+    assert done.stderr.strip().splitlines() == [f"gcs status: error: {missing}: no such file"], done.stderr
+    assert done.stdout == ""
+
+
+LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["status", "--speed", "-1"], "gcs status: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
+        (["status", "--speed", "nan"], "gcs status: --speed nan: give a number >= 0 (0 = as fast as possible)"),
+        (["status", "--imu-rate", "-5"], "gcs status: --imu-rate -5.0: give a rate >= 0 Hz (0 = off)"),
+        (["status", "--gps-rate", "inf"], "gcs status: --gps-rate inf: give a rate >= 0 Hz (0 = off)"),
+        (["status", "--heartbeat-timeout", "0"], "gcs status: --heartbeat-timeout 0.0: give seconds > 0"),
+        (["replay", "--speed", "-1"], "gcs replay: error: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
+        (["replay", "--speed", "nan"], "gcs replay: error: --speed nan: give a number >= 0 (0 = as fast as possible)"),
+    ],
+)
+def test_a_negative_or_not_finite_number_option_is_refused_in_one_line(argv, expected):
+    """Found by auditing: `gcs replay --speed -1` (or nan) replayed as fast as possible, a negative
+    or NaN --imu-rate asked the vehicle to stop the stream, --heartbeat-timeout 0 called a live
+    link lost; each now ends at once with the option and what it takes."""
+    hop = str(LOGS / "arducopter-sitl-hop.tlog")
+    link = ["--connect", hop, "--duration", "30"] if argv[0] == "status" else [hop]
+    started = time.monotonic()
+    done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and time.monotonic() - started < 20
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
 def test_a_failed_estimate_never_clobbers_its_output(tmp_path):
     keep = tmp_path / "keep.csv"
     keep.write_text("the user's earlier results\n")
@@ -131,6 +176,102 @@ def test_a_failed_estimate_never_clobbers_its_output(tmp_path):
         assert done.returncode == 2 and done.stderr.startswith("gcs estimate: error:"), done.stderr
         assert keep.read_text() == "the user's earlier results\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.csv", "keep.csv"]  # no temporary left
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["estimate", "-e", "dcm"], ["export", "--format", "mat"], ["export", "--format", "mcap"], ["report"]],
+)
+def test_an_unwritable_output_is_named_as_the_user_gave_it(command, tmp_path):
+    """--out under a regular file (or on a read-only file system): the one line names the file
+    asked for, not the temporary beside it (found by auditing: the clean-up's unlink failed too,
+    with ENOTDIR or EROFS, and its error replaced the first, naming `.o.mat.PID-HEX.tmp`)."""
+    (tmp_path / "results").write_text("not a folder\n")
+    out = tmp_path / "results" / "o.out"
+    hop = str(LOGS / "arducopter-sitl-hop.tlog")
+    done = subprocess.run(GCS + [command[0], hop, *command[1:], "--out", str(out)], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"gcs {command[0]}: error: {out}: Not a directory"], done.stderr
+
+
+def test_a_fleet_report_of_no_dataset_names_the_dataset(tmp_path):
+    """Found by auditing: `gcs fleet report MISSING --out fleet.html` said
+    "error: fleet.html: None" (an OSError made from a message alone has no filename or strerror)."""
+    missing, page = tmp_path / "fleet", tmp_path / "fleet.html"
+    done = subprocess.run(GCS + ["fleet", "report", str(missing), "--out", str(page)], capture_output=True, text=True)
+    assert done.returncode == 2 and not page.exists()
+    assert done.stderr.strip().splitlines() == [f"gcs fleet report: error: {missing}: no flights in the dataset"]
+
+
+def test_a_sweep_without_held_out_flights_prints_no_nan(tmp_path):
+    """Found by auditing: a sweep with no --holdout ended "mean on held-out flights: current nan,
+    best nan deg"; the line is left out when no flight was held out."""
+    log = str(LOGS / "ardupilot-fragment.bin")
+    args = ["sweep", log, "-e", "dcm", "--gain", "kp_rp=0.05:1.0", "--trials", "1", "--workers", "1"]
+    done = subprocess.run(GCS + [*args, "--out", str(tmp_path / "fleet")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "mean on training flights: current " in done.stdout
+    assert "held-out" not in done.stdout and "nan" not in done.stdout, done.stdout
+
+
+def _listener_below_a_free_port() -> tuple[socket.socket, int]:
+    """A listening socket on port P - 1 and the free port P above it."""
+    while True:
+        busy = socket.socket()
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        above = busy.getsockname()[1] + 1
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", above))
+                return busy, above
+            except OSError:
+                busy.close()
+
+
+def test_a_taken_3d_view_port_never_takes_the_dashboards(tmp_path):
+    """viser moves to the next port when its own is taken; with --viser-port P-1 taken that is the
+    dashboard's P, which was bound but not yet listening when viser started: viser took it, the
+    printed dashboard URL served viser's page and every /api/ route was 404 (found by auditing
+    `gcs serve --port 8701 --viser-port 8700` with 8700 in use)."""
+    busy, port = _listener_below_a_free_port()
+    taken = port - 1
+    serve = GCS + ["serve", "--connect", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}", "--no-record"]
+    proc = subprocess.Popen(
+        serve + ["--port", str(port), "--viser-port", str(taken)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT
+    )
+    try:
+        deadline, answer = time.monotonic() + 60, None
+        while answer is None or answer.status_code != 200:
+            assert time.monotonic() < deadline, f"no dashboard on {port}: {answer and answer.status_code}"
+            assert proc.poll() is None, proc.stdout.read().decode() if proc.stdout else ""
+            with contextlib.suppress(httpx.TransportError):
+                answer = httpx.get(f"http://127.0.0.1:{port}/api/status", timeout=5)
+            time.sleep(0.2)
+        assert answer.json()["viser_port"] not in (port, taken)
+    finally:
+        stop_process(proc)
+        busy.close()
+
+
+@pytest.mark.parametrize("command", ["demo", "serve"])
+def test_a_taken_dashboard_port_is_one_line_naming_it(command):
+    """Found by auditing `gcs demo --port 8700` with 8700 in use: a traceback ending in
+    "OSError: [Errno 98] Address already in use" (`gcs serve` said that line alone, no port)."""
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    port = busy.getsockname()[1]
+    link = ["--connect", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}"] if command == "serve" else []
+    try:
+        done = subprocess.run(
+            GCS + [command, *link, "--no-record", "--port", str(port)], capture_output=True, text=True, timeout=60
+        )
+    finally:
+        busy.close()
+    assert done.returncode == 2, done.stderr
+    expected = f"gcs {command}: error: cannot serve the dashboard on 127.0.0.1:{port} (--port): Address already in use"
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
 
 
 # ---- recording only when asked, and only what arrived -------------------------------------------
@@ -171,6 +312,21 @@ def test_status_records_only_with_record_and_never_for_a_silent_link(tmp_path):
     assert not (tmp_path / "plain").exists() and not (tmp_path / "sessions").exists()
     [session] = sessions_in(tmp_path / "asked")
     assert (session / layout.TLOG).stat().st_size > 0
+
+
+def test_status_of_a_silent_link_says_nothing_was_heard_without_nones():
+    """Found by auditing `gcs status` on a link nobody sends to: its report read "heartbeat age
+    None s", "sysid None  None  None  MAVLink None" and "via None"."""
+    address = f"udpin:127.0.0.1:{free_port()}"
+    done = subprocess.run(
+        GCS + ["status", "--connect", address, "--duration", "1"], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 1  # no heartbeat
+    lines = done.stdout.splitlines()
+    assert "None" not in done.stdout, done.stdout
+    assert lines[0] == f"link       {address}  state waiting  no heartbeat yet", lines
+    assert lines[1] == "vehicle    none heard", lines
+    assert lines[3] == "streams    none requested yet", lines
 
 
 # ---- SIGTERM is Ctrl-C ----------------------------------------------------------------------

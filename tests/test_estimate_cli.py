@@ -12,6 +12,7 @@ from synthetic import Z_UP, angle_between, spinning
 
 from gcs.commands import estimate as offline
 from gcs.core.rotation import euler_to_quat
+from gcs.mavlink.tlog import read_tlog_records
 
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -95,6 +96,14 @@ def test_list(capsys):
         "declination",
     ):
         assert text in out
+    # each estimator is described by what it is, not by a compiled class's docstring cut mid-sentence
+    # (found by auditing: "dcm: `dcm` with its per-sample update compiled; ... health as")
+    described = [line for line in out.splitlines() if not line.startswith(" ")]
+    assert described == [
+        "dcm: Direction cosine matrix filter with PI drift correction (Premerlani & Bizard 2009).",
+        "kf: KF-A: linear Kalman filter on Euler angles and their rates (seed 004, §5.2.2).",
+        "ekf: Error-state (multiplicative) Kalman filter of attitude, velocity and gyro bias.",
+    ], described
 
 
 @pytest.mark.parametrize(
@@ -206,3 +215,58 @@ def test_tlog_declination_is_applied_and_reported(tmp_path):
     assert runs["pinned"][0] == "gcs estimate: declination 0.00 deg from --gain declination"
     yaw_wmm, yaw_mag = float(runs["wmm"][1][-1][7]), float(runs["pinned"][1][-1][7])
     assert math.degrees(math.remainder(math.radians(yaw_wmm - yaw_mag), 2 * math.pi)) == pytest.approx(12.69, abs=1.0)
+
+
+def test_a_spreadsheet_csv_with_a_byte_order_mark_is_read(tmp_path):
+    """Excel's "CSV UTF-8" starts with a byte-order mark and ends its lines with CRLF; the header's
+    `t` must not become '\\ufefft' (found by auditing: "header lacks column(s) t" for such a file)."""
+    rows = ["t,gx,gy,gz,ax,ay,az,mx,my,mz", "0,0,0,0,0,0,-9.8,,,", "0.01,0,0,0,0,0,-9.8,,,"]
+    (tmp_path / "excel.csv").write_bytes(b"\xef\xbb\xbf" + "\r\n".join(rows).encode() + b"\r\n")
+    assert estimate(tmp_path / "excel.csv", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
+    assert read_out(tmp_path / "out.csv")[0] == HEADER and len(read_out(tmp_path / "out.csv")[1]) == 2
+
+
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        (bytes(range(128, 256)) * 40, "line 1: not UTF-8 text (byte 0x80); is this a CSV?"),
+        (b"t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n\xff\xfe\n", "line 3: not UTF-8 text (byte 0xff)"),
+        (b't,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n"' + b"a" * 200_000 + b"\n", "line 3: field larger than"),
+    ],
+)
+def test_a_binary_or_broken_csv_is_a_clear_error(tmp_path, capsys, content, expected):
+    """Bytes that are not a CSV (a binary file named .csv) end in one line naming file and line,
+    not a UnicodeDecodeError or csv.Error traceback (found by auditing with random bytes)."""
+    (tmp_path / "bad.csv").write_bytes(content)
+    keep = tmp_path / "out.csv"
+    keep.write_text("earlier results\n")
+    assert estimate(tmp_path / "bad.csv", "-e", "dcm", "-o", keep) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gcs estimate: error: {tmp_path / 'bad.csv'}: ") and expected in err, err
+    assert keep.read_text() == "earlier results\n"
+
+
+def test_a_damaged_tlog_is_estimated_up_to_the_damage_and_says_where(tmp_path):
+    """The contract's "one line on stderr saying where" for a .tlog too, as for .bin and .ulg: a
+    copy of the hop cut mid-record, and one with junk bytes in the middle (found by auditing: a
+    truncated .tlog was estimated with no word of the damage)."""
+    hop = (LOGS / "arducopter-sitl-hop.tlog").read_bytes()
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(hop[:300_000])
+    records = read_tlog_records(LOGS / "arducopter-sitl-hop.tlog").records()
+    at = next(offset - 8 for offset, _, _ in records if offset > 200_000)  # a record's first byte
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(hop[:at] + b"\x00" * 100 + hop[at:])
+    for log, expected in (
+        (cut, f"gcs estimate: damage: {cut}: offset 299986: last record incomplete; estimated up to it"),
+        (junk, f"gcs estimate: damage: {junk}: offset {at}: 100 damaged bytes skipped (1 places)"),
+    ):
+        proc = subprocess.run(
+            [sys.executable, "-m", "gcs", "estimate", str(log), "-e", "dcm", "-o", str(tmp_path / "o.csv")],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert proc.returncode == 0, proc.stderr
+        assert any(line.startswith(expected) for line in proc.stderr.splitlines()), proc.stderr
+        assert len(read_out(tmp_path / "o.csv")[1]) > 100

@@ -10,6 +10,7 @@ import asyncio
 import io
 import json
 import math
+import shutil
 import socket
 from collections import Counter
 from pathlib import Path
@@ -284,3 +285,20 @@ def test_import_gcs_stays_cheap_and_pandas_is_optional(logs_dir, tmp_path):
     assert run.stderr.strip().splitlines()[-1] == (
         "ImportError: gcs: DataFrames need pandas, which is not installed (pip install pandas)"
     )
+
+
+@pytest.mark.parametrize("fmt", ["mat", "csv"])
+def test_a_damaged_sessions_parquet_is_a_one_line_error(recorded, tmp_path, fmt, capsys):
+    """A session copied off a card whose attitude.parquet got cut: `gcs export` said a pyarrow
+    traceback ("Parquet magic bytes not found in footer"); it is one line naming the file, and the
+    previous export stays (found by auditing with a truncated copy of a recorded session)."""
+    folder = tmp_path / recorded["folder"].name
+    shutil.copytree(recorded["folder"], folder)
+    parquet = folder / "attitude.parquet"
+    parquet.write_bytes(parquet.read_bytes()[:1000])
+    out = tmp_path / f"flight.{fmt}"
+    out.write_bytes(b"previous export")
+    assert main(["export", str(folder), "--format", fmt, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"gcs export: error: {parquet}: unreadable Parquet"), err
+    assert out.read_bytes() == b"previous export"

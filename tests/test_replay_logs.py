@@ -187,3 +187,17 @@ def test_dataflash_with_a_garbled_header_says_where_in_one_line(logs_dir, tmp_pa
     assert [line for line in err.splitlines() if "offset" in line] == [
         f"damage: {path}: offset {at}: {cause} (1 more damaged places)"
     ]
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["-g", "dmc.kp_rp=0.3"], "--gain 'dmc.kp_rp=0.3': 'dmc' is not a selected estimator (dcm, kf, ekf)"),
+        (["-e", "kf", "-g", "dcm.kp_rp=0.3"], "--gain 'dcm.kp_rp=0.3': 'dcm' is not a selected estimator (kf)"),
+    ],
+)
+def test_a_gain_for_an_estimator_not_replayed_is_refused(logs_dir, argv, expected, capsys):
+    """`-g EST.NAME=VALUE` for a mistyped or unselected estimator was dropped without a word, and
+    the table printed as if the gain had been tried (found by auditing `gcs replay -g nosuch.kp_rp=0.3`)."""
+    assert main(["replay", str(logs_dir / "ardupilot-fragment.bin"), "--fast", *argv]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"gcs replay: error: {expected}"]

@@ -255,3 +255,26 @@ def test_links_inside_a_session_folder_are_never_followed(tmp_path, logs_dir):
     (folder / layout.META).rename(tmp_path / "meta.json")
     (folder / layout.META).symlink_to(tmp_path / "meta.json")
     assert "symbolic link" in layout.read_meta(folder)["error"]  # the session is listed as damaged
+
+
+def test_two_vehicles_starting_in_one_second_each_get_their_label(tmp_path):
+    """Each vehicle's session folder starts as `<stamp>_unknown` until its heartbeat names it; two
+    vehicles heard in the same second make `<stamp>_unknown` and `<stamp>_unknown-2`, and the
+    second must be renamed too (found by auditing `gcs demo --vehicles apm25:1,pixhawk:2`: its
+    sysid 2 session stayed `..._unknown-2`). The -2 of a name taken twice stays unique."""
+    root = tmp_path / "sessions"
+    for stamp in ("2026-05-01_10-00-00_unknown", "2026-05-01_10-00-00_unknown-2"):
+        assert layout.labelled(stamp, "ArduPilot-QUADROTOR-2") == "2026-05-01_10-00-00_ardupilot-quadrotor-2"
+    assert layout.labelled("2026-05-01_10-00-00_ardupilot-quadrotor-1", "ArduPilot-QUADROTOR-2") is None
+    assert layout.labelled("2026-05-01_10-00-00_unknown-vehicle", "x") is None
+
+    port, viser = free_port(), free_port()
+    demo = [sys.executable, "-m", "gcs", "demo", "--vehicles", "apm25:1,pixhawk:2", "--duration", "8"]
+    demo += ["--record-dir", str(root), "--port", str(port), "--viser-port", str(viser)]
+    done = subprocess.run(demo, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    folders = sorted(p for p in root.iterdir() if layout.is_session(p))
+    labels = [json.loads((f / layout.META).read_text())["vehicle"]["label"] for f in folders]
+    assert sorted(labels) == ["ArduPilot-QUADROTOR-1", "ArduPilot-QUADROTOR-2"], labels
+    for folder, label in zip(folders, labels, strict=True):
+        assert folder.name.split("_", 2)[2] == layout.safe_label(label), [f.name for f in folders]

@@ -24,7 +24,10 @@ def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int
         print(f"gcs {command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"gcs {command}: error: {exc.filename or out}: {exc.strerror}", file=sys.stderr)
+        # an OSError made from a message alone (FileNotFoundError("DATASET: no flights")) has
+        # neither filename nor strerror: its message says it all
+        said = f"{exc.filename or out}: {exc.strerror}" if exc.strerror else str(exc)
+        print(f"gcs {command}: error: {said}", file=sys.stderr)
         return 2
     print(done, file=sys.stderr)
     return 0

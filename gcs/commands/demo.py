@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import sys
 
 from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
@@ -75,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
         event_loop.run(_demo(args, presets))
     except KeyboardInterrupt:
         pass
+    except OSError as exc:  # a taken --port: one line, as `gcs serve` says it
+        print(f"gcs demo: error: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     return 0
 
 

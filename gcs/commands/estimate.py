@@ -40,6 +40,7 @@ from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.readers import READERS, Sample, read_samples
 from gcs.logs.tlog import read_tlog
 from gcs.mavlink.sampling import MessageInputs
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sessions.export import write_beside
 
 OUT_HEADER = "t,qw,qx,qy,qz,roll,pitch,yaw"
@@ -63,6 +64,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--list", action="store_true", help="list estimators, presets and gains, then exit")
 
 
+def describe(cls: type) -> str:
+    """The first line of the estimator's readable reference's docstring: a compiled class's own
+    says only that it is compiled, and over two lines."""
+    from gcs.core.estimators.kernels import Compiled  # noqa: PLC0415  (loaded by registry.get already)
+
+    reference = next(k for k in cls.__mro__ if not issubclass(k, Compiled))
+    return (reference.__doc__ or "").strip().splitlines()[0]
+
+
 def list_estimators() -> str:
     """Every registered estimator with its presets and gain declarations."""
 
@@ -73,7 +83,7 @@ def list_estimators() -> str:
         except Exception as exc:  # one broken module must not hide the others
             lines.append(f"{name}: unavailable ({exc})")
             continue
-        lines.append(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
+        lines.append(f"{name}: {describe(cls)}")
         presets = ", ".join(f"{p}{' (default)' if p == cls.DEFAULT_PRESET else ''}" for p in cls.PRESETS)
         lines.append(f"  presets: {presets}")
         for g in cls.GAINS:
@@ -128,9 +138,10 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
     deg = 57.29577951308232
     is_tlog = os.path.splitext(input_path)[1].lower() == ".tlog" and os.path.isfile(input_path)
     samples: Iterable[Sample]
-    if is_tlog:
+    records = read_tlog_records(input_path) if is_tlog else None
+    if records is not None:
         inputs = MessageInputs()
-        samples, source = read_tlog(input_path, imu, inputs), inputs.vehicle_declination
+        samples, source = read_tlog(input_path, imu, inputs, records), inputs.vehicle_declination
     else:
         samples = read_samples(input_path, imu)
         source = samples.declination if isinstance(samples, LogFile) else VehicleDeclination()
@@ -145,11 +156,13 @@ def estimate(input_path: str, estimator, out: TextIO, imu: int = 0, declination:
                 f"{roll * deg:.6f},{pitch * deg:.6f},{yaw * deg:.6f}\n"
             )
             rows += 1
+    damage = records.damage("estimated up to it") if records is not None else None
     if isinstance(samples, LogFile):
         for note in samples.notes:
             print(f"gcs estimate: note: {note}", file=sys.stderr)
-        if samples.damage:
-            print(f"gcs estimate: damage: {samples.damage}", file=sys.stderr)
+        damage = samples.damage
+    if damage:
+        print(f"gcs estimate: damage: {damage}", file=sys.stderr)
     return rows
 
 

@@ -4,6 +4,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import math
+import os
 import sys
 
 from gcs.mavlink.ascii import UNITS, AsciiFormat
@@ -120,9 +123,12 @@ def station_config(args: argparse.Namespace):
     if args.baud != "auto" and not args.baud.isdigit():
         raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
+    check_numbers(args)
     for address in addresses:
         if address.kind == "serial" and address.path:
             probe_serial(address.path, 57600 if baud == "auto" else baud)
+        if address.kind == "tlog" and not os.path.isfile(address.path):  # a replay never reappears: no retrying
+            raise OSError(errno.ENOENT, f"{address.path}: no such file")
     config = StationConfig(
         connect=connects[0],
         baud=baud,
@@ -137,6 +143,29 @@ def station_config(args: argparse.Namespace):
         config.plan = StreamPlan(imu_hz=args.imu_rate, attitude_hz=args.attitude_rate, gps_hz=args.gps_rate)
         config.ascii_format = AsciiFormat.parse(args.ascii_fields, args.ascii_unit)
     return config
+
+
+def check_speed(speed: float) -> None:
+    """A replay speed, or ValueError: argparse's float takes -1, nan and inf."""
+    if not (speed >= 0 and math.isfinite(speed)):
+        raise ValueError(f"--speed {speed!r}: give a number >= 0 (0 = as fast as possible)")
+
+
+def check_numbers(args: argparse.Namespace) -> None:
+    """The link options' numbers, or ValueError naming the option: a negative or NaN rate would
+    ask the vehicle to stop the stream, a timeout of 0 call every link lost."""
+    if not (args.heartbeat_timeout > 0 and math.isfinite(args.heartbeat_timeout)):
+        raise ValueError(f"--heartbeat-timeout {args.heartbeat_timeout!r}: give seconds > 0")
+    if not hasattr(args, "imu_rate"):  # no stream options (add_link_arguments(streams=False))
+        return
+    check_speed(args.speed)
+    for option, hz in (
+        ("--imu-rate", args.imu_rate),
+        ("--attitude-rate", args.attitude_rate),
+        ("--gps-rate", args.gps_rate),
+    ):
+        if not (hz >= 0 and math.isfinite(hz)):
+            raise ValueError(f"{option} {hz!r}: give a rate >= 0 Hz (0 = off)")
 
 
 def links_of(args: argparse.Namespace) -> list[str]:

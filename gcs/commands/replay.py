@@ -10,6 +10,7 @@ import time
 from typing import Any
 
 from gcs.commands.common import progress_bar
+from gcs.commands.options import check_speed
 from gcs.core.estimators import jit, whole
 from gcs.core.gains import GainError
 from gcs.logs import dataflash_format, ulog_format
@@ -54,6 +55,7 @@ def comparison_table(rows: list[dict[str, Any]]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     try:
+        check_speed(args.speed)
         names, gains = selection(args.estimator, args.gain)
     except (KeyError, GainError, ValueError) as exc:
         return _error(exc)

@@ -94,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         event_loop.run(_serve(config, args))
     except OSError as exc:
-        print(f"gcs serve: {exc}", file=sys.stderr)
-        return 1
+        print(f"gcs serve: error: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     return 0
 
 

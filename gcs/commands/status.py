@@ -67,15 +67,21 @@ def format_vehicles(snapshots: list[StationSnapshot]) -> str:
 
 def format_report(snap: StationSnapshot) -> str:
     link, vehicle, streams, stats, recording = snap.link, snap.vehicle, snap.streams, snap.link.stats, snap.recording
+    heard = link.heartbeat_age_s is not None
     lines = [
-        f"link       {link.address}  state {link.state}  heartbeat age {link.heartbeat_age_s} s",
+        f"link       {link.address}  state {link.state}  "
+        + (f"heartbeat age {link.heartbeat_age_s} s" if heard else "no heartbeat yet"),
         f"vehicle    sysid {vehicle.sysid}  {vehicle.autopilot}  {vehicle.vehicle_type}  "
         f"MAVLink {vehicle.mavlink_version}  {'ARMED' if vehicle.armed else 'disarmed'}  "
-        f"firmware {vehicle.firmware or '?'}",
+        f"firmware {vehicle.firmware or '?'}"
+        if vehicle.sysid is not None
+        else "vehicle    none heard",
         f"traffic    {stats.packets} packets  {stats.bytes_per_s:.0f} B/s  CRC errors {stats.crc_errors}  "
         f"malformed {stats.malformed}  lost {stats.packets_lost} ({100 * stats.loss_fraction:.2f} %)  "
         f"kernel drops {stats.kernel_drops}",
-        f"streams    via {streams.method}  ({streams.requests_sent} requests sent)",
+        f"streams    via {streams.method or '?'}  ({streams.requests_sent} requests sent)"
+        if streams.method is not None or streams.requests_sent
+        else "streams    none requested yet",
     ]
     for name, row in streams.messages.items():
         accepted = "     ?" if row.accepted_hz is None else f"{row.accepted_hz:6.1f}"

@@ -49,7 +49,7 @@ def report(result: SweepResult) -> list[str]:
     lines.append(f"{'flight':<60}{'set':<9}{'current':>9}{'best':>9}  (deg)")
     for f in result.flights:
         lines.append(f"{f.path[-59:]:<60}{'holdout' if f.holdout else 'train':<9}{f.current:9.3f}{f.best:9.3f}")
-    for holdout in (False, True):
+    for holdout in (False, True) if any(f.holdout for f in result.flights) else (False,):
         lines.append(
             f"mean on {'held-out' if holdout else 'training'} flights: current {result.mean(holdout, 'current'):.3f}, "
             f"best {result.mean(holdout, 'best'):.3f} deg"

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Iterator
-from typing import TypeGuard
+from collections.abc import Iterable, Iterator
+from typing import BinaryIO, TypeGuard
 
 import numpy as np
 
@@ -42,13 +42,38 @@ def _all_given(values: tuple[float | None, float | None, float | None]) -> TypeG
     return all(x is not None for x in values)
 
 
+def _lines(path: str, fh: BinaryIO) -> Iterator[str]:
+    """fh's lines as text: UTF-8, without the byte-order mark a spreadsheet's "CSV UTF-8" starts
+    with; other bytes (a binary file named .csv) are an InputError naming the line."""
+    for number, raw in enumerate(fh, start=1):
+        try:
+            yield raw.decode("utf-8-sig" if number == 1 else "utf-8")
+        except UnicodeDecodeError as exc:
+            byte = raw[exc.start]
+            raise InputError(f"{path}: line {number}: not UTF-8 text (byte {byte:#04x}); is this a CSV?") from None
+
+
+def _rows(path: str, lines: Iterable[str]) -> Iterator[list[str]]:
+    """The CSV rows of lines; what the csv module refuses (a field over its size limit) is an
+    InputError naming the line, not a csv.Error traceback."""
+    reader = csv.reader(lines)
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputError(f"{path}: line {reader.line_num}: {exc}") from None
+        yield row
+
+
 def read_csv(path: str, imu: int = 0) -> Iterator[ImuSample | GpsSample]:
     """IMU (and GPS velocity) samples from a CSV following the contract in the module docstring;
     a CSV holds one IMU, instance 0."""
     if imu != 0:
         raise InputError(f"{path}: line 1: a CSV holds one IMU (instance 0), not instance {imu}")
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
+    with open(path, "rb") as fh:
+        reader = _rows(path, _lines(path, fh))
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:

@@ -10,7 +10,7 @@ from gcs.logs.logfile import InputError
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
-from gcs.mavlink.tlog import read_tlog_records
+from gcs.mavlink.tlog import TlogRecords, read_tlog_records
 
 #: IMU instance → message type (ArduPilot sends its first IMU as RAW_IMU, the others scaled).
 IMU_INSTANCES = ("", "SCALED_IMU2", "SCALED_IMU3")
@@ -39,17 +39,20 @@ def _imu_stream(path: str, imu: int) -> tuple[str, int]:
     )
 
 
-def read_tlog(path: str, imu: int = 0, inputs: MessageInputs | None = None) -> Iterator[EstimationInput]:
+def read_tlog(
+    path: str, imu: int = 0, inputs: MessageInputs | None = None, records: TlogRecords | None = None
+) -> Iterator[EstimationInput]:
     """Inputs of one vehicle in arrival order, made as the live pipeline makes them: IMU instance
     `imu` (see `_imu_stream`), GPS from GPS_RAW_INT, references from ATTITUDE, AHRS2 and
     SIMSTATE, and a declination `GainChange` from the COMPASS_DEC / EKF2_MAG_DECL the log holds
     (else the World Magnetic Model's at the first 3D fix; `inputs.declination_source` says
-    which). Packets the ground station sent (link bits 3 in the timestamp) are skipped."""
+    which). Packets the ground station sent (link bits 3 in the timestamp) are skipped. Pass
+    `records` (read_tlog_records(path)) to learn afterwards where the file was damaged."""
     imu_type, system = _imu_stream(path, imu)
     if inputs is None:
         inputs = MessageInputs(imu_type, system)
     decoder = MavlinkDecoder()
-    for usec, packet in read_tlog_records(path):
+    for usec, packet in records if records is not None else read_tlog_records(path):
         if usec & 3 == 3:
             continue
         for raw, kind, _, _ in decoder.frames(packet, final=True):

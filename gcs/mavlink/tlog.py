@@ -84,6 +84,16 @@ class TlogRecords:
             if i < len(data):
                 self.truncated_at = base + i
 
+    def damage(self, used: str) -> str | None:
+        """After iteration, one line saying where the file is damaged (`used`: what was done with
+        the records before it, "replayed up to it"), or None for an intact file."""
+        if self.truncated_at is not None:
+            return f"{self.path}: offset {self.truncated_at}: last record incomplete; {used}"
+        if self.damage_offsets:
+            first, places = self.damage_offsets[0], len(self.damage_offsets)
+            return f"{self.path}: offset {first}: {self.skipped} damaged bytes skipped ({places} places)"
+        return None
+
 
 def read_tlog_records(path: str | Path) -> TlogRecords:
     return TlogRecords(str(path))

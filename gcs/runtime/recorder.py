@@ -391,10 +391,9 @@ class SessionRecorder:
             self._meta_dirty = False
             session.writer.set_meta(dict(session.meta))
             label = vehicle.get("label")
-            if label and session.folder.name.endswith("_unknown"):
-                session.writer.rename_folder(
-                    layout.unique_folder(self.root, session.folder.name[: -len("unknown")] + layout.safe_label(label))
-                )
+            name = layout.labelled(session.folder.name, label) if label else None
+            if name is not None:
+                session.writer.rename_folder(layout.unique_folder(self.root, name))
 
     # ---- helpers -----------------------------------------------------------------------
     def _vehicle_label(self) -> str | None:

@@ -239,6 +239,8 @@ def parse_gains(items: list[str], names: list[str]) -> dict[str, dict[str, float
         if not sep:
             raise ValueError(f"--gain {item!r}: expected [EST.]NAME=VALUE")
         est, dot, gain = key.strip().rpartition(".")
+        if dot and est not in names:  # a typo must not look like a gain that was tried
+            raise ValueError(f"--gain {item!r}: {est!r} is not a selected estimator ({', '.join(names)})")
         targets = [est] if dot else [n for n in names if any(g.name == gain for g in registry.get(n).GAINS)]
         if not targets:
             raise ValueError(f"--gain {item!r}: no selected estimator ({', '.join(names)}) has a gain {gain!r}")

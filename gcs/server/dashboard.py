@@ -89,7 +89,15 @@ class DashboardServer:
         # reading can hold, and makes its back-pressure reach its queue (and drop counter) in
         # seconds instead of minutes of send-buffer autotuning.
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
-        sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
+        try:
+            sock.bind((self.host, self.port))  # bound here so a taken port fails now, with its number
+        except OSError as exc:
+            sock.close()
+            where = f"cannot serve the dashboard on {self.host}:{self.port} (--port): {exc.strerror}"
+            raise OSError(exc.errno, where) from None
+        # listening before viser starts: viser moves to the next port when its own is taken, and
+        # a port only bound (SO_REUSEADDR) looked free to it. uvicorn's listen() sets the backlog.
+        sock.listen()
         self.port = sock.getsockname()[1]
         app = create_app(
             self.station,

@@ -15,6 +15,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from gcs.logs.logfile import InputError
 from gcs.sessions import layout
 
 ATTITUDE_SCHEMA = pa.schema(
@@ -142,5 +143,8 @@ def read_table(folder: Path, table: str) -> pa.Table:
     """A session's table, from Parquet if the session is closed, else from the live stream."""
     parquet = layout.parquet_path(folder, table)
     if parquet.exists():
-        return pq.read_table(parquet)
+        try:
+            return pq.read_table(parquet)
+        except (pa.ArrowInvalid, OSError) as exc:  # cut or overwritten (a copy off a full card): InputError
+            raise InputError(f"{parquet}: unreadable Parquet ({exc})") from None
     return read_stream(layout.stream_path(folder, table), SCHEMAS[table])[0]

@@ -113,7 +113,10 @@ def write_beside(target: Path, write: Callable[[Path], T]) -> T:
     finally:
         if tmp.is_dir():
             shutil.rmtree(tmp, ignore_errors=True)
-        with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+        # OSError, not only FileNotFoundError: where tmp could not be made (a read-only file
+        # system, a file where a folder should be) unlinking it fails too, and that error would
+        # replace the one that says why.
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
     return result
 

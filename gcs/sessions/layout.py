@@ -28,6 +28,7 @@ STREAM_SUFFIX = ".arrows"
 PARQUET_SUFFIX = ".parquet"
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+_UNLABELLED = re.compile(r"(.*_)unknown(-\d+)?")
 
 
 def folder_name(start_wall: float, vehicle: str) -> str:
@@ -39,6 +40,14 @@ def folder_name(start_wall: float, vehicle: str) -> str:
 def safe_label(text: str) -> str:
     """A folder-name-safe version of a vehicle label."""
     return _UNSAFE.sub("-", text).strip("-").lower() or "vehicle"
+
+
+def labelled(name: str, label: str) -> str | None:
+    """A session folder's name with the vehicle's label in place of the `unknown` it was started
+    with before the first heartbeat (`<stamp>_unknown`, or `<stamp>_unknown-2` when another
+    vehicle's session started in the same second); None when the name carries a label already."""
+    match = _UNLABELLED.fullmatch(name)
+    return match[1] + safe_label(label) if match else None
 
 
 def unique_folder(root: Path, name: str) -> Path:

@@ -15,7 +15,6 @@ import base64
 import html
 import io
 import json
-import os
 import time
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
 from gcs.provenance import provenance
 from gcs.sessions import layout
 from gcs.sessions.contents import Contents, read_events
+from gcs.sessions.export import write_beside
 from gcs.sessions.protocol import formatted, session_tables
 from gcs.sessions.sources import open_source
 
@@ -329,11 +329,4 @@ def write_report(path: str, out: str, progress=None, estimators: list[str] | Non
         tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
         events = read_events(Path(path))
     text = render(source, series, pipeline, tables, events)
-    partial = f"{out}.partial"  # a failed write leaves any earlier report as it was
-    try:
-        with open(partial, "w") as fh:
-            fh.write(text)
-        os.replace(partial, out)
-    finally:
-        if os.path.exists(partial):
-            os.remove(partial)
+    write_beside(Path(out), lambda tmp: tmp.write_text(text, encoding="utf-8"))  # an earlier report stays if it fails

@@ -234,14 +234,7 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
         frames.input_end[-1] = len(table)
     if not counts:
         raise InputError(f"{path}: offset 0: no valid MAVLink packet in {records.size} bytes; is this a .tlog?")
-    damage = None
-    if records.truncated_at is not None:
-        damage = f"{path}: offset {records.truncated_at}: last record incomplete; replayed up to it"
-    elif records.damage_offsets:
-        damage = (
-            f"{path}: offset {records.damage_offsets[0]}: {records.skipped} damaged bytes skipped "
-            f"({len(records.damage_offsets)} places)"
-        )
+    damage = records.damage("replayed up to it")
     built = frames.build()
     span = (float(built.t[0]), float(built.t[-1])) if len(built) else None
     return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span)
