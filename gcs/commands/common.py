@@ -24,13 +24,20 @@ def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int
         print(f"gcs {command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        # an OSError made from a message alone (FileNotFoundError("DATASET: no flights")) has
-        # neither filename nor strerror: its message says it all
-        said = f"{exc.filename or out}: {exc.strerror}" if exc.strerror else str(exc)
-        print(f"gcs {command}: error: {said}", file=sys.stderr)
+        print(f"gcs {command}: error: {os_error_line(exc, out)}", file=sys.stderr)
         return 2
     print(done, file=sys.stderr)
     return 0
+
+
+def os_error_line(exc: OSError, path: str | None = None) -> str:
+    """An OSError in one line: the file it names (else `path`) and why, without the "[Errno N]".
+    One made from a message alone (FileNotFoundError("DATASET: no flights")) has neither filename
+    nor strerror: its message says it all."""
+    if not exc.strerror:
+        return str(exc)
+    where = exc.filename or path
+    return f"{where}: {exc.strerror}" if where else exc.strerror
 
 
 def progress_bar(label: str) -> Callable[[int, int], None]:

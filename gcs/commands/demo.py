@@ -8,6 +8,7 @@ import asyncio
 import math
 import sys
 
+from gcs.commands.common import os_error_line
 from gcs.commands.options import add_record_arguments, record_dir
 from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
 from gcs.commands.sim import PROFILES
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     except OSError as exc:  # a taken --port: one line, as `gcs serve` says it
-        print(f"gcs demo: error: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs demo: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     return 0
 

@@ -9,7 +9,7 @@ import dataclasses
 import os
 import sys
 
-from gcs.commands.common import load_preset_file
+from gcs.commands.common import load_preset_file, os_error_line
 from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
 from gcs.core.estimation import pipeline_from
 from gcs.core.gains import GainError, PresetFile
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         event_loop.run(_serve(config, args))
     except OSError as exc:
-        print(f"gcs serve: error: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs serve: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     return 0
 
