@@ -27,6 +27,8 @@ Floats = npt.NDArray[np.float64]
 MIN_POINTS = 10
 #: Running sums are summed afresh after this many removals (rounding does not build up).
 RESUM_EVERY = 4096
+#: rad: a lag is determined only where some lag tried fits this much worse (RMS) than the best
+LAG_CONTRAST = math.radians(0.1)
 
 
 @kernel
@@ -167,12 +169,18 @@ def lag_grid(lag_max: float, lag_step: float) -> tuple[list[int], Floats]:
 
 
 def best_lag(cost_sum: Floats, count: Floats, ks: list[int], lag_step: float) -> float | None:
-    """The lag of least mean cost among those covered by MIN_POINTS references, None if none is."""
-    enough = count >= MIN_POINTS
-    if not enough.any():
+    """The lag of least mean cost among those covered by MIN_POINTS references; None where it is
+    not determined: no lag covered, the least at either end of the lags covered (the lag may lie
+    beyond them), or every lag within LAG_CONTRAST of the best (a vehicle at rest: its attitude
+    hardly changes within the window, and the least is noise, often at ±lag_max)."""
+    covered = np.flatnonzero(count >= MIN_POINTS)
+    if not len(covered):
         return None
-    cost = np.where(enough, cost_sum / np.maximum(count, 1.0), math.inf)
-    return ks[int(np.argmin(cost))] * lag_step
+    cost = cost_sum[covered] / count[covered]
+    best = int(np.argmin(cost))
+    if best in (0, len(cost) - 1) or cost.max() - cost[best] < LAG_CONTRAST**2:
+        return None
+    return ks[covered[best]] * lag_step
 
 
 def warm() -> None:
