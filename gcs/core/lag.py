@@ -180,7 +180,7 @@ def best_lag(cost_sum: Floats, count: Floats, ks: list[int], lag_step: float) ->
     best = int(np.argmin(cost))
     if best in (0, len(cost) - 1) or cost.max() - cost[best] < LAG_CONTRAST**2:
         return None
-    return ks[covered[best]] * lag_step
+    return ks[int(covered[best])] * lag_step
 
 
 def warm() -> None:
