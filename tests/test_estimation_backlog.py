@@ -5,17 +5,19 @@ estimated, in order."""
 from __future__ import annotations
 
 import asyncio
+import threading
 
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
-from live import running_station, wait_for
+from live import running_sim, running_station, wait_for
 
 from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
 from gcs.mavlink.tlog import read_tlog_records
+from gcs.runtime import estimation
 from gcs.runtime.bus import Message
-from gcs.runtime.estimation import BATCH, TICK, LiveEstimation
+from gcs.runtime.estimation import BATCH, TICK, LiveEstimation, warm
 from gcs.runtime.link import Link
-from gcs.runtime.station import Station, StationConfig
+from gcs.runtime.station import STARTING, Station, StationConfig
 from gcs.server.app import follow
 from gcs.server.live import LiveHub
 from gcs.sessions import layout
@@ -126,3 +128,37 @@ def test_a_stopped_session_holds_the_estimates_of_every_input_it_recorded(tmp_pa
     attitude = pq.read_table(folder / "attitude.parquet")
     dcm = attitude.filter(pc.equal(attitude["source"], "dcm")).num_rows
     assert recorded == 41 and dcm == recorded
+
+
+def test_while_the_kernels_load_the_estimators_say_so_not_a_missing_imu(monkeypatch, udp_port):
+    """The first start after an install compiles the kernels for a minute or more; meanwhile the
+    IMU arrives and waits. The estimators' reason says they are starting (it said "raw IMU at
+    0.0 Hz ... request RAW_IMU at 50 Hz", which sent the engineer after the wrong problem); once
+    loaded, the waiting samples are estimated and the reason is the estimators' own again."""
+    compiled = threading.Event()
+
+    def slow_warm() -> None:  # the compilation: until the test lets it finish, then the real load
+        compiled.wait(60)
+        warm()
+
+    monkeypatch.setattr(estimation, "warm", slow_warm)
+
+    async def scenario():
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"),
+        ):
+            counts = station.link.stats.counts
+            await wait_for(
+                lambda: counts.get("RAW_IMU", 0) + counts.get("HIGHRES_IMU", 0) > 100, 30, "the IMU arriving"
+            )
+            starting = station.publish().estimation
+            compiled.set()
+            await wait_for(lambda: station.estimation.pipeline.imu_samples > 100, 60, "the waiting samples estimated")
+            return starting, station.publish().estimation
+
+    starting, started = asyncio.run(scenario())
+    assert starting is not None and started is not None
+    assert {e.reason for e in starting.estimators.values()} == {STARTING}
+    assert not any(e.reliable for e in starting.estimators.values())
+    assert all(e.reason != STARTING for e in started.estimators.values())

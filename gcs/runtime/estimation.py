@@ -65,6 +65,8 @@ class LiveEstimation:
         #: the declination's source or value changed: (source, rad or None)
         self.declination_changed: Signal[[str, float | None]] = Signal()
         self._sub: Subscription | None = None
+        #: the compiled kernels are loaded and the estimation runs (until then what arrives waits)
+        self.ready = False
 
     def pace(self, interval: Callable[[], float]) -> None:
         """Estimate at most once per interval() s (the live hub's frame interval, which follows
@@ -81,6 +83,7 @@ class LiveEstimation:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)
             await asyncio.to_thread(warm)
+            self.ready = True
             heap.freeze()  # the kernels' objects are here for good: no collection walks them
             loop = asyncio.get_running_loop()
             next_tick = loop.time()

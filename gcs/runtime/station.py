@@ -453,6 +453,14 @@ def _call(function: Callable[..., R], args: tuple[Any, ...], kwargs: dict[str, A
     return function(*args, **kwargs)
 
 
+#: An estimator's reason while the estimation loads its compiled kernels, not its IMU rate's
+#: (0 Hz then: nothing is estimated yet, though the IMU arrives).
+STARTING = (
+    "starting: loading the compiled estimators (the first start after an install compiles them, "
+    "a minute or more); the samples arriving meanwhile are estimated then"
+)
+
+
 def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
     pipeline = estimation.pipeline
     estimators = {}
@@ -472,8 +480,8 @@ def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
             preset=est.preset,
             gains=dict(est.gains.values),
             health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
-            reliable=summary["reliable"],
-            reason=summary["reason"],
+            reliable=summary["reliable"] and estimation.ready,
+            reason=summary["reason"] if estimation.ready else STARTING,
             imu_rate_hz=round(summary["imu_rate"], 2),
             lag_s=summary["lag"],
             dropped=summary["dropped"],
