@@ -1,7 +1,8 @@
 """The .ulg samples as pyulog gives them: the reader gcs used before its own column reader, kept
 here as the reference tests compare gcs.logs.ulog against (pyulog decodes; per-topic rows become
-sample objects; heapq merges them in timestamp order, a magnetometer reading first at equal
-timestamps; EKF2_MAG_DECL or the WMM at the first 3D fix as declination changes)."""
+sample objects, sensor_combined's own magnetometer too where no magnetometer topic is logged;
+heapq merges them in timestamp order, a magnetometer reading first at equal timestamps;
+EKF2_MAG_DECL or the WMM at the first 3D fix as declination changes)."""
 
 from __future__ import annotations
 
@@ -69,13 +70,21 @@ def read(path: str, imu: int = 0) -> Reference:
              for k, ts in enumerate(data["timestamp"].tolist())]
         )  # fmt: skip
     mag_topic = next((t for t in MAG_TOPICS if t in topics), None)
+    names = [f"magnetometer_ga[{i}]" for i in range(3)]
     if mag_topic is not None:
         data = topics[mag_topic]
-        names = [f"magnetometer_ga[{i}]" for i in range(3)]
         values = _vectors(data, names if names[0] in data else ["x", "y", "z"])
         rows.append(
             [(ts, 0, mag_topic, MagSample(ts * 1e-6, values[k], mag_topic))
              for k, ts in enumerate(data["timestamp"].tolist())]
+        )  # fmt: skip
+    elif names[0] in imus[imu]:  # PX4 1.7 and older: the latest reading on each sensor_combined row
+        data, topic = imus[imu], "sensor_combined.magnetometer_ga"
+        values = _vectors(data, names)
+        rows.append(
+            [(ts, 0, topic, MagSample(ts * 1e-6, values[k], topic))
+             for k, ts in enumerate(data["timestamp"].tolist())
+             if data["magnetometer_timestamp_relative"][k] != 0x7FFFFFFF]
         )  # fmt: skip
     gps_topic = next((t for t in GPS_TOPICS if t in topics), None)
     if gps_topic is not None:
@@ -95,7 +104,8 @@ def read(path: str, imu: int = 0) -> Reference:
             if change is not None:
                 out.samples.append(change)
             continue
-        counts[topic] = counts.get(topic, 0) + 1
+        if topic != "sensor_combined.magnetometer_ga":  # rows of sensor_combined, counted there
+            counts[topic] = counts.get(topic, 0) + 1
         out.first_us = ts if out.first_us is None else out.first_us
         out.last_us = ts
         if isinstance(sample, MagSample):

@@ -190,20 +190,43 @@ def test_hop_heading_follows_onboard_only_with_the_magnetometer():
         assert blind["references"]["truth"]["session"]["rms"][2] > 10.0
 
 
-def test_px4_sample_has_no_mag_or_gps_and_the_reader_says_so(capsys, tmp_path):
+def test_px4_sample_heading_from_the_magnetometer_inside_sensor_combined(capsys, tmp_path):
+    """PX4 1.7 and older log no magnetometer topic: sensor_combined carries the calibrated field
+    (magnetometer_ga). Every IMU sample carries it (0.48 gauss here), so the heading follows the
+    onboard one; without it the yaw drifts with the gyro. No GPS, and the reader says so."""
     path = str(LOGS / "px4-flight-sample.ulg")
     topics = {d.name for d in ULog(path).data_list}
     assert "sensor_combined" in topics and not topics & {*MAG_TOPICS, *GPS_TOPICS}
     reader = UlogFile(path)
     samples = list(reader)
-    assert not any(isinstance(s, ImuSample) and s.mag is not None for s in samples)
+    imu = [s for s in samples if isinstance(s, ImuSample)]
+    assert all(s.mag is not None for s in imu)
+    assert 0.45 < float(np.mean([np.linalg.norm(s.mag) for s in imu])) < 0.52
     assert not any(isinstance(s, GpsSample) for s in samples)
+    assert [n.split(": ", 1)[1] for n in reader.notes] == ["no sensor_gps or vehicle_gps_position topic: no GPS aiding"]
+    gyro_only = [dataclasses.replace(s, mag=None) if isinstance(s, ImuSample) else s for s in samples]
+    for name in ESTIMATORS:
+        yaw = compare_stream(samples, registry.create(name)).summary()["references"]["onboard"]["session"]["rms"][2]
+        blind = compare_stream(gyro_only, registry.create(name)).summary()["references"]["onboard"]["session"]["rms"][2]
+        assert yaw < 1.0 < 10.0 < blind, f"{name}: yaw RMS vs onboard {yaw:.2f}°, {blind:.1f}° from the gyro alone"
+    assert main(["estimate", path, "-e", "dcm", "-o", str(tmp_path / "out.csv")]) == 0
+    assert "no vehicle_magnetometer or sensor_mag topic" not in capsys.readouterr().err
+
+
+def test_a_ulog_without_any_magnetometer_says_the_heading_is_the_gyros(tmp_path):
+    w = UlogWriter()
+    w.topic("sensor_combined", "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2")
+    for k in range(100):
+        w.add("sensor_combined", timestamp=1_000_000 + 5_000 * k, gyro_rad=(0.0, 0.0, 0.0),
+              accelerometer_m_s2=(0.0, 0.0, -9.80665))  # fmt: skip
+    path = tmp_path / "no-mag.ulg"
+    path.write_bytes(w.bytes())
+    reader = UlogFile(str(path))
+    assert not any(isinstance(s, ImuSample) and s.mag is not None for s in reader)
     assert [n.split(": ", 1)[1] for n in reader.notes] == [
         "no vehicle_magnetometer or sensor_mag topic: heading from the gyro only",
         "no sensor_gps or vehicle_gps_position topic: no GPS aiding",
     ]
-    assert main(["estimate", path, "-e", "dcm", "-o", str(tmp_path / "out.csv")]) == 0
-    assert "no vehicle_magnetometer or sensor_mag topic" in capsys.readouterr().err
 
 
 #: ULog fixture: level, heading 60°, flying north-east at 3 m/s; field 0.25 G north, 0.40 G down.

@@ -2,7 +2,9 @@
 
 `sensor_combined` (gyro rad/s, accelerometer m/s² specific force, body FRD) → IMU rows, carrying
 the latest magnetometer reading (see gcs.logs.magnetometer) from `vehicle_magnetometer`
-(calibrated, body FRD, gauss) or, in logs without it, `sensor_mag` (gauss); `sensor_gps` or, in
+(calibrated, body FRD, gauss) or, in logs without it, `sensor_mag` (gauss), or, in PX4 1.7 and
+older, `sensor_combined`'s own `magnetometer_ga` (calibrated, gauss; the latest reading, on each
+row once one came: `magnetometer_timestamp_relative` is not RELATIVE_INVALID); `sensor_gps` or, in
 older logs, `vehicle_gps_position` → GPS rows; `vehicle_attitude` (the onboard EKF2, quaternion
 body→NED, w first) → the "onboard" reference. The topics are merged in timestamp order (at equal
 timestamps a magnetometer reading first, so the IMU sample carries it), as `heapq.merge` merges
@@ -33,6 +35,10 @@ IMU_TOPIC = "sensor_combined"
 ATTITUDE_TOPIC = "vehicle_attitude"
 #: Topics carrying each sensor, the preferred one first.
 MAG_TOPICS = ("vehicle_magnetometer", "sensor_mag")
+#: The magnetometer inside sensor_combined (PX4 1.7 and older), as a stream of its own.
+COMBINED_MAG = f"{IMU_TOPIC}.magnetometer_ga"
+#: PX4's `*_timestamp_relative` for "no such reading".
+RELATIVE_INVALID = 0x7FFFFFFF
 GPS_TOPICS = ("sensor_gps", "vehicle_gps_position")
 #: A topic's columns by field name (a structured array's fields, or a dict of arrays).
 Columns: TypeAlias = Mapping[str, npt.NDArray[np.generic]]
@@ -71,6 +77,17 @@ def mag_field(data: Columns) -> Floats:
     """`vehicle_magnetometer` magnetometer_ga[3] or `sensor_mag` x, y, z → N×3 gauss."""
     names = ("magnetometer_ga[0]", "magnetometer_ga[1]", "magnetometer_ga[2]")
     return _floats(data, names if names[0] in data else ("x", "y", "z"))
+
+
+def combined_mag(imu: Columns) -> Columns | None:
+    """sensor_combined's own magnetometer (PX4 1.7 and older) as a magnetometer topic: on every
+    row once a reading came, at the row's timestamp (so each IMU sample carries the reading its
+    row holds); None where the topic has no magnetometer fields."""
+    names = tuple(f"magnetometer_ga[{i}]" for i in range(3))
+    if names[0] not in imu:
+        return None
+    valid = np.asarray(imu["magnetometer_timestamp_relative"]) != RELATIVE_INVALID
+    return {name: np.asarray(imu[name])[valid] for name in ("timestamp", *names)}
 
 
 def gps_rows(data: Columns) -> Floats:
@@ -138,15 +155,18 @@ class UlogFile(LogFile):
         streams: dict[int, tuple[str, Columns]] = {IMU: (IMU_TOPIC, columns_of(contents.topics[IMU_TOPIC, self.imu]))}
         if ATTITUDE_TOPIC in topics:
             streams[ATTITUDE] = (ATTITUDE_TOPIC, topics[ATTITUDE_TOPIC])
+        own_mag = combined_mag(streams[IMU][1])
         for kind, names, lacking in (
             (MAG, MAG_TOPICS, "heading from the gyro only"),
             (GPS, GPS_TOPICS, "no GPS aiding"),
         ):
             name = next((t for t in names if t in topics), None)
-            if name is None:
-                self.notes.append(f"{self.path}: no {' or '.join(names)} topic: {lacking}")
-            else:
+            if name is not None:
                 streams[kind] = (name, topics[name])
+            elif kind == MAG and own_mag is not None:
+                streams[MAG] = (COMBINED_MAG, own_mag)
+            else:
+                self.notes.append(f"{self.path}: no {' or '.join(names)} topic: {lacking}")
         changed = contents.changed_parameters
         keys = {PARAMETER: np.array([t for t, _, _ in changed], dtype=np.uint64)}
         keys.update({kind: np.asarray(data["timestamp"]).astype(np.uint64) for kind, (_, data) in streams.items()})
@@ -160,9 +180,11 @@ class UlogFile(LogFile):
         self, which: npt.NDArray[np.int64], row: npt.NDArray[np.int64], keys: dict[int, npt.NDArray[np.uint64]],
         streams: dict[int, tuple[str, Columns]],
     ) -> None:  # fmt: skip
-        """counts per topic and the first and last timestamp of the merged topic rows."""
+        """counts per topic (sensor_combined's own magnetometer is no topic of its own) and the
+        first and last timestamp of the merged topic rows."""
         for name, data in streams.values():
-            self.counts[name] += len(data["timestamp"])
+            if name != COMBINED_MAG:
+                self.counts[name] += len(data["timestamp"])
         rows = np.flatnonzero(which != PARAMETER)
         if len(rows):
             first, last = rows[0], rows[-1]
