@@ -142,14 +142,18 @@ class Binner {
 }
 
 // Pixel spans between consecutive drawn points of a yaw line that jump by more than 180°: the
-// angle wrapped (±180°), it did not swing across the chart, so no line is drawn there.
+// angle wrapped (±180°), it did not swing across the chart, so no line is drawn there. Points a
+// few pixels apart or less (a min/max column's two, or neighbouring columns) get a gap a pixel
+// wider than them on each side: one between them would be empty, and the wrap drawn as a bar.
 function wrapGaps(u, si, i0, i1, nullGaps) {
   const xs = u.data[0], ys = u.data[si], gaps = nullGaps.slice();
   let prev = -1;
   for (let i = i0; i <= i1; i++) {
     if (ys[i] == null) continue;
     if (prev >= 0 && Math.abs(ys[i] - ys[prev]) > 180) {
-      gaps.push([Math.round(u.valToPos(xs[prev], "x", true)) + 1, Math.round(u.valToPos(xs[i], "x", true)) - 1]);
+      const from = u.valToPos(xs[prev], "x", true), to = u.valToPos(xs[i], "x", true);
+      const a = Math.round(from), b = Math.round(to);
+      gaps.push(b - a > 2 ? [a + 1, b - 1] : [Math.floor(from) - 1, Math.ceil(to) + 1]);
     }
     prev = i;
   }
