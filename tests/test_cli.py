@@ -46,6 +46,9 @@ def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port
     assert raw["requested_hz"] == 50.0
     assert 45.0 <= raw["achieved_hz"] <= 55.0
     assert report["link"]["stats"]["crc_errors"] == 0
+    # each state change once (the shared link's and the vehicle's own were both listed)
+    states = [e["detail"] for e in report["link"]["events"] if e["kind"] == "state"]
+    assert states == ["waiting -> connected"], report["link"]["events"]
 
 
 def test_status_rejects_a_bad_connection_string():

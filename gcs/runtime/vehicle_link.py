@@ -129,6 +129,9 @@ class VehicleLink(Link):
         if self.link is None:
             return own
         link = self.link.snapshot()
-        events = sorted([*link.events, *own.events], key=lambda e: e.wall_time)[-50:]
+        # the shared link's transport, baud and errors, with this vehicle's own states: the shared
+        # link's state follows every vehicle on it, and beside this one's it showed each change twice
+        shared = [e for e in link.events if e.kind != "state"]
+        events = sorted([*shared, *own.events], key=lambda e: e.wall_time)[-50:]
         stats = dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops)
         return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)
