@@ -302,3 +302,20 @@ def test_a_damaged_sessions_parquet_is_a_one_line_error(recorded, tmp_path, fmt,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"gcs export: error: {parquet}: unreadable Parquet"), err
     assert out.read_bytes() == b"previous export"
+
+
+def test_a_session_without_its_attitude_table_exports_the_replayed_one(recorded, tmp_path):
+    """A copy of a session without attitude.parquet: its tlog replayed gives the attitudes it
+    recorded (0 rows were exported), the wall time unknown."""
+    folder = tmp_path / recorded["folder"].name
+    shutil.copytree(recorded["folder"], folder)
+    (folder / "attitude.parquet").unlink()
+    out = tmp_path / "flight.mat"
+    assert main(["export", str(folder), "--format", "mat", "--out", str(out)]) == 0
+    mat, expected = scipy.io.loadmat(out), parquet_attitude(recorded["folder"])
+    names = {str(row[0][0]): str(row[1][0]) for row in mat["info"][0, 0]["sources"]}
+    assert set(names) == set(expected) >= {"onboard", "truth", "dcm", "kf", "ekf"}
+    for source, series in expected.items():
+        struct = mat[names[source]][0, 0]
+        np.testing.assert_array_equal(struct["t"].ravel(), series["t"])
+        np.testing.assert_array_equal(struct["roll"].ravel(), np.degrees(series["roll"]))

@@ -139,6 +139,11 @@ def finish_table(folder: Path, table: str) -> dict:
     return report
 
 
+def has_table(folder: Path, table: str) -> bool:
+    """Whether the session holds the table, as Parquet or as its stream."""
+    return layout.parquet_path(folder, table).exists() or layout.stream_path(folder, table).exists()
+
+
 def read_table(folder: Path, table: str) -> pa.Table:
     """A session's table, from Parquet if the session is closed, else from the live stream."""
     parquet = layout.parquet_path(folder, table)

@@ -148,7 +148,10 @@ class Contents:
 
     @cached_property
     def attitude(self) -> pa.Table:
-        if self.kind == "session":
+        """A session's recorded attitudes; a log's computed from its inputs, and a session's too
+        where its attitude table is gone (a copy without it): its tlog replayed gives the numbers
+        it recorded, with no wall time (NaN), where 0 rows were exported."""
+        if self.kind == "session" and columnar.has_table(self.path, "attitude"):
             return columnar.read_table(self.path, "attitude")
         return replayed_attitude(self.source)
 
