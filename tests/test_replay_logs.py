@@ -41,10 +41,18 @@ def test_tlog_counts_and_span_match_pymavlink(logs_dir, name):
     assert all(c.summary()["references"] for c in session.pipeline.comparisons.values())
 
 
-def test_low_rate_tlog_is_flagged_unreliable(logs_dir):
-    session = _replay(open_source(logs_dir / "arduplane-sitl-vtol.tlog"))
+def test_low_rate_tlog_is_flagged_unreliable(logs_dir, capsys):
+    """In the pipeline's comparison, and by `gcs replay` under its table (it printed the table
+    alone, as if the errors were a fair comparison); a 248 Hz log gets no such note."""
+    path = logs_dir / "arduplane-sitl-vtol.tlog"
+    session = _replay(open_source(path))
     reliable, reason = session.pipeline.comparisons["dcm"].reliability()
     assert not reliable and "Hz" in reason
+    assert main(["replay", str(path), "--fast"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("gcs replay: note: ")]
+    assert len(notes) == 1 and "below the 50 Hz needed" in notes[0] and "not a fair comparison" in notes[0], notes
+    assert main(["replay", str(logs_dir / "px4-flight-sample.ulg"), "--fast"]) == 0
+    assert "gcs replay: note:" not in capsys.readouterr().err
 
 
 def _instance(record) -> int:

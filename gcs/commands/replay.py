@@ -11,13 +11,14 @@ from typing import Any
 
 from gcs.commands.common import progress_bar
 from gcs.commands.options import check_speed
+from gcs.core.comparison import MIN_IMU_RATE, imu_rate_of, reliability
 from gcs.core.estimators import jit, whole
 from gcs.core.gains import GainError
 from gcs.logs import dataflash_format, ulog_format
 from gcs.logs.logfile import InputError
 from gcs.runtime.estimation import warm
 from gcs.runtime.replay import ReplaySession, compiled, selection, session_table, whole_table
-from gcs.sessions.sources import open_source
+from gcs.sessions.sources import ReplaySource, open_source
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -92,7 +93,19 @@ def run(args: argparse.Namespace) -> int:
     )
     if source.damage:
         print(f"damage: {source.damage}", file=sys.stderr)
+    slow = imu_rate_note(source)
+    if slow:
+        print(f"gcs replay: note: {slow}", file=sys.stderr)
     return 0
+
+
+def imu_rate_note(source: ReplaySource) -> str | None:
+    """What makes the table above no fair comparison, as the live status and `gcs report` say it:
+    the log's raw IMU (its mean rate) too slow for a ground-side estimator to follow the motion."""
+    t = source.table.imu[:, 0]
+    rate = imu_rate_of(len(t), len(t), float(t[0]), float(t[-1])) if len(t) else 0.0
+    reliable, reason = reliability(rate, MIN_IMU_RATE)
+    return None if reliable else f"{reason} (the errors above are not a fair comparison)"
 
 
 def _start_up(whole_runs: bool) -> None:

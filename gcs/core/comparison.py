@@ -34,6 +34,8 @@ DEG = 180.0 / math.pi
 #: one late or lost message (plus clock rounding) reads 50 Hz as ~49.9 Hz; 0.95 still flags a stream
 #: really running slower (one group rate step below, 40 Hz, or heavy loss).
 RATE_TOLERANCE = 0.95
+#: Hz of raw IMU a ground-side estimator needs to follow a vehicle's motion
+MIN_IMU_RATE = 50.0
 
 
 Quat = tuple[float, float, float, float]
@@ -210,7 +212,7 @@ class Comparison:
         history: float = 30.0,
         lag_max: float = 0.5,
         lag_step: float = 0.01,
-        min_imu_rate: float = 50.0,
+        min_imu_rate: float = MIN_IMU_RATE,
     ) -> None:
         self.window, self.history = window, history
         self.lag_max, self.lag_step, self.min_imu_rate = lag_max, lag_step, min_imu_rate

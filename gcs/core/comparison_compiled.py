@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from gcs.core.comparison import (
     LAG_POINTS,
+    MIN_IMU_RATE,
     RESUM_EVERY,
     BatchRuns,
     ComparisonSummary,
@@ -405,7 +406,7 @@ class CompiledComparison:
         history: float = 30.0,
         lag_max: float = 0.5,
         lag_step: float = 0.01,
-        min_imu_rate: float = 50.0,
+        min_imu_rate: float = MIN_IMU_RATE,
     ) -> None:
         if window > history:
             raise ValueError(f"window {window} s longer than the history {history} s")
