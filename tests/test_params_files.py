@@ -10,6 +10,7 @@ import pytest
 from conftest import ROOT, free_port
 from live import running_sim
 
+from gcs.commands.cli import main
 from gcs.mavlink import param_files
 from gcs.mavlink.param_files import ParamFileError
 from gcs.mavlink.params import float32
@@ -45,6 +46,15 @@ def test_bad_lines_are_named(text, message):
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(ParamFileError, match=r"cannot read .*nope.param"):
         param_files.load(tmp_path / "nope.param")
+
+
+def test_cli_errors_are_one_line_saying_error(tmp_path, capsys):
+    """As every other command says it: `gcs params ACTION: error: ...`, naming the file."""
+    there = tmp_path / "there.param"
+    there.write_text("ATC_RAT_RLL_P,0.135\n")
+    assert main(["params", "diff", str(tmp_path / "missing.param"), str(there)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("gcs params diff: error: ") and "missing.param" in line, line
 
 
 def test_diff_compares_as_the_vehicle_stores_values():

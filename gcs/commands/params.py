@@ -14,7 +14,7 @@ import argparse
 import asyncio
 import sys
 
-from gcs.commands.common import progress_bar
+from gcs.commands.common import os_error_line, progress_bar
 from gcs.commands.options import add_link_arguments, station_config
 from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink import param_files
@@ -69,17 +69,17 @@ def run(args: argparse.Namespace) -> int:
         profile = load_profile(args.profile) if getattr(args, "profile", None) else None
         config = station_config(args)
     except (ParamError, ProfileError, ValueError) as exc:
-        print(f"gcs params {args.action}: {exc}", file=sys.stderr)
+        print(f"gcs params {args.action}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"gcs params {args.action}: error: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs params {args.action}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     config.request_streams = False  # keep the link for the parameter traffic
     config.estimate = False
     try:
         return asyncio.run(_with_station(config, args, profile))
     except (ParamError, ProfileError) as exc:
-        print(f"gcs params {args.action}: {exc}", file=sys.stderr)
+        print(f"gcs params {args.action}: error: {exc}", file=sys.stderr)
         return 1
 
 
