@@ -74,6 +74,8 @@ async def _scenario(tmp_path):
         assert len(t) >= 200 and min(roll) < -28.0  # plotted: the dashboard's store has the stream
         assert status["link"]["state"] == "connected" and status["link"]["malformed"] >= 2
         assert station.link.stats.packets_out == 0  # nothing written to a device that reads no MAVLink
+        # and nothing asked of it: no stream shows as requested (each was, "via REQUEST_DATA_STREAM")
+        assert status["link"]["stream_method"] is None and status["link"]["streams"] == {}, status["link"]
         served.cancel()
         await asyncio.gather(served, return_exceptions=True)
         # every line printed since the port was opened (and not refused by a full port buffer, which

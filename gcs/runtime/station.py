@@ -179,12 +179,14 @@ class Station:
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
-        if self.config.request_streams:  # not for a parameter-only command: ask the firmware version
+        # not for a parameter-only command, nor for an ascii: link's text lines (no MAVLink reaches them)
+        negotiates = self.config.request_streams and self.link.address.framing != "ascii"
+        if negotiates:  # ask the firmware version
             run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
         if self._owns_link:
             for i, output in enumerate(self.outputs):
                 run(f"output {i + 1}", output.run())
-        if self.config.request_streams:
+        if negotiates:
             run("streams", self.streams.run())
             run("radio", self.radio.run())
         if self.estimation is not None:
