@@ -211,17 +211,18 @@ def test_status_lists_every_vehicle() -> None:
 
 
 @pytest.mark.timeout(600)
-def test_dashboard_vehicle_selector() -> None:
+def test_dashboard_vehicle_selector(tmp_path: Path) -> None:
     """Real Chromium: the selector lists both vehicles on one port, and choosing the second
     switches the page's REST and WebSocket URLs to /api/vehicles/2/... (its panel shows its own
-    firmware: ArduCopter 4.5.7, not the APM 2.5's 3.2.1)."""
+    firmware: ArduCopter 4.5.7, not the APM 2.5's 3.2.1). The what-if source picker tells the two
+    vehicles' sessions apart (both started in the same second, and were listed by time alone)."""
     from live import CHROMIUM, CHROMIUM_ARGS, POLL_MS
     from playwright.async_api import async_playwright
 
     port = free_port(socket.SOCK_DGRAM)
 
-    async def scenario() -> tuple[list[str], list[str], str]:
-        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}"))
+    async def scenario() -> tuple[list[str], list[str], str, list[str]]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
         server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
         await fleet.start()
         await server.start()
@@ -252,13 +253,25 @@ def test_dashboard_vehicle_selector() -> None:
                     )
                     await page.wait_for_function("window.gcsStats.messages > 0", polling=POLL_MS, timeout=60_000)
                     shown = await page.text_content("#vehicle-autopilot") or ""
+                    await page.click("button[data-tab=whatif]")
+                    picker = "#whatif-source option"
+                    sessions_listed = (
+                        f"[...document.querySelectorAll('{picker}')].filter(o => o.text.startsWith('session'))"
+                    )
+                    await page.wait_for_function(
+                        f"{sessions_listed}.length >= 2",
+                        polling=POLL_MS,
+                        timeout=60_000,
+                    )
+                    labels = await page.eval_on_selector_all(picker, "os => os.map(o => o.text)")
                     await browser.close()
         finally:
             await server.stop()
             await fleet.stop()
-        return options, urls, shown
+        return options, urls, shown, [label for label in labels if label.startswith("session")]
 
-    options, urls, shown = asyncio.run(scenario())
+    options, urls, shown, sessions = asyncio.run(scenario())
+    assert len(set(sessions)) == len(sessions) >= 2, sessions
     assert sorted(options) == ["1", "2"]
     assert any(u.endswith("/api/vehicles/2/status") for u in urls)
     assert any(u.endswith("/api/vehicles/2/ws/live") for u in urls)

@@ -236,7 +236,8 @@ async function refreshSessions() {
   $("sessions-table").innerHTML = `<tr><th>start</th><th>duration</th><th>size</th><th>vehicle</th><th>export</th></tr>`
     + (rows.join("") || `<tr><td colspan="5" class="hint">no recorded sessions yet</td></tr>`);
   const logs = l.ok ? l.data : [];
-  const options = [...s.data.slice().reverse().map((x) => ({ name: x.name, label: `session ${x.start ? new Date(x.start * 1000).toLocaleString() : x.name}` })),
+  // a session by its start and vehicle: several vehicles' sessions start in the same second
+  const options = [...s.data.slice().reverse().map((x) => ({ name: x.name, label: `session ${x.start ? new Date(x.start * 1000).toLocaleString() : x.name}${x.vehicle ? ` · ${x.vehicle}` : ""}` })),
     ...logs.map((x) => ({ name: x.name, label: `log ${x.name}` }))];
   for (const id of ["whatif-source"]) {
     const sel = $(id), keep = sel.value;
