@@ -113,12 +113,19 @@ def test_numbers_are_printed_without_binary_noise():
 
 
 # ---- failing fast, failing clean -------------------------------------------------------------
+#: A link command's duration far beyond the subprocess's deadline (FAIL_AT_ONCE_S): one that
+#: fails at once ends within the deadline; one that listens out its duration is stopped by it.
+LISTEN_S, FAIL_AT_ONCE_S = "3600", 120
+
+
 def test_a_missing_serial_port_fails_at_once_in_one_line():
-    started = time.monotonic()
     done = subprocess.run(
-        GCS + ["status", "--connect", "/dev/ttyUSB9", "--duration", "30"], capture_output=True, text=True, timeout=60
+        GCS + ["status", "--connect", "/dev/ttyUSB9", "--duration", LISTEN_S],
+        capture_output=True,
+        text=True,
+        timeout=FAIL_AT_ONCE_S,
     )
-    assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
+    assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert lines == ["gcs status: error: cannot open serial port /dev/ttyUSB9: No such file or directory"], lines
 
@@ -128,11 +135,13 @@ def test_a_missing_tlog_fails_at_once_in_one_line(tmp_path):
     auditing: `gcs status --connect flihgt.tlog` waited out its duration, then printed a report of
     "None"s with no word of the missing file)."""
     missing = tmp_path / "flihgt.tlog"
-    started = time.monotonic()
     done = subprocess.run(
-        GCS + ["status", "--connect", str(missing), "--duration", "30"], capture_output=True, text=True, timeout=60
+        GCS + ["status", "--connect", str(missing), "--duration", LISTEN_S],
+        capture_output=True,
+        text=True,
+        timeout=FAIL_AT_ONCE_S,
     )
-    assert done.returncode == 2 and time.monotonic() - started < 20  # not the 30 s duration
+    assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"gcs status: error: {missing}: no such file"], done.stderr
     assert done.stdout == ""
 
@@ -157,10 +166,9 @@ def test_a_negative_or_not_finite_number_option_is_refused_in_one_line(argv, exp
     or NaN --imu-rate asked the vehicle to stop the stream, --heartbeat-timeout 0 called a live
     link lost; each now ends at once with the option and what it takes."""
     hop = str(LOGS / "arducopter-sitl-hop.tlog")
-    link = ["--connect", hop, "--duration", "30"] if argv[0] == "status" else [hop]
-    started = time.monotonic()
-    done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=60)
-    assert done.returncode == 2 and time.monotonic() - started < 20
+    link = ["--connect", hop, "--duration", LISTEN_S] if argv[0] == "status" else [hop]
+    done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)
+    assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [expected], done.stderr
 
 
