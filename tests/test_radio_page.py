@@ -120,5 +120,7 @@ def test_the_page_says_radio_status_was_ignored_and_polls_the_status_once(udp_po
 
     text, asked, errors = asyncio.run(scenario())
     assert "no radio: 3 RADIO_STATUS" in text and "ignored" in text, text
-    assert asked["/api/status"] <= asked["/api/estimates"] + 1, asked
+    # + 1 for the panels' request at the start, + 1 for a poll's status counted before its estimates
+    # (a poll of the radio's own every 2 s would add 4 or more by the 8th)
+    assert asked["/api/status"] <= asked["/api/estimates"] + 2, asked
     assert not errors, errors
