@@ -16,7 +16,7 @@ from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
 from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import matrix_to_quat, vec3
-from gcs.core.samples import G0, GpsSample, ImuSample
+from gcs.core.samples import G0, ImuSample
 
 _G = {g.name: i for i, g in enumerate(DcmEstimator.GAINS)}
 KP_RP, KI_RP, KP_YAW, KI_YAW = _G["kp_rp"], _G["ki_rp"], _G["kp_yaw"], _G["ki_yaw"]
@@ -30,19 +30,7 @@ YAW_SPIN_HALF, ACCEL_DEV_GATE, YAW_ACC_CAP = _G["yaw_spin_half"], _G["accel_dev_
 REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, DECLINATION, MAX_GAP = _G["gps_gain"], _G["gps_speed_min"], _G["declination"], _G["max_gap"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
-MAG_G = tuple(
-    _G[n]
-    for n in (
-        "mag_norm_tol",
-        "mag_dip_tol",
-        "mag_heading_tol",
-        "mag_relearn",
-        "mag_offset_time",
-        "mag_offset_tol",
-        "declination",
-    )
-)
-M0, M1, M2, M3, M4, M5, M6 = MAG_G
+M0, M1, M2, M3, M4, M5, M6 = k.mag_gain_slots(_G)
 
 B = k.BASE
 ROWS = B  # 9
@@ -211,7 +199,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     return code
 
 
-class DcmCompiled(k.Compiled, DcmEstimator):
+class DcmCompiled(k.StartedInPython, DcmEstimator):
     """`dcm` with its per-sample update compiled; same gains, presets, outputs and health as
     DcmEstimator (the reference)."""
 
@@ -238,34 +226,14 @@ class DcmCompiled(k.Compiled, DcmEstimator):
         k.reset_shock(s)
         reset_rest(s, REST)
 
-    def update_gps(self, sample: GpsSample) -> None:
-        self.gps.update(sample)
-        k.load_gps(self.s, self.gps)
-
-    def _after_step(self, code: int, sample: ImuSample) -> bool:
+    def _start(self, sample: ImuSample) -> None:
+        """DcmEstimator's initialisation on the kernel state."""
         s = self.s
-        if code == k.STEP:
-            return True
-        if code == k.DUPLICATE:
-            return bool(s[k.VALID])
-        self.last_reinit = k.reinit_reason(s, code, self.gains["max_gap"])
-        if s[k.ACCEL_NORM] < 1e-6:
-            s[k.T] = math.nan
-            return bool(s[k.VALID])
         R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
         s[ROWS : ROWS + 9] = np.asarray(R, dtype=float).reshape(-1)
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
         self._reset_correction(vec3(float(v) for v in sample.gyro))
         s[k.VALID] = 1.0
-        return True
-
-    @property
-    def valid(self) -> bool:
-        return bool(self.s[k.VALID])
-
-    @valid.setter
-    def valid(self, value: bool) -> None:
-        self.s[k.VALID] = float(value)
 
     @property
     def matrix(self) -> npt.NDArray[np.float64]:

@@ -32,16 +32,7 @@ GPS_TIMEOUT, MAG_NOISE, REST_GYRO, REST_ACC_G = _G["gps_timeout"], _G["mag_noise
 MAG_TIME_SIGMA = _G["mag_time_sigma"]
 REST_TIME, REST_NOISE, REST_ACC_NOISE, MAX_GAP = _G["rest_time"], _G["rest_noise"], _G["rest_acc_noise"], _G["max_gap"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD, PICK_DT = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"], _G["pick_dt"]
-_MAG = (
-    "mag_norm_tol",
-    "mag_dip_tol",
-    "mag_heading_tol",
-    "mag_relearn",
-    "mag_offset_time",
-    "mag_offset_tol",
-    "declination",
-)
-M0, M1, M2, M3, M4, M5, M6 = (_G[n] for n in _MAG)
+M0, M1, M2, M3, M4, M5, M6 = k.mag_gain_slots(_G)
 
 B = k.BASE
 V, BIAS, V_OFFSET = B, B + 3, B + 6

@@ -23,6 +23,7 @@ from gcs.core.estimators.base import GpsAcceleration
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.magnetic import (
     MAG_CURRENT_TAU,
+    MAG_GAINS,
     MAG_HEADING_MIN_GYR,
     MAG_NEW_MIN_GYR,
     MAG_OFFSET_HOLD,
@@ -36,7 +37,7 @@ from gcs.core.estimators.magnetic import (
 )
 from gcs.core.gains import Gain, GainSet
 from gcs.core.rotation import Vec3
-from gcs.core.samples import ImuSample
+from gcs.core.samples import GpsSample, ImuSample
 
 State = npt.NDArray[np.float64]
 
@@ -91,6 +92,12 @@ def reset_shock(s: State) -> None:
     """A new Shock."""
     s[SHOCK_UNTIL] = -math.inf
     s[SHOCK_ACTIVE] = s[SHOCK_SATURATED] = s[SHOCK_COUNT] = 0.0
+
+
+def mag_gain_slots(gain_slots: dict[str, int]) -> tuple[int, ...]:
+    """Where an estimator's gain vector holds MAG_GAINS and the declination, in that order: the
+    magnetic kernels' seven gain arguments."""
+    return (*(gain_slots[g.name] for g in MAG_GAINS), gain_slots["declination"])
 
 
 def load_gps(s: State, gps: GpsAcceleration) -> None:
@@ -223,6 +230,44 @@ class Compiled:
 
     def _grow(self) -> None:
         """Make room in `hist` for one more row (only estimators with a history have to)."""
+        raise NotImplementedError
+
+
+class StartedInPython(Compiled):
+    """What `dcm`'s and `kf`'s compiled classes share: the validity in slot VALID, GPS fixes
+    through the reference's `GpsAcceleration` (then loaded into the state), and a start or
+    restart from the sample in Python (`_start`), as their references do."""
+
+    gps: GpsAcceleration
+    last_reinit: str
+
+    @property
+    def valid(self) -> bool:
+        return bool(self.s[VALID])
+
+    @valid.setter
+    def valid(self, value: bool) -> None:
+        self.s[VALID] = float(value)
+
+    def update_gps(self, sample: GpsSample) -> None:
+        self.gps.update(sample)
+        load_gps(self.s, self.gps)
+
+    def _after_step(self, code: int, sample: ImuSample) -> bool:
+        s = self.s
+        if code == STEP:
+            return True
+        if code == DUPLICATE:
+            return bool(s[VALID])
+        self.last_reinit = reinit_reason(s, code, self.gains["max_gap"])
+        if s[ACCEL_NORM] < 1e-6:  # no direction to start from: wait for the next sample
+            s[T] = math.nan
+            return bool(s[VALID])
+        self._start(sample)
+        return True
+
+    def _start(self, sample: ImuSample) -> None:
+        """The reference's initialisation from `sample`, on the kernel state; sets VALID."""
         raise NotImplementedError
 
 

@@ -27,7 +27,7 @@ from gcs.core.estimators.kf import (
 from gcs.core.estimators.magnetic import MAG_WEIGHT_MIN
 from gcs.core.estimators.rest import REST_SIZE, reset_rest, rest_bias
 from gcs.core.rotation import Vec3, euler_quat
-from gcs.core.samples import G0, GpsSample, ImuSample
+from gcs.core.samples import G0, ImuSample
 
 _G = {g.name: i for i, g in enumerate(KalmanAttitudeFilter.GAINS)}
 Q_GAINS = _G["q_roll"]  # q_roll … q_r, then r_roll … r_r: twelve in a row
@@ -50,16 +50,7 @@ YAW_ACC_R = _G["yaw_acc_r"]
 REST_GYRO, REST_ACC, REST_TIME, REST_TAU = _G["rest_gyro"], _G["rest_acc"], _G["rest_time"], _G["rest_bias_tau"]
 GPS_GAIN, GPS_SPEED_MIN, MAX_GAP, PICK_DT = _G["gps_gain"], _G["gps_speed_min"], _G["max_gap"], _G["pick_dt"]
 SHOCK_ACC, GYRO_LIMIT, SHOCK_HOLD = _G["shock_acc"], _G["gyro_limit"], _G["shock_hold"]
-_MAG = (
-    "mag_norm_tol",
-    "mag_dip_tol",
-    "mag_heading_tol",
-    "mag_relearn",
-    "mag_offset_time",
-    "mag_offset_tol",
-    "declination",
-)
-M0, M1, M2, M3, M4, M5, M6 = (_G[n] for n in _MAG)
+M0, M1, M2, M3, M4, M5, M6 = k.mag_gain_slots(_G)
 
 B = k.BASE
 X, P = B, B + 6  # x (6), P (6×6)
@@ -361,7 +352,7 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     return code
 
 
-class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
+class KalmanCompiled(k.StartedInPython, KalmanAttitudeFilter):
     """`kf` with its per-sample update compiled; same gains, presets, outputs and health as
     KalmanAttitudeFilter (the reference, on filterpy)."""
 
@@ -371,31 +362,6 @@ class KalmanCompiled(k.Compiled, KalmanAttitudeFilter):
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         super().__init__(preset, **gains)
-
-    @property
-    def valid(self) -> bool:
-        return bool(self.s[k.VALID])
-
-    @valid.setter
-    def valid(self, value: bool) -> None:
-        self.s[k.VALID] = float(value)
-
-    def update_gps(self, sample: GpsSample) -> None:
-        self.gps.update(sample)
-        k.load_gps(self.s, self.gps)
-
-    def _after_step(self, code: int, sample: ImuSample) -> bool:
-        s = self.s
-        if code == k.STEP:
-            return True
-        if code == k.DUPLICATE:
-            return bool(s[k.VALID])
-        self.last_reinit = k.reinit_reason(s, code, self.gains["max_gap"])
-        if s[k.ACCEL_NORM] < 1e-6:
-            s[k.T] = math.nan
-            return bool(s[k.VALID])
-        self._start(sample)
-        return True
 
     def _start(self, sample: ImuSample) -> None:
         """KalmanAttitudeFilter._initialise on the kernel state."""
