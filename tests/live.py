@@ -31,12 +31,14 @@ CHROMIUM_ARGS = [
 POLL_MS = 20
 
 
-async def launch_chromium(playwright):
+async def launch_chromium(playwright, scrollbars: bool = False):
     """Debian's Chromium (never a downloaded one). A missing browser fails the test (CI must have
-    it), it never skips it."""
+    it), it never skips it. `scrollbars`: classic scrollbars, as a desktop browser draws them (a
+    vertical one takes 15 px of a 1366 px window); Playwright's headless default hides them."""
     if not os.path.exists(CHROMIUM):
         raise AssertionError(f"{CHROMIUM} missing: run bash .ci/setup")
-    return await playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    ignore = ["--hide-scrollbars"] if scrollbars else None  # None: all of Playwright's default arguments
+    return await playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, ignore_default_args=ignore)
 
 
 async def open_page(browser, errors: list[str], width: int = 1366, height: int = 768):

@@ -118,7 +118,7 @@ def test_ulog_counts_and_span_match_pyulog(logs_dir):
     session = _replay(source)
     assert session.pipeline.imu_samples == len(topics[IMU_TOPIC])
     rms = session.pipeline.comparisons["dcm"].summary()["references"]["onboard"]["session"]["rms"]
-    assert rms[0] < 5 and rms[1] < 5  # roll, pitch against PX4's EKF2, degrees
+    assert rms[0] < 5 and rms[1] < 5  # roll, pitch against PX4's attitude_estimator_q, degrees
 
 
 @pytest.mark.parametrize("suffix", [".tlog", ".bin", ".ulg"])
@@ -139,10 +139,11 @@ def test_estimate_accepts_bin_and_ulg(logs_dir, tmp_path):
         assert len(out.read_text().splitlines()) > 2000
 
 
-def test_px4_flight_estimators_follow_onboard_ekf2_roll_and_pitch(logs_dir):
-    """A real PX4 flight (sensor_combined at 248 Hz) against the onboard EKF2 vehicle_attitude.
-    The log has no magnetometer or GPS topics, so yaw has no common reference: only roll and
-    pitch are compared."""
+def test_px4_flight_estimators_follow_onboard_roll_and_pitch(logs_dir):
+    """A real PX4 flight (sensor_combined at 248 Hz) against its onboard vehicle_attitude, from
+    attitude_estimator_q (SYS_MC_EST_GROUP 1, ATT_* and LPE_* parameters, no EKF2; not EKF2 as
+    this test once said). The log has no magnetometer or GPS topics, so yaw has no common
+    reference: only roll and pitch are compared."""
     session = ReplaySession(open_source(logs_dir / "px4-flight-sample.ulg"), speed=0)
     session.run_to_end()
     limits = {"ekf": 0.5, "dcm": 1.0, "kf": 1.0}  # RMS degrees
@@ -150,7 +151,7 @@ def test_px4_flight_estimators_follow_onboard_ekf2_roll_and_pitch(logs_dir):
         onboard = session.pipeline.summary()["estimators"][name]["comparison"]["references"]["onboard"]["session"]
         roll, pitch, _ = onboard["rms"]
         assert onboard["n"] > 6000
-        assert roll < limit and pitch < limit, f"{name}: roll/pitch RMS {roll:.2f}/{pitch:.2f} deg vs EKF2"
+        assert roll < limit and pitch < limit, f"{name}: roll/pitch RMS {roll:.2f}/{pitch:.2f} deg vs onboard"
 
 
 def ulog_message_starts(data: bytes) -> list[int]:

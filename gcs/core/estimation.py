@@ -95,6 +95,8 @@ class EstimationPipeline:
         window: float = 10.0,
     ) -> None:
         self.estimators = estimators if estimators is not None else {n: registry.create(n) for n in registry.names()}
+        #: s of vehicle time over which each comparison judges its IMU rate and reliability
+        self.window = window
         self.comparisons = {name: CompiledComparison(window=window) for name in self.estimators}
         self.latest: dict[str, AttitudePoint] = {}
         self.imu_samples = 0

@@ -5,11 +5,14 @@ the latest magnetometer reading (see gcs.logs.magnetometer) from `vehicle_magnet
 (calibrated, body FRD, gauss) or, in logs without it, `sensor_mag` (gauss), or, in PX4 1.7 and
 older, `sensor_combined`'s own `magnetometer_ga` (calibrated, gauss; the latest reading, on each
 row once one came: `magnetometer_timestamp_relative` is not RELATIVE_INVALID); `sensor_gps` or, in
-older logs, `vehicle_gps_position` → GPS rows; `vehicle_attitude` (the onboard EKF2, quaternion
-body→NED, w first) → the "onboard" reference. The topics are merged in timestamp order (at equal
-timestamps a magnetometer reading first, so the IMU sample carries it), as `heapq.merge` merges
-them. The parameters (initial, then changed ones at their time) give EKF2_MAG_DECL (degrees) as a
-declination `GainChange`, else the WMM's at the first 3D fix (see `VehicleDeclination`).
+older logs, `vehicle_gps_position` → GPS rows; `vehicle_attitude` (quaternion body→NED, w first)
+→ the "onboard" reference: whichever estimator SYS_MC_EST_GROUP started (2: EKF2, PX4's default;
+0 or 1: attitude_estimator_q, as in the shared px4-flight-sample.ulg, whose group is 1 and whose
+ATT_*/LPE_* parameters and LPE's 10-state `estimator_status` say so). The topics are merged in
+timestamp order (at equal timestamps a magnetometer reading first, so the IMU sample carries it),
+as `heapq.merge` merges them. The parameters (initial, then changed ones at their time) give
+EKF2_MAG_DECL (degrees) as a declination `GainChange`, else the WMM's at the first 3D fix (see
+`VehicleDeclination`).
 Everything is computed on whole columns; iterating a `UlogFile` gives the same inputs as objects.
 """
 

@@ -13,7 +13,7 @@ from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime import heap
 from gcs.runtime.bus import Message, Subscription
-from gcs.runtime.link import Link
+from gcs.runtime.link import Link, LinkState
 from gcs.runtime.signal import Signal
 
 #: Messages estimated per turn of the event loop at most. Behind (a flood, a starved machine), the
@@ -67,6 +67,8 @@ class LiveEstimation:
         self._sub: Subscription | None = None
         #: the compiled kernels are loaded and the estimation runs (until then what arrives waits)
         self.ready = False
+        #: host monotonic s at which the last batch that gave the estimators an IMU sample arrived
+        self.imu_arrived: float | None = None
 
     def pace(self, interval: Callable[[], float]) -> None:
         """Estimate at most once per interval() s (the live hub's frame interval, which follows
@@ -76,6 +78,19 @@ class LiveEstimation:
     @property
     def imu_type(self) -> str | None:
         return self.inputs.sampler.imu_type
+
+    def stale(self, now: float) -> str | None:
+        """Why the comparisons' reliability no longer holds at host time `now`, or None. It is judged
+        over their last window of IMU samples, which stays as it was when the samples stop: a lost
+        link, or no IMU for longer than that window, would go on reading "reliable" without this."""
+        age = None if self.imu_arrived is None else now - self.imu_arrived
+        silent = "no IMU yet" if age is None else f"no IMU for {age:.0f} s"
+        if self.link.state == LinkState.LOST:
+            return f"link lost: {silent}"
+        window = self.pipeline.window
+        if age is not None and age > window:
+            return f"{silent}, longer than the {window:g} s window its rate is judged over"
+        return None
 
     async def run(self) -> None:
         sub = self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
@@ -124,6 +139,7 @@ class LiveEstimation:
         # per message: bound methods and the declination read once (MessageInputs' properties)
         feed_inputs, feed_imu, feed_many = self.inputs.feed, self.inputs.feed_imu, self.pipeline.feed_many
         declination = self.inputs.vehicle_declination
+        imu_before = self.pipeline.imu_samples
         for item in items:
             self.messages_fed += 1
             imu = item.imu
@@ -143,5 +159,7 @@ class LiveEstimation:
                 self.declination_changed.emit(declination.source, declination.value)
         if inputs:
             points += feed_many(inputs)
+        if items and self.pipeline.imu_samples > imu_before:  # to within a batch (a tick, BATCH messages)
+            self.imu_arrived = items[-1].host_time
         if points:
             self.points.emit(points)

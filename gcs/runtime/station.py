@@ -463,8 +463,18 @@ STARTING = (
 )
 
 
+def live_reason(ready: bool, stale: str | None, reason: str) -> str:
+    """An estimator's reason to read unreliable: starting first, then a lost link or a silent IMU
+    (its comparison's own reason, judged over the last IMU samples, no longer says anything), then
+    the comparison's reason ("" when reliable)."""
+    if not ready:
+        return STARTING
+    return stale if stale is not None else reason
+
+
 def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
     pipeline = estimation.pipeline
+    stale = estimation.stale(time.monotonic())
     estimators = {}
     for name, est in pipeline.estimators.items():
         summary = pipeline.comparisons[name].summary()
@@ -482,8 +492,8 @@ def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
             preset=est.preset,
             gains=dict(est.gains.values),
             health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
-            reliable=summary["reliable"] and estimation.ready,
-            reason=summary["reason"] if estimation.ready else STARTING,
+            reliable=summary["reliable"] and estimation.ready and stale is None,
+            reason=live_reason(estimation.ready, stale, summary["reason"]),
             imu_rate_hz=round(summary["imu_rate"], 2),
             lag_s=summary["lag"],
             dropped=summary["dropped"],

@@ -131,12 +131,13 @@ function showNumbers(est, status) {
     for (const [ref, st] of Object.entries(a.errors)) {
       const lag = e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
       rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
-        + `<td class="rms-window">${triple(st.window_rms_deg)}</td><td>${triple(st.window_max_deg)}</td>`
-        + `<td class="rms-session">${triple(st.session_rms_deg)}</td><td>${triple(st.session_max_deg)}</td>`
+        + `<td class="triple rms-window">${triple(st.window_rms_deg)}</td><td class="triple">${triple(st.window_max_deg)}</td>`
+        + `<td class="triple rms-session">${triple(st.session_rms_deg)}</td><td class="triple">${triple(st.session_max_deg)}</td>`
         + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="health ${e.reliable === false ? "low" : ""}">${e.reliable === false ? "unreliable" : "reliable"}${health ? `; ${escapeHtml(health)}` : ""}</td></tr>`);
     }
   }
-  $("numbers-table").innerHTML = "<tr><th>estimator − reference</th><th>RMS 10 s (°)</th><th>max 10 s (°)</th><th>RMS session (°)</th>"
+  // the first header on two lines: on one it alone widened the table past its column at 1366 px
+  $("numbers-table").innerHTML = "<tr><th>estimator −<br>reference</th><th>RMS 10 s (°)</th><th>max 10 s (°)</th><th>RMS session (°)</th>"
     + `<th>max session (°)</th><th>lag</th><th>IMU rate</th><th>health</th></tr>${rows.join("")}`;
 }
 
