@@ -32,7 +32,7 @@ from starlette.requests import Request
 from bench.loop_trace import LoopTrace
 from bench.sched import thread_sched
 from bench.ws_latency import percentiles
-from gcs.runtime.station import Station, StationConfig, estimation_snapshot
+from gcs.runtime.station import Station, StationConfig
 from gcs.runtime.streams import StreamPlan
 from gcs.server.dashboard import DashboardServer
 from gcs.server.json_body import encode
@@ -95,7 +95,7 @@ async def measure(trace: LoopTrace | None = None) -> dict:
             station.link.snapshot()
             station.streams.snapshot()
             station.vehicle.snapshot()
-            estimation_snapshot(station.estimation)
+            station.estimation.snapshot(time.monotonic())
 
         new = cpu_ms_per_call(ours, CALLS)
         encoded = cpu_ms_per_call(encode_per_request, CALLS)

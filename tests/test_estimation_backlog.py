@@ -15,9 +15,9 @@ from gcs.mavlink.dialect import MARKER_V2, Encoder, mavlink
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime import estimation
 from gcs.runtime.bus import Message
-from gcs.runtime.estimation import BATCH, TICK, LiveEstimation, warm
+from gcs.runtime.estimation import BATCH, STARTING, TICK, LiveEstimation, warm
 from gcs.runtime.link import Link
-from gcs.runtime.station import STARTING, Station, StationConfig
+from gcs.runtime.station import Station, StationConfig
 from gcs.server.app import follow
 from gcs.server.live import LiveHub
 from gcs.sessions import layout

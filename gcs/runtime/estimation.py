@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import Callable
 
 from gcs.core import comparison_compiled
@@ -15,6 +16,7 @@ from gcs.runtime import heap
 from gcs.runtime.bus import Message, Subscription
 from gcs.runtime.link import Link, LinkState
 from gcs.runtime.signal import Signal
+from gcs.runtime.snapshots import ErrorStats, EstimationSnapshot, EstimatorSnapshot, SourceAttitude, finite
 
 #: Messages estimated per turn of the event loop at most. Behind (a flood, a starved machine), the
 #: estimation takes this many, then lets the link read the socket before the next ones: the
@@ -42,6 +44,23 @@ def warm() -> None:
     registry.warm()
     stepping.warm()
     comparison_compiled.warm()
+
+
+#: An estimator's reason while the estimation loads its compiled kernels, not its IMU rate's
+#: (0 Hz then: nothing is estimated yet, though the IMU arrives).
+STARTING = (
+    "starting: loading the compiled estimators (the first start after an install compiles them, "
+    "a minute or more); the samples arriving meanwhile are estimated then"
+)
+
+
+def live_reason(ready: bool, stale: str | None, reason: str) -> str:
+    """An estimator's reason to read unreliable: starting first, then a lost link or a silent IMU
+    (its comparison's own reason, judged over the last IMU samples, no longer says anything), then
+    the comparison's reason ("" when reliable)."""
+    if not ready:
+        return STARTING
+    return stale if stale is not None else reason
 
 
 class LiveEstimation:
@@ -91,6 +110,57 @@ class LiveEstimation:
         if age is not None and age > window:
             return f"{silent}, longer than the {window:g} s window its rate is judged over"
         return None
+
+    def snapshot(self, now: float) -> EstimationSnapshot:
+        """What the station publishes of the estimation at host time `now` (monotonic s)."""
+        pipeline = self.pipeline
+        stale = self.stale(now)
+        estimators = {}
+        for name, est in pipeline.estimators.items():
+            summary = pipeline.comparisons[name].summary()
+            errors = {
+                ref: ErrorStats(
+                    n=s["n"],
+                    window_rms_deg=[finite(v) for v in s["window"]["rms"]],
+                    window_max_deg=[finite(v) for v in s["window"]["max"]],
+                    session_rms_deg=[finite(v) for v in s["session"]["rms"]],
+                    session_max_deg=[finite(v) for v in s["session"]["max"]],
+                )
+                for ref, s in summary["references"].items()
+            }
+            estimators[name] = EstimatorSnapshot(
+                preset=est.preset,
+                gains=dict(est.gains.values),
+                health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
+                reliable=summary["reliable"] and self.ready and stale is None,
+                reason=live_reason(self.ready, stale, summary["reason"]),
+                imu_rate_hz=round(summary["imu_rate"], 2),
+                lag_s=summary["lag"],
+                dropped=summary["dropped"],
+                errors=errors,
+            )
+        latest = {
+            source: SourceAttitude(
+                source,
+                "estimator" if source in pipeline.estimators else "reference",
+                p.t,
+                math.degrees(p.roll),
+                math.degrees(p.pitch),
+                math.degrees(p.yaw),
+            )
+            for source, p in pipeline.latest.items()
+        }
+        return EstimationSnapshot(
+            self.imu_type,
+            pipeline.imu_samples,
+            pipeline.declination,
+            estimators,
+            latest,
+            refused_inputs=dict(pipeline.refused),
+            restarts=dict(pipeline.restarts),
+            restart_reasons=dict(pipeline.restart_reasons),
+            declination_source=self.inputs.declination_source,
+        )
 
     async def run(self) -> None:
         sub = self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)

@@ -43,15 +43,7 @@ from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.radio import RadioGovernor
 from gcs.runtime.recorder import SessionRecorder
 from gcs.runtime.signal import Signal
-from gcs.runtime.snapshots import (
-    ErrorStats,
-    EstimationSnapshot,
-    EstimatorSnapshot,
-    RecordingSnapshot,
-    SourceAttitude,
-    StationSnapshot,
-    finite,
-)
+from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
 from gcs.runtime.streams import StreamPlan, StreamRequester
 from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
@@ -229,7 +221,7 @@ class Station:
             vehicle=self.vehicle.snapshot(),
             streams=self.streams.snapshot(),
             outputs=[o.snapshot() for o in self.outputs],
-            estimation=None if self.estimation is None else estimation_snapshot(self.estimation),
+            estimation=None if self.estimation is None else self.estimation.snapshot(time.monotonic()),
             recording=self.recording_snapshot(),
             parts=self.supervisor.statuses(),
             radio=self.radio.snapshot(),
@@ -453,71 +445,3 @@ def _lower_priority(increment: int) -> None:
 
 def _call(function: Callable[..., R], args: tuple[Any, ...], kwargs: dict[str, Any]) -> R:
     return function(*args, **kwargs)
-
-
-#: An estimator's reason while the estimation loads its compiled kernels, not its IMU rate's
-#: (0 Hz then: nothing is estimated yet, though the IMU arrives).
-STARTING = (
-    "starting: loading the compiled estimators (the first start after an install compiles them, "
-    "a minute or more); the samples arriving meanwhile are estimated then"
-)
-
-
-def live_reason(ready: bool, stale: str | None, reason: str) -> str:
-    """An estimator's reason to read unreliable: starting first, then a lost link or a silent IMU
-    (its comparison's own reason, judged over the last IMU samples, no longer says anything), then
-    the comparison's reason ("" when reliable)."""
-    if not ready:
-        return STARTING
-    return stale if stale is not None else reason
-
-
-def estimation_snapshot(estimation: LiveEstimation) -> EstimationSnapshot:
-    pipeline = estimation.pipeline
-    stale = estimation.stale(time.monotonic())
-    estimators = {}
-    for name, est in pipeline.estimators.items():
-        summary = pipeline.comparisons[name].summary()
-        errors = {
-            ref: ErrorStats(
-                n=s["n"],
-                window_rms_deg=[finite(v) for v in s["window"]["rms"]],
-                window_max_deg=[finite(v) for v in s["window"]["max"]],
-                session_rms_deg=[finite(v) for v in s["session"]["rms"]],
-                session_max_deg=[finite(v) for v in s["session"]["max"]],
-            )
-            for ref, s in summary["references"].items()
-        }
-        estimators[name] = EstimatorSnapshot(
-            preset=est.preset,
-            gains=dict(est.gains.values),
-            health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
-            reliable=summary["reliable"] and estimation.ready and stale is None,
-            reason=live_reason(estimation.ready, stale, summary["reason"]),
-            imu_rate_hz=round(summary["imu_rate"], 2),
-            lag_s=summary["lag"],
-            dropped=summary["dropped"],
-            errors=errors,
-        )
-    latest = {
-        source: SourceAttitude(
-            source,
-            "estimator" if source in pipeline.estimators else "reference",
-            p.t,
-            math.degrees(p.roll),
-            math.degrees(p.pitch),
-            math.degrees(p.yaw),
-        )
-        for source, p in pipeline.latest.items()
-    }
-    return EstimationSnapshot(
-        estimation.imu_type,
-        pipeline.imu_samples,
-        pipeline.declination,
-        estimators,
-        latest,
-        refused_inputs=dict(pipeline.refused),
-        restarts=dict(pipeline.restarts),
-        restart_reasons=dict(pipeline.restart_reasons),
-        declination_source=estimation.inputs.declination_source,
-    )
