@@ -34,16 +34,15 @@ def run(main: Coroutine[Any, Any, T]) -> T:
 def loops_made_fast() -> Iterator[None]:
     """Within: `asyncio.new_event_loop()` makes the loop `run` runs on (for a library that makes
     its own loop in its own thread, such as viser's server, which makes it before its constructor
-    returns). The process's policy is put back after."""
+    returns). asyncio's own function is put back after. Not through an event-loop policy: those
+    are deprecated from Python 3.14 (and uvloop's with them) and go in 3.16."""
     factory = loop_factory()
     if factory is None:
         yield
         return
-    import uvloop  # noqa: PLC0415 (loop_factory found it)
-
-    before = asyncio.get_event_loop_policy()
-    asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())
+    before = asyncio.new_event_loop
+    asyncio.new_event_loop = factory
     try:
         yield
     finally:
-        asyncio.set_event_loop_policy(before)
+        asyncio.new_event_loop = before
