@@ -13,8 +13,6 @@ from collections import Counter
 from urllib.parse import urlparse
 
 from live import (
-    CHROMIUM,
-    CHROMIUM_ARGS,
     dashboard,
     launch_chromium,
     open_page,
@@ -26,7 +24,6 @@ from live import (
 from playwright.async_api import async_playwright
 
 from gcs.mavlink.dialect import Encoder, mavlink
-from gcs.server.dashboard import DashboardServer
 
 #: the radio table's RAW_IMU row shows an achieved rate (its fifth cell) above 0
 RAW_IMU_ACHIEVED = """() => [...document.querySelectorAll('#radio tr')].some(
@@ -54,27 +51,22 @@ def test_radio_table_and_log_download_button(udp_port, tmp_path):
                 f"udpin:127.0.0.1:{udp_port}", estimate=False, record_dir=str(tmp_path / "rec")
             ) as station:
                 await wait_for(lambda: station.radio.present, 60, "the radio's RADIO_STATUS")
-                server = DashboardServer(station, port=0, viser=False)
-                await server.start()
-                try:
-                    async with async_playwright() as pw:
-                        browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                        try:
-                            page = await browser.new_page()
-                            await page.goto(server.url)
-                            # the row appears with the request; RAW_IMU arrives through the radio after it
-                            await page.wait_for_function(RAW_IMU_ACHIEVED, polling=250, timeout=120_000)
-                            row = page.locator("#radio tr", has_text="RAW_IMU").first
-                            cells = (await row.inner_text()).split()
-                            await page.click("button[data-tab=sessions]")
-                            await page.click("#onboard-log-btn")
-                            status = page.locator("#onboard-log-status", has_text="downloaded")
-                            await status.wait_for(timeout=120_000)
-                            return cells, await status.inner_text()
-                        finally:
-                            await browser.close()
-                finally:
-                    await server.stop()
+                async with dashboard(station, viser=False) as server, async_playwright() as pw:
+                    browser = await launch_chromium(pw)
+                    try:
+                        page = await browser.new_page()
+                        await page.goto(server.url)
+                        # the row appears with the request; RAW_IMU arrives through the radio after it
+                        await page.wait_for_function(RAW_IMU_ACHIEVED, polling=250, timeout=120_000)
+                        row = page.locator("#radio tr", has_text="RAW_IMU").first
+                        cells = (await row.inner_text()).split()
+                        await page.click("button[data-tab=sessions]")
+                        await page.click("#onboard-log-btn")
+                        status = page.locator("#onboard-log-status", has_text="downloaded")
+                        await status.wait_for(timeout=120_000)
+                        return cells, await status.inner_text()
+                    finally:
+                        await browser.close()
         finally:
             stop_process(sim)
 

@@ -8,10 +8,8 @@ import asyncio
 import subprocess
 import sys
 
-from live import CHROMIUM, CHROMIUM_ARGS, running_station, stop_process, wait_for
+from live import dashboard, launch_chromium, running_station, stop_process, wait_for
 from playwright.async_api import async_playwright
-
-from gcs.server.dashboard import DashboardServer
 
 REASON = "DENIED at 50 Hz: Requested rate for message ID 27 too fast. Increase SCHED_LOOP_RATE; accepted 40 Hz"
 
@@ -25,22 +23,17 @@ def test_stream_table_shows_accepted_rate_and_refusal_reason(udp_port):
         try:
             async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station:
                 await wait_for(lambda: station.streams.requested, 60, "stream requests")
-                server = DashboardServer(station, port=0, viser=False)
-                await server.start()
-                try:
-                    async with async_playwright() as pw:
-                        browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-                        try:
-                            page = await browser.new_page()
-                            await page.goto(server.url)
-                            row = page.locator("#streams tr", has_text="RAW_IMU").first
-                            await row.wait_for(timeout=60_000)
-                            await page.locator("#streams", has_text=REASON).wait_for(timeout=60_000)
-                            return await row.inner_text(), await page.locator("#streams").inner_text()
-                        finally:
-                            await browser.close()
-                finally:
-                    await server.stop()
+                async with dashboard(station, viser=False) as server, async_playwright() as pw:
+                    browser = await launch_chromium(pw)
+                    try:
+                        page = await browser.new_page()
+                        await page.goto(server.url)
+                        row = page.locator("#streams tr", has_text="RAW_IMU").first
+                        await row.wait_for(timeout=60_000)
+                        await page.locator("#streams", has_text=REASON).wait_for(timeout=60_000)
+                        return await row.inner_text(), await page.locator("#streams").inner_text()
+                    finally:
+                        await browser.close()
         finally:
             stop_process(sim)
 
