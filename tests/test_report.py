@@ -87,3 +87,19 @@ def test_progress_bar_on_a_terminal(logs_dir):
     os.close(main_fd)
     assert process.wait(30) == 0
     assert b"replay: 100%" in seen, seen[-300:]
+
+
+def test_report_lines_break_where_yaw_crosses_180_degrees(logs_dir):
+    """The ArduPlane SITL VTOL flight turns through ±180° in yaw many times: each source's yaw line has a gap
+    there (a NaN between the two samples), where a vertical bar used to cross the whole panel."""
+    from gcs.sessions.report import attitude_figure, collect
+    from gcs.sessions.sources import open_source
+
+    series, _ = collect(open_source(logs_dir / "arduplane-sitl-vtol.tlog"))
+    wraps = 0
+    for line in attitude_figure(series).axes[2].lines:  # the yaw panel: one line per source
+        yaw = np.asarray(line.get_ydata(), float)
+        drawn = np.abs(np.diff(yaw))  # a step between two NaN-free neighbours is one drawn segment
+        assert np.nanmax(drawn) < 180.0, line.get_label()
+        wraps += int(np.isnan(yaw).sum())
+    assert wraps > 0  # the flight does cross ±180°: the gaps are there

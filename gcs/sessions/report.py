@@ -59,7 +59,15 @@ def png(fig) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
 
 
-def plot_attitude(series: dict[str, np.ndarray]) -> str:
+def broken_at_wraps(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(t, deg) with a NaN between two samples more than 180° apart: an angle crossing ±180°
+    (yaw, or roll upside down), where a line would otherwise cross the whole plot. matplotlib
+    breaks a line at a NaN, as the dashboard's plots break theirs."""
+    jumps = np.flatnonzero(np.abs(np.diff(deg)) > 180.0) + 1
+    return np.insert(t, jumps, np.nan), np.insert(deg, jumps, np.nan)
+
+
+def attitude_figure(series: dict[str, np.ndarray]):  # -> matplotlib Figure (imported lazily)
     from matplotlib.figure import Figure  # noqa: PLC0415 - ~0.5 s to import; only reports plot
 
     fig = Figure(figsize=(11, 7.5))
@@ -67,8 +75,7 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
     for name, data in sorted(series.items()):
         for k, ax in enumerate(axes):
             ax.plot(
-                data[:, 0],
-                np.degrees(data[:, 1 + k]),
+                *broken_at_wraps(data[:, 0], np.degrees(data[:, 1 + k])),
                 lw=0.8,
                 label=name,
                 color=hex_color(name),
@@ -79,7 +86,7 @@ def plot_attitude(series: dict[str, np.ndarray]) -> str:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8, ncol=4)
     axes[-1].set_xlabel("vehicle time (s)")
-    return png(fig)
+    return fig
 
 
 def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference: str) -> str:
@@ -125,7 +132,7 @@ def plot_holds(tables: ProtocolTables, series: dict[str, Series]) -> str:
         k = AXES.index(step.axis)
         for name, data in sorted(series.items()):
             part = data[(data[:, 0] >= window.t_start) & (data[:, 0] <= window.t_hold_end)]
-            ax.plot(part[:, 0], np.degrees(part[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
+            ax.plot(*broken_at_wraps(part[:, 0], np.degrees(part[:, 1 + k])), lw=0.8, label=name, color=hex_color(name))
         ax.axhline(step.target_deg, color="k", lw=0.6, ls="--")
         ax.axvspan(window.t_hold_start, window.t_hold_end, color="0.9")
         ax.set_title(f"{window.index + 1}. {step.name}", fontsize=9)
@@ -284,7 +291,8 @@ def render(
         ]
     sections = [f"<h2>Summary</h2>{html_table(['', ''], facts)}"]
     if series:
-        sections.append(f"<h2>Attitude, every source</h2>{legend(sorted(series))}<img src='{plot_attitude(series)}'>")
+        figure = png(attitude_figure(series))
+        sections.append(f"<h2>Attitude, every source</h2>{legend(sorted(series))}<img src='{figure}'>")
     if reference is not None:
         sections.append(f"<h2>Errors against {reference}</h2><img src='{plot_errors(series, estimators, reference)}'>")
     sections.append(
