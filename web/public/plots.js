@@ -142,18 +142,21 @@ class Binner {
 }
 
 // Pixel spans between consecutive drawn points of a yaw line that jump by more than 180°: the
-// angle wrapped (±180°), it did not swing across the chart, so no line is drawn there. Points a
-// few pixels apart or less (a min/max column's two, or neighbouring columns) get a gap a pixel
-// wider than them on each side: one between them would be empty, and the wrap drawn as a bar.
-function wrapGaps(u, si, i0, i1, nullGaps) {
-  const xs = u.data[0], ys = u.data[si], gaps = nullGaps.slice();
+// angle wrapped (±180°), it did not swing across the chart, so no line is drawn there. The gap
+// runs past each point by the line's half-width and a pixel of antialiasing (canvas pixels: a
+// CSS pixel is devicePixelRatio of them): one between the points would be empty for points a
+// pixel or two apart (a min/max column's two, or neighbouring columns), and the wrap drawn as a
+// bar; for points further apart the steep line's first and last pixels were still drawn.
+// uPlot asks for gaps only of a series that does not span its nulls (spanGaps false); the nulls
+// (columns where a source has no sample) are spanned here all the same: their gaps are not kept.
+function wrapGaps(u, si, i0, i1, _nullGaps) {
+  const xs = u.data[0], ys = u.data[si], gaps = [], pad = Math.ceil(devicePixelRatio);
   let prev = -1;
   for (let i = i0; i <= i1; i++) {
     if (ys[i] == null) continue;
     if (prev >= 0 && Math.abs(ys[i] - ys[prev]) > 180) {
       const from = u.valToPos(xs[prev], "x", true), to = u.valToPos(xs[i], "x", true);
-      const a = Math.round(from), b = Math.round(to);
-      gaps.push(b - a > 2 ? [a + 1, b - 1] : [Math.floor(from) - 1, Math.ceil(to) + 1]);
+      gaps.push([Math.floor(from) - pad, Math.ceil(to) + pad]);
     }
     prev = i;
   }
@@ -176,7 +179,7 @@ class Chart {
       scales: { x: { time: false } },
       cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
       legend: { show: false },
-      series: [{}, ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: true,
+      series: [{}, ...lines.map((l) => ({ label: l.label, stroke: l.color, width: 1, dash: l.dash || [], spanGaps: axis !== 2,
                                            gaps: axis === 2 ? wrapGaps : undefined, points: { show: false } }))],
       axes: [{ size: 22 }, { size: 46, values: (u, ticks) => ticks.map((t) => t + "°") }],
       hooks: { setSelect: [(u) => hooks.select(u)], setCursor: [(u) => this.showCursor(u)] },
