@@ -37,7 +37,8 @@ JS_LAYOUT = """(selectors) => {
   const boxes = [];
   for (const sel of selectors) for (const el of document.querySelectorAll(sel)) {
     const r = el.getBoundingClientRect();
-    if (r.width && r.height) boxes.push({ sel, x: r.left + scrollX, y: r.top + scrollY, w: r.width, h: r.height });
+    if (r.width && r.height) boxes.push({ sel, x: r.left + scrollX, y: r.top + scrollY, w: r.width, h: r.height,
+                                          in_side: el.closest("aside") !== null });
   }
   const overlaps = [];
   for (let i = 0; i < boxes.length; i++) for (let j = i + 1; j < boxes.length; j++) {
@@ -47,8 +48,12 @@ JS_LAYOUT = """(selectors) => {
     if (ix > 1 && iy > 1) overlaps.push([a.sel, b.sel, Math.round(ix), Math.round(iy)]);
   }
   const pose = document.getElementById("pose").getBoundingClientRect();
+  const aside = document.querySelector("aside").getBoundingClientRect();
+  const side = { left: aside.left + scrollX - 0.5, right: aside.right + scrollX + 0.5 };
   return { boxes: boxes.length, overlaps, scrollWidth: document.documentElement.scrollWidth, width: innerWidth,
            beyond: boxes.filter((b) => b.x < -1 || b.x + b.w > innerWidth + 1).map((b) => b.sel),
+           past_side: boxes.filter((b) => b.in_side && (b.x < side.left || b.x + b.w > side.right))
+             .map((b) => [b.sel, Math.round(b.x + b.w - side.right)]),
            charts_below_fold: [...document.querySelectorAll(".chart")]
              .filter((el) => el.getBoundingClientRect().bottom > innerHeight + 1).length,
            pose_fraction: (pose.width * pose.height) / (innerWidth * innerHeight) };
@@ -90,6 +95,7 @@ def test_layout_laptop_and_phone(udp_port, artifacts_dir):
         assert r["scrollWidth"] <= r["width"], (name, r)
         assert r["overlaps"] == [], (name, r["overlaps"])
         assert r["beyond"] == [], (name, r["beyond"])
+        assert r["past_side"] == [], (name, r["past_side"])  # the 3-D view's frame was 2 px wider than its column
         assert r["boxes"] >= len(BLOCKS) + 5, (name, r)  # six charts and every panel were measured
     assert report["laptop"]["pose_fraction"] >= 0.25, report["laptop"]
     assert report["laptop"]["charts_below_fold"] == 0, report["laptop"]  # roll, pitch and yaw in sight
