@@ -33,6 +33,9 @@ def test_dashboard_in_chromium(udp_port, artifacts_dir):
     assert report["attitude_delivery"] >= 0.95, report
     assert report["slider_latency_s"] < 2.0, report
     assert report["script_gain_shown_s"] < 10.0, report
+    # a gain in rad reads as a person writes it: dcm's mag_dip_tol is 10° (0.17453292519943295 rad)
+    meaning, value = report["dip_gain_row"]
+    assert meaning.endswith("[0 … 3.142]") and value == "0.174533", report["dip_gain_row"]
     assert report["pose_view_colours"] > 20, report
     # the lag's sign is explained on the page without hovering, and the declination's source shown
     assert "lag +20 ms = estimator 20 ms behind onboard" in report["status_note"], report["status_note"]
@@ -63,6 +66,7 @@ async def dashboard_scenario(udp_port: int, artifacts_dir) -> dict:
         report["server_feed"] = [c.snapshot() for c in server.hub.clients.values()]
         report["slider_latency_s"] = await slider_latency(page)
         report["script_gain_shown_s"] = await script_gain_shown(server, page)
+        report["dip_gain_row"] = await page.evaluate(JS_DIP_GAIN_ROW)
         report["fps"] = await page.evaluate("gcsStats.fps")
         report["pose_view_colours"] = await pose_view_colours(page)
         await page.screenshot(path=str(artifacts_dir / "dashboard.png"))
@@ -110,6 +114,13 @@ async def slider_latency(page) -> float:
         f"Math.abs({JS_YAW_ERROR}) > 5 && (window.gcsSeen = performance.now())", polling=POLL_MS, timeout=10_000
     )
     return await page.evaluate("(window.gcsSeen - window.gcsMoved) / 1000")
+
+
+#: dcm's mag_dip_tol row: its meaning line (with the bounds) and its number box
+JS_DIP_GAIN_ROW = """(() => {
+  const row = document.querySelector('[data-estimator=dcm][data-gain=mag_dip_tol]').parentElement;
+  return [row.querySelector('.meaning').textContent, row.querySelector('[type=number]').value];
+})()"""
 
 
 async def script_gain_shown(server, page) -> float:

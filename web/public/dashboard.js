@@ -192,16 +192,18 @@ async function pollStatus() {
 // ---- gains ---------------------------------------------------------------------------------
 const gainRows = {};  // "est/gain" -> {range, number, info}
 
+// A gain as a person reads it: π as 3.142, not 3.141592653589793 (the bounds checked stay exact).
+const shown = (x, digits = 4) => +Number(x).toPrecision(digits);
 const toPosition = (info, v) => info.scale === "log" ? (v > 0 ? Math.log10(v) : info.slider_min) : v;
 const fromPosition = (info, p) => info.scale === "log" ? Math.min(info.max, Math.max(info.min, 10 ** p)) : p;
 
 function gainRow(est, info) {
   const row = document.createElement("div"); row.className = "gain";
   row.innerHTML = `<label>${info.name}</label><input type="range"><input type="number"><span class="unit">${escapeHtml(info.unit)}</span>`
-    + `<div class="meaning">${escapeHtml(info.meaning)} [${info.min} … ${info.max}]${info.scale === "log" ? ", log slider" : ""}</div><div class="why"></div>`;
+    + `<div class="meaning">${escapeHtml(info.meaning)} [${shown(info.min)} … ${shown(info.max)}]${info.scale === "log" ? ", log slider" : ""}</div><div class="why"></div>`;
   const [range, number] = row.querySelectorAll("input");
   Object.assign(range, { min: info.slider_min, max: info.slider_max, step: info.slider_step, value: toPosition(info, info.value) });
-  Object.assign(number, { min: info.min, max: info.max, step: "any", value: info.value });
+  Object.assign(number, { min: info.min, max: info.max, step: "any", value: shown(info.value, 6) });
   range.dataset.estimator = est; range.dataset.gain = info.name; number.dataset.gain = info.name;
   const r = gainRows[`${est}/${info.name}`] = { range, number, info, accepted: info.value };
   const send = async (value) => {
@@ -209,8 +211,8 @@ function gainRow(est, info) {
       const change = await api("PUT", `/api/estimators/${est}/gains/${info.name}`, { value });
       r.accepted = change.new; row.classList.remove("error"); row.querySelector(".why").textContent = ""; $("gain-error").textContent = "";
     } catch (e) {  // refused: back to the value the estimator keeps, and why
-      row.classList.add("error"); row.querySelector(".why").textContent = `✗ ${value} refused: ${e.message}; kept ${+Number(r.accepted).toPrecision(6)}`;
-      number.value = +Number(r.accepted).toPrecision(6); range.value = toPosition(info, r.accepted);
+      row.classList.add("error"); row.querySelector(".why").textContent = `✗ ${value} refused: ${e.message}; kept ${shown(r.accepted, 6)}`;
+      number.value = shown(r.accepted, 6); range.value = toPosition(info, r.accepted);
     }
   };
   // While dragging: one request in flight at a time, the newest position next. Not paced by
@@ -222,7 +224,7 @@ function gainRow(est, info) {
     inFlight = false;
   };
   range.addEventListener("input", () => {
-    number.value = +fromPosition(info, Number(range.value)).toPrecision(6);
+    number.value = shown(fromPosition(info, Number(range.value)), 6);
     moved = true;
     if (!inFlight) sendLatest();
   });
@@ -234,7 +236,7 @@ function showGain(est, name, value) {
   const r = gainRows[`${est}/${name}`];
   if (!r) return;
   if (document.activeElement !== r.range) r.range.value = toPosition(r.info, value);
-  if (document.activeElement !== r.number) r.number.value = +Number(value).toPrecision(6);
+  if (document.activeElement !== r.number) r.number.value = shown(value, 6);
   r.accepted = value;
 }
 

@@ -258,7 +258,7 @@ function buildWhatifGains() {
   if (!est) return;
   for (const g of est.gains) {
     const row = document.createElement("div"); row.className = "gain";
-    row.title = `${g.meaning}\n[${g.min} … ${g.max}] ${g.unit}; leave empty to keep the session's value`;
+    row.title = `${g.meaning}\n[${num(g.min)} … ${num(g.max)}] ${g.unit}; leave empty to keep the session's value`;
     row.innerHTML = `<label>${html(g.name)}</label><span class="hint">live ${num(g.value)}</span><input type="number" step="any"><span class="unit">${html(g.unit)}</span>`;
     const input = row.querySelector("input");
     Object.assign(input, { min: g.min, max: g.max, placeholder: num(g.value) });
