@@ -14,7 +14,8 @@ import random
 
 from gcs.core.estimation import AttitudePoint
 from gcs.server import wire
-from gcs.server.live import ClientFeed, ClientSnapshot, LiveHub
+from gcs.server.client_feed import ClientFeed, ClientSnapshot
+from gcs.server.live import LiveHub
 
 
 def point(t: float, source: str = "onboard") -> AttitudePoint:

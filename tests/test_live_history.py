@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gcs.server.live import SeriesRing, decimate, error_series
+from gcs.server.live_store import SeriesRing, decimate, error_series
 
 
 def test_columns_keep_every_extreme_in_the_order_it_happened():

@@ -9,7 +9,7 @@ from __future__ import annotations
 from gcs.runtime.facade import StationFacade
 from gcs.runtime.snapshots import StationSnapshot
 from gcs.server.json_body import encode
-from gcs.server.live import ERROR_REFERENCES
+from gcs.server.live_store import ERROR_REFERENCES
 from gcs.server.models import EstimatesResponse, SourceEstimate
 
 

@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 from gcs.runtime.protocol import ProtocolState
 from gcs.runtime.snapshots import ErrorStats, RadioSnapshot, SigningSnapshot, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
-from gcs.server.live import ClientSnapshot
+from gcs.server.client_feed import ClientSnapshot
 
 
 class Angles(BaseModel):

@@ -19,8 +19,8 @@ from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 
 from gcs.core import strict_json
+from gcs.server.client_feed import ClientFeed
 from gcs.server.deps import HubDep, StationDep
-from gcs.server.live import ClientFeed
 from gcs.server.models import History
 from gcs.server.ws_direct import direct_write
 
@@ -58,7 +58,7 @@ async def live(ws: WebSocket, hub: HubDep) -> None:
     stats: asyncio.Task[None] | None = None
     try:
         await ws.send_text(strict_json.dumps({"type": "hello", "client": feed.id, "history_s": hub.seconds}))
-        # the hub writes the frames from here on (gcs.server.live.ClientFeed), straight to the
+        # the hub writes the frames from here on (gcs.server.client_feed.ClientFeed), straight to the
         # socket where the server offers it (gcs.server.ws_direct)
         feed.attach(ws.send_bytes, direct_write(ws.scope))
         stats = asyncio.create_task(send_stats(ws, feed))
