@@ -27,6 +27,7 @@ from test_estimation_live import errors_after
 import gcs
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.station import StationConfig
@@ -584,6 +585,17 @@ async def _stream(port: int, sysid: int, start: int, count: int, beat_at: int | 
         sock.close()
 
 
+def _tlog_imu_systems(folder: Path) -> set[int]:
+    """The systems whose RAW_IMU a session's tlog holds."""
+    decoder = MavlinkDecoder()
+    return {
+        sysid
+        for _, _, packet in read_tlog_records(folder / layout.TLOG).records()
+        for _, kind, sysid, _ in decoder.frames(packet, final=True)
+        if kind == "RAW_IMU"
+    }
+
+
 def _sessions_by_vehicle(root: Path) -> dict[int, Path]:
     return {json.loads((f / layout.META).read_text())["vehicle"]["sysid"]: f for f in root.iterdir()}
 
@@ -623,3 +635,33 @@ def test_a_second_vehicle_estimates_what_came_with_its_first_heartbeat(tmp_path:
     assert set(folders) == {1, 2}
     for folder in folders.values():
         _assert_replays_as_live(folder)
+
+
+def test_a_vehicle_heard_before_the_one_already_streaming_gets_its_own_session(tmp_path: Path) -> None:
+    """A station (re)started while vehicles fly: vehicle 1's IMU data arrives before any heartbeat,
+    and vehicle 2's heartbeat comes before vehicle 1's. The first core, which took vehicle 1's data,
+    was bound to vehicle 2: vehicle 2's session began with vehicle 1's IMU and, its meta naming no
+    system, replayed vehicle 1's half second instead of vehicle 2's flight (45 samples of 9021 with
+    two ArduCopter SITLs). The first core now serves vehicle 1, whose data it took; each session
+    holds its own vehicle's IMU only and replays to its live estimates."""
+    port = free_port(socket.SOCK_DGRAM)
+
+    async def scenario() -> list[int | None]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+        await fleet.start()
+        try:
+            await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
+            await _stream(port, 1, 0, 25)  # vehicle 1 streaming, its heartbeat not yet due
+            await asyncio.gather(_stream(port, 2, 0, 150, beat_at=0), _stream(port, 1, 25, 150, beat_at=30))
+            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
+            return [e.sysid for e in fleet.vehicles()]
+        finally:
+            await fleet.stop()
+
+    served = asyncio.run(scenario())
+    folders = _sessions_by_vehicle(tmp_path)
+    assert set(folders) == {1, 2}
+    for sysid, folder in sorted(folders.items()):
+        assert _tlog_imu_systems(folder) == {sysid}, folder.name
+        _assert_replays_as_live(folder)
+    assert served == [1, 2]  # the first core serves the vehicle whose data it took
