@@ -241,8 +241,8 @@ def test_a_scheduler_lost_mid_run_is_one_line_and_keeps_the_flights_written(tmp_
     assert last.startswith(f"gcs batch: error: {address}: lost the Dask scheduler after "), stderr[-3000:]
     written = [line for line in stderr.splitlines() if line.startswith("ok ")]
     assert len(written) < len(flights) and stdout == ""
-    done = dataset.done_flights(out)
-    assert done == {dataset.flight_id(line.split()[1].rstrip(":")) for line in written}
+    done = dataset.done_flights(out)  # and maybe one the worker wrote whose answer the scheduler took down
+    assert {dataset.flight_id(line.split()[1].rstrip(":")) for line in written} <= done
     assert all((dataset.flight_dir(out, f) / "summary.parquet").is_file() for f in done)
 
 
