@@ -202,6 +202,50 @@ def test_rerun_skips_done_flights_and_force_redoes_them(batch, flights, schedule
     assert not [p for p in (batch / dataset.FLIGHTS).iterdir() if p.name.startswith(".")]
 
 
+def test_a_scheduler_lost_mid_run_is_one_line_and_keeps_the_flights_written(tmp_path, logs_dir):
+    """The scheduler killed after the first flight is written: `gcs batch` says so in one line
+    (exit 2, no Dask traceback: it printed FutureCancelledError's), and the flights written before
+    stay whole in the dataset for a re-run to skip."""
+    port = free_port(socket.SOCK_STREAM)
+    address = f"tcp://127.0.0.1:{port}"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    scheduler = subprocess.Popen(
+        [DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], **quiet
+    )
+    worker = subprocess.Popen(
+        [DASK, "worker", address, "--nthreads", "1", "--no-nanny", "--host", "127.0.0.1", "--no-dashboard"], **quiet
+    )
+    hop = (logs_dir / "arducopter-sitl-hop.tlog").read_bytes()
+    flights = []
+    for k in range(8):  # one worker takes them one by one: the run is far from done after the first
+        path = tmp_path / f"hop-{k}.tlog"
+        path.write_bytes(hop)
+        flights.append(str(path))
+    out = tmp_path / "fleet"
+    try:
+        with Client(address, timeout="120s") as client:
+            client.wait_for_workers(1, timeout=120)
+        command = [sys.executable, "-m", "gcs", "batch", *flights, "--out", str(out), "--scheduler", address]
+        run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        first = run.stderr.readline()  # blocks until the first flight is written (or the run ends)
+        assert first.startswith("ok "), first + run.stderr.read()
+        scheduler.kill()
+        stdout, rest = run.communicate(timeout=120)
+    finally:
+        for proc in (worker, scheduler):
+            proc.kill()
+            proc.wait()
+    stderr = first + rest
+    assert run.returncode == 2 and "Traceback" not in stderr, stderr[-3000:]
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith(f"gcs batch: error: {address}: lost the Dask scheduler after "), stderr[-3000:]
+    written = [line for line in stderr.splitlines() if line.startswith("ok ")]
+    assert len(written) < len(flights) and stdout == ""
+    done = dataset.done_flights(out)  # and maybe one the worker wrote whose answer the scheduler took down
+    assert {dataset.flight_id(line.split()[1].rstrip(":")) for line in written} <= done
+    assert all((dataset.flight_dir(out, f) / "summary.parquet").is_file() for f in done)
+
+
 def test_sweep_beats_a_bad_default_on_held_out_flights_and_its_preset_loads(batch, flights, scheduler, tmp_path):
     train, holdout = flights["sessions"][:2], flights["sessions"][2:]
     args = ["sweep", *train, "-e", "dcm", "--gain", "kp_rp=0.05:2.0", "--trials", "10", "--objective", "rms_vs_truth"]

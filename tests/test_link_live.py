@@ -6,9 +6,12 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 
+import numpy as np
+import pyarrow.compute as pc
 import pytest
-from live import running_sim, running_station, wait_for
+from live import running_sim, running_station, sim_process, wait_for
 
+import gcs
 from gcs.runtime.link import LinkState
 
 #: The estimator-critical messages each profile must deliver at the requested rate.
@@ -128,3 +131,35 @@ def test_baud_auto_detects_a_rate_that_yields_mavlink(tmp_path):
     link = asyncio.run(scenario())
     assert link.baud == 57600  # the first rate tried; a pty carries any rate
     assert any(e.kind == "baud" and "detected 57600" in e.detail for e in link.events)
+
+
+def test_a_port_that_came_back_with_the_vehicle_rebooted_scores_each_boot_against_itself(tmp_path):
+    """The serial port vanishes mid-flight and comes back with the vehicle restarted, in one session:
+    its clock starts again at 0. The session's whole-run errors (`gcs report`, .mat, `errors_df`)
+    sorted every source by vehicle time alone and scored the first boot's estimates against the
+    second boot's references; they now score each boot against itself, and give what the live
+    comparison gave."""
+    path = tmp_path / "ttyUSB-sim"
+
+    async def scenario():
+        async with running_station(str(path), heartbeat_timeout=1.5, record_dir=str(tmp_path / "rec")) as station:
+            pipeline = station.estimation.pipeline
+            async with sim_process(f"pty:{path}", profile="apm25", script="quad", speed=2.0):
+                await wait_for(lambda: pipeline.imu_samples > 400, 60, "the first boot's flight")
+            await wait_for(lambda: not station.link.is_open, 10, "the vanished port to be noticed")
+            first = pipeline.imu_samples
+            async with sim_process(f"pty:{path}", profile="apm25", script="bench"):  # a new process: t from 0
+                await wait_for(lambda: pipeline.imu_samples > first + 200, 60, "the second boot's samples")
+            return station.recorder.session.folder, pipeline.comparisons["dcm"].summary()
+
+    folder, live = asyncio.run(scenario())
+    contents = gcs.open_session(folder)
+    recorded = contents.attitude.filter(pc.equal(contents.attitude["source"], "onboard"))["t"].to_numpy()
+    assert (np.diff(recorded) < -1).sum() == 1  # one session, two boots: the clock went back once
+    errors = {r["reference"]: r for r in contents.errors().to_pylist() if r["estimator"] == "dcm"}
+    assert set(errors) == set(live["references"]) == {"onboard", "truth"}
+    for ref, stats in live["references"].items():
+        session = stats["session"]
+        rms = [errors[ref][f"rms_{a}"] for a in ("roll", "pitch", "yaw")]
+        assert rms == pytest.approx(session["rms"], rel=1e-9, abs=1e-12), ref
+        assert errors[ref]["n"] == session["n"], ref

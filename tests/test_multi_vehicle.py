@@ -18,16 +18,22 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 from conftest import free_port
 from live import stop_process, wait_for
 from test_estimation_live import errors_after
 
+import gcs
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.fleet import Fleet
+from gcs.runtime.replay import ReplaySession
 from gcs.runtime.station import StationConfig
 from gcs.server.dashboard import DashboardServer
+from gcs.sessions import layout
+from gcs.sessions.sources import open_source
 from gcs.sim import SimVehicle
 
 #: (sysid, profile, which link) of the simulated vehicles
@@ -555,3 +561,107 @@ def test_station_heartbeat_reaches_both_mavlink_versions_on_one_link(udp_port: i
 
     apm25_heard, pixhawk_heard = asyncio.run(scenario())
     assert apm25_heard >= 3 and pixhawk_heard >= 3
+
+
+async def _stream(port: int, sysid: int, start: int, count: int, beat_at: int | None = None) -> None:
+    """`count` 50 Hz slots of vehicle `sysid` from slot `start` (time since its boot): RAW_IMU and
+    ATTITUDE of a vehicle at rest, its HEARTBEAT from slot `beat_at` on, once a second."""
+    encoder = Encoder(sysid, 1)
+    beat = mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+    )
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for k in range(start, start + count):
+            msgs = [
+                mavlink.MAVLink_raw_imu_message(k * 20_000, 5 * sysid, -8, -1000, 3, -2, 1, 210, -40, 380),
+                mavlink.MAVLink_attitude_message(k * 20, 0.01 * sysid, -0.02, 0.5, 0.0, 0.0, 0.0),
+            ]
+            if beat_at is not None and k >= beat_at and (k - beat_at) % 50 == 0:
+                msgs.insert(0, beat)
+            sock.sendto(b"".join(encoder.encode(m) for m in msgs), ("127.0.0.1", port))
+            await asyncio.sleep(0.02)
+    finally:
+        sock.close()
+
+
+def _tlog_imu_systems(folder: Path) -> set[int]:
+    """The systems whose RAW_IMU a session's tlog holds."""
+    decoder = MavlinkDecoder()
+    return {
+        sysid
+        for _, _, packet in read_tlog_records(folder / layout.TLOG).records()
+        for _, kind, sysid, _ in decoder.frames(packet, final=True)
+        if kind == "RAW_IMU"
+    }
+
+
+def _sessions_by_vehicle(root: Path) -> dict[int, Path]:
+    return {json.loads((f / layout.META).read_text())["vehicle"]["sysid"]: f for f in root.iterdir()}
+
+
+def _assert_replays_as_live(folder: Path) -> None:
+    """The session's replay gives its recorded live dcm estimates, sample for sample."""
+    live = gcs.open_session(folder).attitude_df("dcm")[["t", "roll", "pitch", "yaw"]].to_numpy()
+    replayed: list = []
+    replay = ReplaySession(open_source(folder), 0, ["dcm"])
+    replay.points.connect(replayed.extend)
+    replay.run_to_end()
+    again = np.array([(p.t, p.roll, p.pitch, p.yaw) for p in replayed if p.source == "dcm"])
+    assert len(live) > 100 and again.shape == live.shape and (again == live).all(), (folder.name, len(live))
+
+
+def test_a_second_vehicle_estimates_what_came_with_its_first_heartbeat(tmp_path: Path) -> None:
+    """Vehicle 2's first heartbeat shares a datagram with its IMU and attitude (a router, a radio,
+    a batched read do that). Its new core's recorder kept them; its estimation subscribed only
+    when its task first ran and missed them, so the session replayed one sample more than it had
+    estimated live (10117 against 10116 with two ArduCopter SITLs). Each session now replays to its
+    live estimates exactly."""
+    port = free_port(socket.SOCK_DGRAM)
+
+    async def scenario() -> list[int | None]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+        await fleet.start()
+        try:
+            await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
+            await asyncio.gather(_stream(port, 1, 0, 150, beat_at=0), _stream(port, 2, 0, 150, beat_at=10))
+            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
+            return [e.sysid for e in fleet.vehicles()]
+        finally:
+            await fleet.stop()
+
+    assert asyncio.run(scenario()) == [1, 2]
+    folders = _sessions_by_vehicle(tmp_path)
+    assert set(folders) == {1, 2}
+    for folder in folders.values():
+        _assert_replays_as_live(folder)
+
+
+def test_a_vehicle_heard_before_the_one_already_streaming_gets_its_own_session(tmp_path: Path) -> None:
+    """A station (re)started while vehicles fly: vehicle 1's IMU data arrives before any heartbeat,
+    and vehicle 2's heartbeat comes before vehicle 1's. The first core, which took vehicle 1's data,
+    was bound to vehicle 2: vehicle 2's session began with vehicle 1's IMU and, its meta naming no
+    system, replayed vehicle 1's half second instead of vehicle 2's flight (45 samples of 9021 with
+    two ArduCopter SITLs). The first core now serves vehicle 1, whose data it took; each session
+    holds its own vehicle's IMU only and replays to its live estimates."""
+    port = free_port(socket.SOCK_DGRAM)
+
+    async def scenario() -> list[int | None]:
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+        await fleet.start()
+        try:
+            await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
+            await _stream(port, 1, 0, 25)  # vehicle 1 streaming, its heartbeat not yet due
+            await asyncio.gather(_stream(port, 2, 0, 150, beat_at=0), _stream(port, 1, 25, 150, beat_at=30))
+            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
+            return [e.sysid for e in fleet.vehicles()]
+        finally:
+            await fleet.stop()
+
+    served = asyncio.run(scenario())
+    folders = _sessions_by_vehicle(tmp_path)
+    assert set(folders) == {1, 2}
+    for sysid, folder in sorted(folders.items()):
+        assert _tlog_imu_systems(folder) == {sysid}, folder.name
+        _assert_replays_as_live(folder)
+    assert served == [1, 2]  # the first core serves the vehicle whose data it took

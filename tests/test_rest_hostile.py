@@ -34,13 +34,42 @@ REQUESTS = [
 
 def test_hostile_request_values_get_a_strict_4xx(udp_port, tmp_path, logs_dir):
     shutil.copy(logs_dir / "ardupilot-fragment.bin", tmp_path / "fragment.bin")  # a source to replay
-    answers = asyncio.run(scenario(udp_port, tmp_path))
+    answers = asyncio.run(scenario(udp_port, tmp_path, REQUESTS))
     for (method, path, body), (code, text) in zip(REQUESTS, answers, strict=True):
         assert 400 <= code < 500, (method, path, body, code, text)
         strict_loads(text)  # raises on NaN/Infinity tokens
 
 
-async def scenario(udp_port: int, tmp_path) -> list[tuple[int, str]]:
+def _kp_rp(answer: tuple[int, str]) -> float:
+    """kp_rp in a GET /api/estimators/dcm answer."""
+    return next(g["value"] for g in strict_loads(answer[1])["gains"] if g["name"] == "kp_rp")
+
+
+def test_a_body_of_the_wrong_type_or_with_a_misspelt_field_is_refused_and_changes_nothing(udp_port, tmp_path):
+    """`true` is no gain value and `"0.3"` no number; `{"name": ...}` is no preset request. Each
+    was taken: kp_rp became 1.0, and the misspelt key reset dcm to its default preset, both 200."""
+    gain, preset, read = "/api/estimators/dcm/gains/kp_rp", "/api/estimators/dcm/preset", "/api/estimators/dcm"
+    refused = [
+        ("PUT", gain, '{"value": true}', "value"),
+        ("PUT", gain, '{"value": "0.3"}', "value"),
+        ("PUT", gain, '{"value": 0.4, "estimator": "kf"}', "estimator"),
+        ("POST", preset, '{"name": "seed000"}', "name"),
+    ]
+    requests = [
+        ("PUT", gain, '{"value": 1}', None),  # an integer is a number: taken
+        ("PUT", gain, '{"value": 0.3}', None),
+        *refused,
+        ("GET", read, None, None),
+    ]
+    answers = asyncio.run(scenario(udp_port, tmp_path, [r[:3] for r in requests]))
+    assert [code for code, _ in answers[:2]] == [200, 200], answers[:2]
+    for (method, path, body, field), (code, text) in zip(refused, answers[2:-1], strict=True):
+        assert code == 422, (method, path, body, code, text)
+        assert [e["loc"] for e in strict_loads(text)["detail"]] == [["body", field]], text
+    assert _kp_rp(answers[-1]) == 0.3
+
+
+async def scenario(udp_port: int, tmp_path, requests) -> list[tuple[int, str]]:
     async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station:
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
@@ -50,7 +79,7 @@ async def scenario(udp_port: int, tmp_path) -> list[tuple[int, str]]:
         try:
             async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{server.port}", timeout=30) as api:
                 answers = []
-                for method, path, body in REQUESTS:
+                for method, path, body in requests:
                     response = await api.request(method, path, content=body, headers=headers)
                     answers.append((response.status_code, response.text))
                 return answers

@@ -14,6 +14,8 @@ import logging
 import os
 import sys
 from collections.abc import Iterator, Sequence
+from concurrent.futures import CancelledError
+from typing import Any
 
 from distributed import Client, Future, LocalCluster, as_completed
 from distributed.diagnostics.progressbar import TextProgressBar
@@ -26,7 +28,7 @@ DEFAULT_WORKERS = max(1, min(4, os.cpu_count() or 1))
 def connect(scheduler: str | None = None, workers: int | None = None, dashboard: bool = False) -> Iterator[Client]:
     """A client of the scheduler at `scheduler`, or of a LocalCluster of `workers` processes."""
     if scheduler:
-        with Client(scheduler, timeout="30s") as client:
+        with _client_logs_quiet(), Client(scheduler, timeout="30s") as client:
             yield client
         return
     with (
@@ -44,8 +46,38 @@ def connect(scheduler: str | None = None, workers: int | None = None, dashboard:
         yield client
 
 
-def completed(futures: Sequence[Future]) -> Iterator[Future]:
-    """The futures as they finish, with Dask's progress bar on a terminal."""
+@contextlib.contextmanager
+def _client_logs_quiet() -> Iterator[None]:
+    """Dask's client logs nothing of its own meanwhile: a lost scheduler reaches the command as
+    ClusterLost, said in one line, where the client also logged the traceback of its reconnection
+    being cancelled at close."""
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+class ClusterLost(OSError):
+    """The scheduler went away (or cancelled the run's tasks) before every task finished: an OSError,
+    so a command says it in one line as it says a scheduler it cannot reach, not with Dask's
+    traceback. What finished before is kept (each task writes its own output)."""
+
+
+def completed(futures: Sequence[Future]) -> Iterator[Any]:
+    """The futures' results as they finish (each future released: nothing stays on the cluster),
+    with Dask's progress bar on a terminal; ClusterLost when the scheduler is lost on the way."""
     if futures and sys.stderr.isatty():
         TextProgressBar(list(futures), interval="0.5s", start=True)
-    yield from as_completed(futures)
+    done = 0
+    try:
+        for future in as_completed(futures):
+            result = future.result()
+            future.release()
+            done += 1
+            yield result
+    except (CancelledError, OSError) as exc:  # FutureCancelledError, CommClosedError
+        reason = getattr(exc, "reason", None) or str(exc) or type(exc).__name__  # "scheduler-connection-lost"
+        raise ClusterLost(f"lost the Dask scheduler after {done} of {len(futures)} tasks ({reason})") from None

@@ -69,9 +69,8 @@ def run_batch(
         for k, f in enumerate(todo)
     ]
     results = []
-    for future in completed(futures):
-        result: FlightResult = future.result()
-        future.release()  # nothing of the flight stays on the cluster
+    result: FlightResult
+    for result in completed(futures):  # a lost scheduler: ClusterLost; the flights written stay
         results.append(result)
         if on_result is not None:
             on_result(result)

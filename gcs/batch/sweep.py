@@ -76,9 +76,8 @@ class Trials:
             self.client.submit(score_flight, f, self.estimator, self.reference, gain_sets, pure=False) for f in flights
         ]
         out = {}
-        for future in completed(futures):
-            result: FlightScores = future.result()
-            future.release()
+        result: FlightScores
+        for result in completed(futures):
             out[result.path] = result
             self.vehicles[result.path] = result.vehicle
         return out

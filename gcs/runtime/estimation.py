@@ -162,8 +162,18 @@ class LiveEstimation:
             declination_source=self.inputs.declination_source,
         )
 
+    def subscribe(self) -> None:
+        """Take the bus's inputs from now on, before `run` first runs (Station.launch): a fleet's new
+        core is handed the messages that came with its vehicle's first heartbeat at once, and its
+        recorder keeps them; subscribed only when its task ran, the estimation missed them, and the
+        session's replay had samples the live run never estimated."""
+        if self._sub is None:
+            self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+
     async def run(self) -> None:
-        sub = self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+        self.subscribe()
+        sub = self._sub
+        assert sub is not None  # (subscribe)
         try:
             # the compiled estimators load (or, the first time, compile) off the loop: what arrives
             # meanwhile waits in the subscription (and is estimated below if the station stops first)

@@ -8,8 +8,11 @@ before anything is heard) and takes the first vehicle heard; each further vehicl
 at its first heartbeat. Messages from a system that is no vehicle (a GCS, a companion with its own
 sysid, a radio's RADIO_STATUS) go to every vehicle on the link they came on, as they did on a
 one-vehicle link, except sensor data (some vehicle's not yet heard, never another's); until the
-first vehicle is heard, its core gets everything (a link of attitude lines has no heartbeat).
-A sysid already served on one link and heard on another stays on the first.
+first vehicle is heard, its core gets everything (a link of attitude lines has no heartbeat). The
+first core is then bound to the vehicle whose sensor data it already took, if any (its estimation
+and recording follow the first system that sent IMU data): a vehicle heard before that one gets a
+core of its own, so no session starts with another vehicle's data. A sysid already served on one
+link and heard on another stays on the first.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from gcs.mavlink.identity import is_vehicle_heartbeat
-from gcs.mavlink.sampling import INPUT_TYPES
+from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.forward import Output
 from gcs.runtime.link import Link
@@ -110,6 +113,9 @@ class Fleet:
         self.supervisor = Supervisor(first.events)
         self._entries: list[VehicleEntry] = [VehicleEntry(None, None, str(self.links[0].address), first)]
         self._unbound: Station | None = first
+        #: the system whose IMU data the waiting first core took first: the one its estimation (and
+        #: a replay of its session) follows, so the one it is bound to (None: no IMU data yet)
+        self._unbound_system: int | None = None
         self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._ignored: set[tuple[int, int]] = set()  # (link, sysid): served on another link, or not followed
         self._started = False
@@ -164,13 +170,18 @@ class Fleet:
             for view in self._on_link[index]:  # (sensor data is some vehicle's: never another's)
                 view.deliver(item)
         if self._unbound is not None:
+            if item.type in INPUT_TYPES and self.single and self.sysid not in (None, item.sysid):
+                return  # sensor data of another vehicle than the one `--sysid` names
+            if self._unbound_system is None and item.type in IMU_TYPES:
+                self._unbound_system = item.sysid
             _view(self._unbound).deliver(item)
 
     def _adopt(self, index: int, item: Message) -> None:
         """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
         link = self.links[index]
         self.heard.add(item.sysid)
-        if self.single and (self._unbound is None or self.sysid not in (None, item.sysid)):
+        takes_first = self._unbound is not None and self._unbound_system in (None, item.sysid)
+        if self.single and (not takes_first or self.sysid not in (None, item.sysid)):
             self._ignored.add((index, item.sysid))
             return
         served = self.vehicle(item.sysid)
@@ -178,7 +189,8 @@ class Fleet:
             self._ignored.add((index, item.sysid))
             served.events.record("vehicle", "fleet", event="also heard", sysid=item.sysid, link=str(link.address))
             return
-        if self._unbound is not None:
+        if takes_first:
+            assert self._unbound is not None  # (takes_first)
             core, self._unbound = self._unbound, None
             _view(core).bind(link, item.sysid, item.compid)
             core.follow_system(item.sysid)

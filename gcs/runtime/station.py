@@ -167,6 +167,8 @@ class Station:
         self._loop_thread = threading.get_ident()
         if self.recorder is not None:
             self.recorder.start()
+        if self.estimation is not None:
+            self.estimation.subscribe()  # sees what the recorder sees, from the same message on
         run = self.supervisor.start
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())

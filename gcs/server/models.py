@@ -4,12 +4,20 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from gcs.runtime.protocol import ProtocolState
 from gcs.runtime.snapshots import ErrorStats, RadioSnapshot, SigningSnapshot, StreamRate, VehicleSnapshot
 from gcs.runtime.supervisor import PartStatus
 from gcs.server.client_feed import ClientSnapshot
+
+
+class Body(BaseModel):
+    """A request body: its declared fields only, each of its declared type. Parsed leniently,
+    `{"value": true}` set a gain to 1.0 and `{"name": "seed000"}` (a misspelt key) reset an
+    estimator to its default preset, both answered 200 as if meant."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class Angles(BaseModel):
@@ -112,7 +120,7 @@ class EstimatorGains(BaseModel):
     gains: list[GainInfo]
 
 
-class GainUpdate(BaseModel):
+class GainUpdate(Body):
     value: float = Field(allow_inf_nan=False, description="new value, in the gain's unit, within its declared bounds")
 
 
@@ -123,7 +131,7 @@ class GainChange(BaseModel):
     new: float
 
 
-class PresetRequest(BaseModel):
+class PresetRequest(Body):
     preset: str | None = Field(default=None, description="preset name; omitted: the estimator's default preset")
 
 
@@ -143,7 +151,7 @@ class History(BaseModel):
     errors: dict[str, list[list[float]]]
 
 
-class ProtocolStart(BaseModel):
+class ProtocolStart(Body):
     name: str = Field(description="a shipped protocol (GET /api/protocol lists them) or a TOML file on the server")
     detect_source: str | None = Field(default=None, description="source that detects the holds; omitted: the file's")
 

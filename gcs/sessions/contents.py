@@ -31,6 +31,7 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
+from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
 
@@ -188,16 +189,21 @@ class Contents:
 
     def series(self, source: str) -> npt.NDArray[np.float64]:
         """N×5 array of one source: t (vehicle s), roll, pitch, yaw (rad), wall_time (UNIX s or NaN),
-        in time order."""
+        in time order within each boot of the vehicle, the boots in the order recorded (`boots`)."""
         table = self.attitude.filter(pc.equal(self.attitude["source"], source))
         data = np.column_stack(
             [table[c].to_numpy(zero_copy_only=False) for c in ("t", "roll", "pitch", "yaw", "wall_time")]
         ).reshape(-1, 5)
-        return data[np.argsort(data[:, 0], kind="stable")]
+        return data[np.lexsort((data[:, 0], boot_numbers(data[:, 0])))]
 
     def errors_of(self, estimator: str, reference: str) -> npt.NDArray[np.float64]:
-        """M×4: estimator − reference at the reference's times (t s, roll, pitch, yaw error deg)."""
-        return errors_against(self.series(estimator)[:, :4], self.series(reference)[:, :4])
+        """M×4: estimator − reference at the reference's times (t s, roll, pitch, yaw error deg),
+        each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
+        (a serial port that came back with the vehicle restarted) scored one boot's estimates
+        against the other's references, as the live comparison never does."""
+        estimates, references = boots(self.series(estimator)[:, :4]), boots(self.series(reference)[:, :4])
+        parts = [errors_against(e, r) for e, r in zip(estimates, references, strict=False)]
+        return np.concatenate(parts) if parts else np.empty((0, 4))
 
     def errors(self) -> pa.Table:
         """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
@@ -225,6 +231,20 @@ class Contents:
         diff = pc.subtract(self.attitude["wall_time"], self.attitude["t"]).to_numpy(zero_copy_only=False)
         diff = diff[np.isfinite(diff)]
         return float(np.median(diff)) if len(diff) else None
+
+
+def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
+    """Per row of a source in the order recorded, which boot of the vehicle it belongs to: its clock
+    going back by more than REBOOT_CLOCK_JUMP (the estimation's rule) starts the next one."""
+    numbers = np.zeros(len(t), np.int64)
+    numbers[1:] = np.cumsum(np.diff(t) < -REBOOT_CLOCK_JUMP)
+    return numbers
+
+
+def boots(series: npt.NDArray[np.float64]) -> list[npt.NDArray[np.float64]]:
+    """A `series` (boots in order, each in time order) cut into its boots."""
+    cuts = np.flatnonzero(np.diff(series[:, 0]) < -REBOOT_CLOCK_JUMP) + 1
+    return np.split(series, cuts) if len(series) else []
 
 
 def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:

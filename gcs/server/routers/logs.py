@@ -11,15 +11,16 @@ import dataclasses
 from typing import Any
 
 from fastapi import APIRouter, Depends, status
-from pydantic import BaseModel, Field
+from pydantic import Field
 
 from gcs.server.deps import TOKEN, StationDep
+from gcs.server.models import Body
 from gcs.server.ratelimit import rate_limited
 
 router = APIRouter(prefix="/api/onboard-logs", tags=["onboard logs"])
 
 
-class DownloadRequest(BaseModel):
+class DownloadRequest(Body):
     log: int | None = Field(default=None, ge=1, description="log id; none: the latest")
 
 

@@ -16,18 +16,19 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, status
-from pydantic import BaseModel, Field
+from pydantic import Field
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
 from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, TuningSnapshot
 from gcs.server.deps import TOKEN, ClientDep, StationDep
+from gcs.server.models import Body
 from gcs.server.ratelimit import rate_limited
 
 router = APIRouter(tags=["params"])
 
 
-class TunedValue(BaseModel):
+class TunedValue(Body):
     value: float = Field(allow_inf_nan=False)
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import FileResponse, Response
-from pydantic import BaseModel, Field
+from pydantic import Field
 from starlette.background import BackgroundTask
 
 from gcs.core.gains import GainError
@@ -28,6 +28,7 @@ from gcs.runtime.replay import replay_series, selection
 from gcs.runtime.snapshots import RecordingSnapshot
 from gcs.runtime.station import StationError
 from gcs.server.deps import TOKEN, ClientDep, StationDep
+from gcs.server.models import Body
 from gcs.server.ratelimit import rate_limited
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS
@@ -38,11 +39,11 @@ from gcs.sessions.workbench import export_file, what_if_view
 router = APIRouter(prefix="/api", tags=["sessions"])
 
 
-class Note(BaseModel):
+class Note(Body):
     text: str = Field(min_length=1, max_length=2000)
 
 
-class WhatIfRequest(BaseModel):
+class WhatIfRequest(Body):
     source: str
     estimator: str
     gains: dict[str, float]
