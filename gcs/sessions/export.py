@@ -42,11 +42,14 @@ T = TypeVar("T")
 
 
 def degrees_table(table: pa.Table) -> pa.Table:
-    """An attitude table (radians) as exported: wall_time, t, source, roll/pitch/yaw_deg."""
+    """An attitude table (radians) as exported: wall_time, t, source, roll/pitch/yaw_deg. A wall
+    time not known (NaN: a log without host time) is exported missing, an empty CSV field, where
+    CSV readers took "nan" for a number."""
     deg = 180.0 / math.pi
+    wall_time = table["wall_time"]
     return pa.table(
         {
-            "wall_time": table["wall_time"],
+            "wall_time": pc.if_else(pc.is_nan(wall_time), pa.scalar(None, wall_time.type), wall_time),
             "t": table["t"],
             "source": table["source"],
             **{f"{axis}_deg": pc.multiply(table[axis], deg) for axis in ("roll", "pitch", "yaw")},
