@@ -81,8 +81,8 @@ class Session:
         return self._contents.attitude
 
     def source(self, name: str) -> pa.Table:
-        """One source's attitude in time order: t, wall_time, roll, pitch, yaw (rad). KeyError
-        names the sources there are."""
+        """One source's attitude in time order (within each boot of the vehicle, the boots in the
+        order recorded): t, wall_time, roll, pitch, yaw (rad). KeyError names the sources there are."""
         if name not in self.sources:
             raise KeyError(f"no source {name!r} in {self.path}; there are {', '.join(self.sources)}")
         data = self._contents.series(name)

@@ -246,6 +246,26 @@ def test_a_scheduler_lost_mid_run_is_one_line_and_keeps_the_flights_written(tmp_
     assert all((dataset.flight_dir(out, f) / "summary.parquet").is_file() for f in done)
 
 
+def test_a_flight_whose_log_is_gone_is_still_on_the_fleet_report(tmp_path, logs_dir, scheduler):
+    """The worst flight's log moved away after the batch: `gcs fleet report` failed whole in one
+    line ("no such file or session folder", exit 2, no page), though the dataset holds all its page
+    needs. The page is written; that flight is listed with why it has no report of its own."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("ardupilot-fragment.bin", "arducopter-sitl-hop.tlog"):  # the fragment: far the worst
+        shutil.copy(logs_dir / name, logs / name)
+    out, page = tmp_path / "fleet", tmp_path / "fleet.html"
+    _cli("batch", str(logs), "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
+    gone = logs / "ardupilot-fragment.bin"
+    gone.unlink()
+    done = _cli("fleet", "report", str(out), "--out", str(page), "--worst", "2")
+    assert "wrote" in done.stderr and "(2 flights)" in done.stderr
+    text = page.read_text()
+    assert f"{dataset.flight_id(gone)} (no report: {gone}: no such file or session folder)" in text
+    kept = dataset.flight_id(logs / "arducopter-sitl-hop.tlog")
+    assert f"href='fleet_flights/{kept}.html'" in text and (tmp_path / "fleet_flights" / f"{kept}.html").is_file()
+
+
 def test_sweep_beats_a_bad_default_on_held_out_flights_and_its_preset_loads(batch, flights, scheduler, tmp_path):
     train, holdout = flights["sessions"][:2], flights["sessions"][2:]
     args = ["sweep", *train, "-e", "dcm", "--gain", "kp_rp=0.05:2.0", "--trials", "10", "--objective", "rms_vs_truth"]

@@ -120,6 +120,37 @@ def test_pty_closed_and_recreated_at_same_path_is_reopened(tmp_path):
     assert closed, "the vanished port was never seen closing"
 
 
+def test_a_serial_port_that_vanishes_is_one_clear_line_in_the_session(tmp_path):
+    """The pty's other end closed mid-flight (a USB cable pulled), then back. The link said only
+    "closed PATH", then "cannot open PATH: [Errno 2] cannot open serial port PATH: No such file
+    or directory; retrying", and neither reached the session's events.jsonl (nor `gcs serve`): the
+    recording showed a link lost 3 s later, as a radio fade. Now one line says why, once, and the
+    session holds it with the reopening, its recording whole."""
+    path = tmp_path / "ttyUSB-sim"
+
+    async def scenario():
+        async with running_station(str(path), heartbeat_timeout=1.5, record_dir=str(tmp_path / "rec")) as station:
+            link, pipeline = station.link, station.estimation.pipeline
+            async with running_sim(f"pty:{path}", profile="apm25"):
+                await wait_for(lambda: pipeline.imu_samples > 50, 20, "samples")
+            await wait_for(lambda: not link.is_open, 5, "the vanished port to be noticed")
+            gone = len(link.events)  # what follows is the vanishing
+            await wait_for(lambda: any("cannot" in e.detail for e in list(link.events)[gone:]), 10, "a failed reopen")
+            before = pipeline.imu_samples
+            async with running_sim(f"pty:{path}", profile="apm25"):
+                await wait_for(lambda: pipeline.imu_samples > before + 50, 20, "samples again")
+            return station.recorder.session.folder, [e.detail for e in link.events if e.kind == "transport"]
+
+    folder, details = asyncio.run(scenario())
+    after = details[details.index(f"opened {path}") :]  # (before: the port not there yet)
+    assert len(after) == 4 and after[0] == after[3] == f"opened {path}", details
+    assert after[1] in {f"closed {path}: the device is gone ({why})" for why in ("end of file", "Input/output error")}
+    assert after[2] == f"cannot open {path}: No such file or directory; retrying"
+    noted = [e["text"] for e in gcs.open_session(folder).events.to_pylist() if e["kind"] == "link" and e["text"]]
+    assert noted == details
+    assert gcs.open_session(folder).errors().num_rows > 0  # the recording is whole across the gap
+
+
 def test_baud_auto_detects_a_rate_that_yields_mavlink(tmp_path):
     path = tmp_path / "ttyUSB-sim"
 

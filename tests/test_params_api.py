@@ -6,9 +6,11 @@ from __future__ import annotations
 import asyncio
 
 import httpx
-from live import wait_for
+from conftest import free_port
+from live import running_sim, running_station, wait_for
 from test_params_protocol import station_and_sim
 
+from gcs.runtime.link import LinkState
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 
@@ -107,3 +109,29 @@ def test_a_loopback_server_needs_the_token_too():
             assert sim.params["MC_ROLL_P"] == 6.0
 
     asyncio.run(asyncio.wait_for(scenario(), 60))
+
+
+def test_a_revert_the_vehicle_never_answers_is_a_timeout_not_a_refusal():
+    """The vehicle gone after a tuning write (its link lost): POST /api/tuning/revert answered 422,
+    the code of a value the vehicle or the profile refused, and the page said "refused" for writes
+    that got no answer at all. Now 504, "no answer from the vehicle"."""
+
+    async def scenario():
+        port = free_port()
+        async with running_station(f"udpin:127.0.0.1:{port}", heartbeat_timeout=1.0) as station:
+            app, client = await _client(station, TOKEN)
+            auth = {TOKEN_HEADER: TOKEN}
+            async with client:
+                async with running_sim(f"udpout:127.0.0.1:{port}", profile="apm25"):
+                    assert await station.link.wait_connected(10)
+                    await client.post("/api/params/download", headers=auth)
+                    await wait_for(lambda: station.params.complete, 20, "the download")
+                    wrote = await client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}, headers=auth)
+                    assert wrote.status_code == 200, wrote.text
+                await wait_for(lambda: station.link.state == LinkState.LOST, 10, "the vehicle lost")
+                return await client.post("/api/tuning/revert", headers=auth)
+
+    reverted = asyncio.run(asyncio.wait_for(scenario(), 90))
+    assert reverted.status_code == 504, reverted.text
+    detail = reverted.json()["detail"]
+    assert detail.startswith("revert incomplete (0 restored): no heartbeat from a vehicle on udpin:"), detail

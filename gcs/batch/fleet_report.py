@@ -18,6 +18,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 from gcs.batch import dataset
+from gcs.logs.logfile import InputError
 from gcs.sessions.export import write_beside
 from gcs.sessions.report import ERROR_REFERENCES, html_table, page, png, write_report
 
@@ -76,16 +77,32 @@ def plot_over_time(rows: list[dict], estimators: list[str]) -> str:
 
 
 def _link_table(rows: list[tuple[str, str, list]]) -> str:
-    """Worst flights: the name links to the flight's own report."""
+    """Worst flights: the name links to the flight's own report, or says why there is none (href
+    "": the note is in the name)."""
     names = ("flight", "estimator", "reference", "total RMS", "RMS roll", "RMS pitch", "RMS yaw")
     head = "<tr>" + "".join(f"<th>{n}</th>" for n in names) + "</tr>"
     body = "".join(
-        f"<tr><td><a href='{html.escape(href)}'>{html.escape(name)}</a></td>"
+        (
+            f"<tr><td><a href='{html.escape(href)}'>{html.escape(name)}</a></td>"
+            if href
+            else f"<tr><td>{html.escape(name)}</td>"
+        )
         + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
         + "</tr>"
         for name, href, cells in rows
     )
     return f"<table>{head}{body}</table>"
+
+
+def _flight_report(row: dict, out: Path, estimators: list[str]) -> str | None:
+    """The flight's own `gcs report` page at `out`; None, or why not when its log cannot be read
+    any more (moved, deleted or changed since the batch): the fleet page, made from the dataset
+    alone, is still written (it failed whole, in one line, for one such flight)."""
+    try:
+        write_report(row["path"], str(out), estimators=estimators)
+    except InputError as exc:
+        return str(exc)
+    return None
 
 
 def latest_sweep(root: Path) -> Path | None:
@@ -143,12 +160,11 @@ def write_fleet_report(path: str | os.PathLike, out: str | os.PathLike, worst: i
         linked = []
         for r in ranked:
             pages.mkdir(exist_ok=True)
-            write_report(r["path"], str(pages / f"{r['flight']}.html"), estimators=estimators)
-            href = f"{pages.name}/{r['flight']}.html"
+            unread = _flight_report(r, pages / f"{r['flight']}.html", estimators)
             linked.append(
                 (
-                    r["flight"],
-                    href,
+                    r["flight"] if unread is None else f"{r['flight']} (no report: {unread})",
+                    f"{pages.name}/{r['flight']}.html" if unread is None else "",
                     [
                         r["estimator"],
                         r["reference"],

@@ -10,6 +10,7 @@ when packets return: never a restart.
 from __future__ import annotations
 
 import asyncio
+import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -77,7 +78,7 @@ async def keep_open(
             await transport.open(on_data, on_batch)
         except OSError as exc:
             if not failing:
-                on_event("transport", f"cannot open {transport.address}: {exc}; retrying")
+                on_event("transport", f"cannot open {transport.address}: {open_error(exc)}; retrying")
             failing = True
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, max_backoff)
@@ -91,10 +92,20 @@ async def keep_open(
         finally:
             transport.close()
             on_open(None)
-        on_event("transport", f"closed {transport.address}")
+        why = f": {transport.close_reason}" if transport.close_reason else ""
+        on_event("transport", f"closed {transport.address}{why}")
         if not transport.reconnectable:
             return
         await asyncio.sleep(backoff)
+
+
+def open_error(exc: OSError) -> str:
+    """Why a transport did not open, once: the reason an errno names ("No such file or directory",
+    "Permission denied", "Connection refused"), else the error's own words. The whole error read
+    "[Errno 2] cannot open serial port /dev/ttyUSB0: ..." after the line's own "cannot open ADDRESS"."""
+    if isinstance(exc.errno, int) and exc.errno > 0:
+        return os.strerror(exc.errno)
+    return exc.strerror or str(exc)
 
 
 class Link:
@@ -144,6 +155,8 @@ class Link:
         self._datagram = self.address.kind in ("udpin", "udpout", "tlog")
         #: (old, new) on every state change, in the event loop.
         self.state_changed: Signal[[LinkState, LinkState]] = Signal()
+        #: every event as it is added to `events`, in the event loop
+        self.noted: Signal[[LinkEvent]] = Signal()
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
@@ -446,7 +459,9 @@ class Link:
         self.state_changed.emit(old, new)
 
     def _event(self, kind: str, detail: str) -> None:
-        self.events.append(LinkEvent(time.monotonic(), time.time(), kind, detail))
+        event = LinkEvent(time.monotonic(), time.time(), kind, detail)
+        self.events.append(event)
+        self.noted.emit(event)
 
     async def _detect_baud(self, listen: float = 1.5) -> None:
         """Try the usual baud rates until one yields a valid MAVLink packet; keep that one."""

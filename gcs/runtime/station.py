@@ -36,7 +36,7 @@ from gcs.runtime.estimation import LiveEstimation
 from gcs.runtime.events import EventLog
 from gcs.runtime.firmware import request_version
 from gcs.runtime.forward import Output
-from gcs.runtime.link import Link
+from gcs.runtime.link import Link, LinkEvent
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError
 from gcs.runtime.params import ParamClient
 from gcs.runtime.protocol import LiveProtocol
@@ -128,6 +128,7 @@ class Station:
         self.outputs = outputs if outputs is not None else [Output(address, [self.link]) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
+        self.link.noted.connect(self._link_noted)
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
             # does not say so) and after a reboot; every change is recorded in the event log
@@ -202,6 +203,14 @@ class Station:
     async def link_finished(self) -> None:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
         await self.supervisor.task("link")
+
+    def _link_noted(self, event: LinkEvent) -> None:
+        """The transport's events go to the event log (and the session's events.jsonl) too: a serial
+        port that vanished mid-flight ("closed /dev/ttyUSB0: the device is gone (Input/output
+        error)") was otherwise told only by `gcs status`; the session and `gcs serve` showed a link
+        lost as a radio fade is, 3 s later."""
+        if event.kind in ("transport", "baud"):
+            self.events.record("link", "link", text=event.detail)
 
     def follow_system(self, sysid: int) -> None:
         """Estimate from this system's data only (a fleet's core: its vehicle's), not from the

@@ -22,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 from gcs.mavlink.params import ParamError, format_value, same_value
-from gcs.runtime.params import Param, ParamClient
+from gcs.runtime.params import Param, ParamClient, ParamTimeout
 
 #: The shipped profiles (package data).
 _PROFILES = resources.files("gcs.runtime").joinpath("profiles")
@@ -268,10 +268,12 @@ class TuningSession:
     async def revert(self, client: str) -> list[Param]:
         """Write back the pre-flight value of every profile parameter that differs from it now (or
         that this session wrote), each verified. Raises ParamError listing those that failed,
-        after trying them all."""
+        after trying them all: a ParamTimeout when the vehicle answered none of them (a link that
+        went down is no refusal: the REST answer was 422, "refused", for it)."""
         if self.started is None:
             return []
-        restored, failed = [], []
+        restored: list[Param] = []
+        failed: list[ParamError] = []
         for name, value in self.preflight.items():
             known = self.params.table.get(name)
             if name not in self.written and known is not None and same_value(known.value, value):
@@ -280,9 +282,10 @@ class TuningSession:
                 restored.append(await self.params.set(name, value, client))
                 self.written.discard(name)
             except ParamError as exc:
-                failed.append(str(exc))
+                failed.append(exc)
         if failed:
-            raise ParamError(f"revert incomplete ({len(restored)} restored): " + "; ".join(failed))
+            kind = ParamTimeout if all(isinstance(exc, ParamTimeout) for exc in failed) else ParamError
+            raise kind(f"revert incomplete ({len(restored)} restored): " + "; ".join(map(str, failed)))
         return restored
 
     def rows(self) -> list[TunedParam]:

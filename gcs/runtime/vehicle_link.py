@@ -15,7 +15,7 @@ from typing import ClassVar
 
 from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.runtime.bus import Message, MessageBus
-from gcs.runtime.link import Link
+from gcs.runtime.link import Link, LinkEvent
 from gcs.runtime.snapshots import LinkSnapshot
 
 
@@ -57,8 +57,10 @@ class VehicleLink(Link):
         """Report the link's address, framing counters, rejections and signing as this view's,
         and what the station sends on it (its heartbeats reach every vehicle there)."""
         self._shown.packet_sent.disconnect(self._on_link_sent)
+        self._shown.noted.disconnect(self._on_link_noted)
         self._shown = link
         link.packet_sent.connect(self._on_link_sent)
+        link.noted.connect(self._on_link_noted)
         self.address, self.name, self.baud = link.address, link.name, link.baud
         self.stats.framing = link.stats.framing
         self.stats.nonfinite = link.stats.nonfinite
@@ -103,6 +105,11 @@ class VehicleLink(Link):
             self.link.send_raw(packet, system)
         finally:
             VehicleLink._sender = None
+
+    def _on_link_noted(self, event: LinkEvent) -> None:
+        """The link's transport events are every vehicle's there (its states are its own)."""
+        if event.kind != "state":
+            self.noted.emit(event)
 
     def _on_link_sent(self, packet: bytes) -> None:
         if VehicleLink._sender not in (None, self) or self._shown.addressed not in (None, self.target_system):

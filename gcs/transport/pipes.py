@@ -63,6 +63,8 @@ class Transport(ABC):
         self.address = address
         self.dropped_writes = 0
         self.kernel_drops = 0  # received datagrams the kernel dropped before we read them (UDP on Linux)
+        #: why it closed by itself, when it knows (a serial device that vanished); None otherwise
+        self.close_reason: str | None = None
         self._closed: asyncio.Future[None] | None = None
 
     @abstractmethod
@@ -411,9 +413,12 @@ class SerialTransport(Transport):
             data = os.read(self._fd, 4096)
         except BlockingIOError:
             return
-        except OSError:
-            data = b""
+        except OSError as exc:
+            self.close_reason = f"the device is gone ({os.strerror(exc.errno) if exc.errno else exc})"
+            self.close()
+            return
         if not data:
+            self.close_reason = "the device is gone (end of file)"
             self.close()
             return
         self._on_data(data)
