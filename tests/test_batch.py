@@ -202,6 +202,18 @@ def test_rerun_skips_done_flights_and_force_redoes_them(batch, flights, schedule
     assert not [p for p in (batch / dataset.FLIGHTS).iterdir() if p.name.startswith(".")]
 
 
+def test_a_run_whose_every_flight_failed_exits_1(tmp_path, scheduler):
+    """A script running `gcs batch && gcs fleet report` stops there: nothing was written (it went on
+    with exit 0). A run with some flights written and some failed still exits 0 (the test above)."""
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"not a log" * 100)
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["batch", str(junk), "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler])
+    assert code == 1, (out.getvalue(), err.getvalue()[-2000:])
+    assert "0 flights written, 1 failed" in out.getvalue() and "junk.bin" in err.getvalue()
+
+
 def test_a_scheduler_lost_mid_run_is_one_line_and_keeps_the_flights_written(tmp_path, logs_dir):
     """The scheduler killed after the first flight is written: `gcs batch` says so in one line
     (exit 2, no Dask traceback: it printed FutureCancelledError's), and the flights written before

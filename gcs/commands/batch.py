@@ -67,8 +67,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"gcs batch: error: {exc.filename or args.scheduler or args.out}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     failed = [r for r in outcome.done if not r.ok]
-    print(
-        f"{len(outcome.done) - len(failed)} flights written, {len(failed)} failed, "
-        f"{len(outcome.skipped)} already in {args.out} (--force redoes them)"
-    )
-    return 0
+    written = len(outcome.done) - len(failed)
+    skipped = len(outcome.skipped)
+    print(f"{written} flights written, {len(failed)} failed, {skipped} already in {args.out} (--force redoes them)")
+    # a fleet's damaged logs are failure rows and the run goes on; a run that wrote nothing it was
+    # asked to is an error for the script that runs it (a report would follow on no data)
+    return 1 if failed and not written else 0
