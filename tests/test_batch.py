@@ -310,6 +310,18 @@ def test_sweep_beats_a_bad_default_on_held_out_flights_and_its_preset_loads(batc
     shutil.rmtree(tmp_path / "fleet_flights")
 
 
+def test_a_sweep_whose_scheduler_does_not_answer_names_the_scheduler(tmp_path, logs_dir, capsys):
+    """Nothing listens at the address: the one line names the scheduler, where the sweep's named
+    its --out (the dataset folder, which was fine) for every cluster error."""
+    address = f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    log = str(logs_dir / "arducopter-sitl-hop.tlog")
+    args = ["sweep", log, "-e", "dcm", "--gain", "kp_rp=0.1:1", "--out", str(tmp_path / "ds"), "--scheduler", address]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"gcs sweep: error: {address}: "), err
+    assert not (tmp_path / "ds").exists()
+
+
 @pytest.mark.parametrize(
     ("text", "args", "error"),
     [

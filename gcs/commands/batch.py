@@ -21,6 +21,21 @@ def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dashboard", action="store_true", help="serve the local cluster's Dask dashboard (free port)")
 
 
+def cluster_error(exc: OSError, args: argparse.Namespace) -> str:
+    """An OSError of a run on Dask as "what: why": the file it names, else the scheduler it lost or
+    could not reach (the local cluster without --scheduler), else the output (the sweep's error
+    named its --out for a scheduler it had lost)."""
+    from gcs.batch.cluster import ClusterLost  # noqa: PLC0415 - Dask loads only when a batch runs
+
+    if exc.filename:
+        subject = str(exc.filename)
+    elif isinstance(exc, ClusterLost | ConnectionError) or exc.errno is None:  # Dask's own OSErrors carry none
+        subject = args.scheduler or "the local Dask cluster"
+    else:
+        subject = args.out
+    return f"{subject}: {exc.strerror or exc}"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.ulg files, folders of them, globs"
@@ -64,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                 client, flights, args.out, names, gains, args.force, lambda r: print(_line(r), file=sys.stderr)
             )
     except OSError as exc:
-        print(f"gcs batch: error: {exc.filename or args.scheduler or args.out}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs batch: error: {cluster_error(exc, args)}", file=sys.stderr)
         return 2
     failed = [r for r in outcome.done if not r.ok]
     written = len(outcome.done) - len(failed)

@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from gcs.batch.objective import OBJECTIVES, parse_range
-from gcs.commands.batch import add_cluster_arguments
+from gcs.commands.batch import add_cluster_arguments, cluster_error
 from gcs.core.gains import GainError
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                 client, flights, holdout, args.estimator, ranges, args.objective, args.trials, args.out, args.seed
             )
     except OSError as exc:
-        print(f"gcs sweep: error: {exc.filename or args.out}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs sweep: error: {cluster_error(exc, args)}", file=sys.stderr)
         return 2
     print("\n".join(report(result)))
     return 0
