@@ -43,6 +43,9 @@ async def scenario(udp_port: int, root) -> None:
                 assert (await api.post("/api/recording/note", json={"text": "gusty"})).status_code == 200
                 stopped = (await api.post("/api/recording/stop")).json()
                 assert stopped["state"] == "stopped"
+                # no session to keep it: refused, where it was answered ok and kept nowhere
+                lost = await api.post("/api/recording/note", json={"text": "after landing"})
+                assert lost.status_code == 409 and "not recording" in lost.json()["detail"], lost.text
                 sessions = (await api.get("/api/sessions")).json()
                 assert len(sessions) == 1 and not sessions[0]["open"] and sessions[0]["duration_s"] > 0
                 name = sessions[0]["name"]

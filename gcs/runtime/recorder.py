@@ -297,9 +297,13 @@ class SessionRecorder:
             recovered=list(self.recovered),
         )
 
-    def note(self, text: str, client: str) -> None:
-        """A user's note, kept in the session's event log."""
+    def note(self, text: str, client: str) -> bool:
+        """A user's note, kept in the session's event log; False, and not taken, when no session
+        is recording or waiting to (the note would be in none)."""
+        if self.session is None and not self._armed:
+            return False
         self.station.events.record("note", client, text=text)
+        return True
 
     # ---- producers (event loop) --------------------------------------------------------
     def _drain(self) -> None:

@@ -338,8 +338,11 @@ class Station:
         return recorder.snapshot()
 
     def add_note(self, text: str, client: str) -> None:
+        """A note for the session being recorded; StationError when none is (it was answered
+        "ok" and kept in no session)."""
         self._on_loop()
-        self.recording().note(text, client)
+        if not self.recording().note(text, client):
+            raise StationError("not recording: a note is kept in the session being recorded; start recording first")
 
     # ---- commands: test protocols -------------------------------------------------------------
     def start_protocol(self, name_or_path: str, detect_source: str | None, client: str) -> LiveProtocol:
