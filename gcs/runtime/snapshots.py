@@ -112,6 +112,8 @@ class VehicleSnapshot:
     firmware: str | None
     reboots: int
     heartbeats: int
+    #: two vehicles send as this one system id: their clocks interleave (gcs.runtime.boot_clock)
+    two_clocks: bool = False
     #: flight mode by name (ArduPilot per vehicle type, PX4 main/sub mode; the number when unknown)
     mode: str | None = None
     battery_v: float | None = None

@@ -1,7 +1,7 @@
 """The vehicle as its messages describe it: heartbeat (mode, armed), SYS_STATUS (battery, sensor
 health), GPS_RAW_INT (fix, satellites, HDOP, the track on a local grid), EKF_STATUS_REPORT (the
 autopilot estimator's flags), STATUSTEXT (the autopilot's messages, also recorded in the session's
-event log); and reboot detection from its clock."""
+event log); and its clock: reboots, or two vehicles sending as one system (gcs.runtime.boot_clock)."""
 
 from __future__ import annotations
 
@@ -14,14 +14,12 @@ from dataclasses import dataclass, field
 from pymavlink import mavutil
 
 from gcs.mavlink.dialect import mavlink
+from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
 from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import AutopilotMessage, VehicleSnapshot
-
-#: The vehicle clock going back by more than this (s) is a reboot, not jitter or reordering.
-REBOOT_JUMP = 1.0
 
 _AUTOPILOTS = {
     mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ArduPilot",
@@ -88,7 +86,7 @@ class VehicleState:
     system_status: str | None = None
     firmware: str | None = None
     capabilities: int | None = None
-    reboots: int = 0
+    clock: BootClock = field(default_factory=BootClock)
     heartbeats: int = 0
     mode: str | None = None
     events: EventLog | None = None
@@ -105,7 +103,6 @@ class VehicleState:
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_KEPT))
     _origin: tuple[float, float] | None = None
     _last_track: float = -math.inf
-    _last_boot_time: float | None = None
     #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
     rebooted: Signal[[]] = field(default_factory=Signal)
 
@@ -160,12 +157,21 @@ class VehicleState:
                 self.firmware = version_of(msg)
             self.capabilities = msg.capabilities
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
-            last = self._last_boot_time
-            if last is not None and item.vehicle_time < last - REBOOT_JUMP:
-                self.reboots += 1
-                self.link._event("state", f"vehicle rebooted (clock {last:.1f} s -> {item.vehicle_time:.1f} s)")
-                asyncio.get_running_loop().call_soon(self.rebooted.emit)
-            self._last_boot_time = item.vehicle_time
+            self._clock(item.vehicle_time, item.host_time, item.sysid)
+
+    def _clock(self, t: float, now: float, sysid: int) -> None:
+        step = self.clock.step(t, now)
+        if step is Step.REBOOT:
+            self.link._event("state", f"vehicle rebooted (clock {self.clock.previous:.1f} s -> {t:.1f} s)")
+            asyncio.get_running_loop().call_soon(self.rebooted.emit)
+        elif step is Step.TWO_CLOCKS:
+            text = (
+                f"two vehicles are sending as system {sysid} (clocks {t:.1f} s and {self.clock.previous:.1f} s): "
+                "their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV)"
+            )
+            self.link._event("state", text)
+            if self.events is not None:
+                self.events.record("vehicle", "vehicle", event="two clocks", text=text)
 
     def _track(self, lat: float, lon: float) -> None:
         """Metres north and east of the first 3D fix (equirectangular: exact to well under a
@@ -199,7 +205,8 @@ class VehicleState:
             custom_mode=self.custom_mode,
             system_status=self.system_status,
             firmware=self.firmware,
-            reboots=self.reboots,
+            reboots=self.clock.reboots,
+            two_clocks=self.clock.two_clocks is not None,
             heartbeats=self.heartbeats,
             mode=self.mode,
             battery_v=self.battery_v,
