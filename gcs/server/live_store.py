@@ -13,7 +13,7 @@ import numpy as np
 
 from gcs.server import wire
 
-#: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.vehicle).
+#: The vehicle clock going back by more than this (s) in one source is a reboot (as gcs.runtime.boot_clock).
 REBOOT_JUMP = 1.0
 #: References an estimator's error history is computed against (as the page's error plots).
 ERROR_REFERENCES = ("onboard", "truth")
