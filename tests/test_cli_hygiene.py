@@ -204,11 +204,15 @@ def test_an_unwritable_output_is_named_as_the_user_gave_it(command, tmp_path):
 
 def test_a_fleet_report_of_no_dataset_names_the_dataset(tmp_path):
     """Found by auditing: `gcs fleet report MISSING --out fleet.html` said
-    "error: fleet.html: None" (an OSError made from a message alone has no filename or strerror)."""
+    "error: fleet.html: None" (an OSError made from a message alone has no filename or strerror),
+    then "no flights in the dataset" for a folder that is not there at all; an empty one has none."""
     missing, page = tmp_path / "fleet", tmp_path / "fleet.html"
-    done = subprocess.run(GCS + ["fleet", "report", str(missing), "--out", str(page)], capture_output=True, text=True)
-    assert done.returncode == 2 and not page.exists()
-    assert done.stderr.strip().splitlines() == [f"gcs fleet report: error: {missing}: no flights in the dataset"]
+    command = GCS + ["fleet", "report", str(missing), "--out", str(page)]
+    for expected in ("no such dataset folder (gcs batch --out makes one)", "no flights in the dataset"):
+        done = subprocess.run(command, capture_output=True, text=True)
+        assert done.returncode == 2 and not page.exists()
+        assert done.stderr.strip().splitlines() == [f"gcs fleet report: error: {missing}: {expected}"]
+        missing.mkdir(exist_ok=True)  # the second time: a folder with nothing in it
 
 
 def test_a_sweep_without_held_out_flights_prints_no_nan(tmp_path):

@@ -120,7 +120,9 @@ def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:
     root = Path(dataset) / FLIGHTS
     files = sorted(str(p) for p in root.glob(f"flight=*/{table}.parquet"))
     if not files:
-        raise FileNotFoundError(f"{dataset}: no flights in the dataset")
+        missing = not Path(dataset).is_dir()
+        why = "no such dataset folder (gcs batch --out makes one)" if missing else "no flights in the dataset"
+        raise FileNotFoundError(f"{dataset}: {why}")
     parts = ds.partitioning(pa.schema([("flight", pa.string())]), flavor="hive")
     return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
 
