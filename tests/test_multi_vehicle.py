@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import httpx
@@ -611,6 +612,20 @@ def _assert_replays_as_live(folder: Path) -> None:
     assert len(live) > 100 and again.shape == live.shape and (again == live).all(), (folder.name, len(live))
 
 
+async def _two_vehicles_heard(tmp_path: Path, port: int, feed: Callable[[], Awaitable[None]]) -> list[int | None]:
+    """A fleet recording into tmp_path on UDP `port`, fed by `feed` until both vehicles are
+    served; the system ids of its vehicles, in the order they were taken."""
+    fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+    await fleet.start()
+    try:
+        await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
+        await feed()
+        await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
+        return [e.sysid for e in fleet.vehicles()]
+    finally:
+        await fleet.stop()
+
+
 def test_a_second_vehicle_estimates_what_came_with_its_first_heartbeat(tmp_path: Path) -> None:
     """Vehicle 2's first heartbeat shares a datagram with its IMU and attitude (a router, a radio,
     a batched read do that). Its new core's recorder kept them; its estimation subscribed only
@@ -619,18 +634,10 @@ def test_a_second_vehicle_estimates_what_came_with_its_first_heartbeat(tmp_path:
     live estimates exactly."""
     port = free_port(socket.SOCK_DGRAM)
 
-    async def scenario() -> list[int | None]:
-        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
-        await fleet.start()
-        try:
-            await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
-            await asyncio.gather(_stream(port, 1, 0, 150, beat_at=0), _stream(port, 2, 0, 150, beat_at=10))
-            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
-            return [e.sysid for e in fleet.vehicles()]
-        finally:
-            await fleet.stop()
+    async def feed() -> None:
+        await asyncio.gather(_stream(port, 1, 0, 150, beat_at=0), _stream(port, 2, 0, 150, beat_at=10))
 
-    assert asyncio.run(scenario()) == [1, 2]
+    assert asyncio.run(_two_vehicles_heard(tmp_path, port, feed)) == [1, 2]
     folders = _sessions_by_vehicle(tmp_path)
     assert set(folders) == {1, 2}
     for folder in folders.values():
@@ -646,19 +653,11 @@ def test_a_vehicle_heard_before_the_one_already_streaming_gets_its_own_session(t
     holds its own vehicle's IMU only and replays to its live estimates."""
     port = free_port(socket.SOCK_DGRAM)
 
-    async def scenario() -> list[int | None]:
-        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
-        await fleet.start()
-        try:
-            await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")
-            await _stream(port, 1, 0, 25)  # vehicle 1 streaming, its heartbeat not yet due
-            await asyncio.gather(_stream(port, 2, 0, 150, beat_at=0), _stream(port, 1, 25, 150, beat_at=30))
-            await wait_for(lambda: len(fleet.vehicles()) == 2, 30, "both vehicles")
-            return [e.sysid for e in fleet.vehicles()]
-        finally:
-            await fleet.stop()
+    async def feed() -> None:
+        await _stream(port, 1, 0, 25)  # vehicle 1 streaming, its heartbeat not yet due
+        await asyncio.gather(_stream(port, 2, 0, 150, beat_at=0), _stream(port, 1, 25, 150, beat_at=30))
 
-    served = asyncio.run(scenario())
+    served = asyncio.run(_two_vehicles_heard(tmp_path, port, feed))
     folders = _sessions_by_vehicle(tmp_path)
     assert set(folders) == {1, 2}
     for sysid, folder in sorted(folders.items()):
