@@ -136,6 +136,10 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
     assert all("last record incomplete" in r["damage"] for r in summary if r["flight"] == cut)
     sim = [r for r in summary if r["path"] in flights["sessions"]]
     assert {r["vehicle"] for r in sim} == {"sim-quad-a", "sim-quad-b"}
+    # a bare tlog's vehicle is named from its HEARTBEAT, as a session's is (it was "unknown")
+    named = {Path(r["path"]).name: r["vehicle"] for r in summary if r["path"].endswith(".tlog")}
+    assert named["arducopter-sitl-hop.tlog"] == named["hop-cut.tlog"] == "ArduPilot-QUADROTOR-1", named
+    assert named["arduplane-sitl-vtol.tlog"] == "ArduPilot-FIXED_WING-1", named
     assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
     attitude = dataset.read_table(batch, "attitude")
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)

@@ -28,6 +28,7 @@ from typing import Protocol
 from gcs import __version__
 from gcs.core import strict_json
 from gcs.mavlink.finite import nonfinite_field
+from gcs.mavlink.identity import vehicle_label
 from gcs.mavlink.params import param_name
 from gcs.mavlink.sampling import INPUT_TYPES
 from gcs.mavlink.tlog import tlog_record
@@ -404,7 +405,7 @@ class SessionRecorder:
         v = self.station.vehicle
         if not v.heartbeats:
             return None
-        return f"{v.autopilot}-{(v.vehicle_type or '').removeprefix('MAV_TYPE_')}-{self.station.link.target_system}"
+        return vehicle_label(v.autopilot, v.vehicle_type, self.station.link.target_system)
 
     def _vehicle(self) -> dict:
         """The session's vehicle fields (scalars, read off the snapshot: a `dataclasses.asdict` of it

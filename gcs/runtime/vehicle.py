@@ -14,19 +14,13 @@ from dataclasses import dataclass, field
 from pymavlink import mavutil
 
 from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.identity import autopilot_name, enum_name
 from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
 from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import AutopilotMessage, VehicleSnapshot
-
-_AUTOPILOTS = {
-    mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ArduPilot",
-    mavlink.MAV_AUTOPILOT_PX4: "PX4",
-    mavlink.MAV_AUTOPILOT_GENERIC: "generic",
-}
-
 
 #: Messages whose time_boot_ms is the vehicle's clock, for reboot detection: the ones the station
 #: asks for (gcs.runtime.streams) and ArduPilot and PX4 send by default that carry it.
@@ -51,11 +45,6 @@ MESSAGES_KEPT = 50
 #: track points kept (one a second: 15 minutes)
 TRACK_KEPT = 900
 EARTH_RADIUS_M = 6_371_000.0
-
-
-def enum_name(enum: str, value: int) -> str:
-    entry = mavlink.enums.get(enum, {}).get(value)
-    return entry.name if entry is not None else str(value)
 
 
 def flag_names(enum: str, bits: int, prefix: str) -> list[str]:
@@ -125,7 +114,7 @@ class VehicleState:
             if item.compid != self.link.target_component:
                 return
             self.heartbeats += 1
-            self.autopilot = _AUTOPILOTS.get(msg.autopilot, enum_name("MAV_AUTOPILOT", msg.autopilot))
+            self.autopilot = autopilot_name(msg.autopilot)
             self.vehicle_type = enum_name("MAV_TYPE", msg.type)
             self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             self.custom_mode = msg.custom_mode

@@ -281,14 +281,15 @@ def render(
         ["IMU samples", pipeline.imu_samples],
         ["damage", source.damage or "none"],
     ]
-    if meta:
+    if meta:  # a session's, or a bare tlog's vehicle (named from its HEARTBEAT): what is known
         vehicle = meta.get("vehicle") or {}
-        facts += [
+        known = [
             ["vehicle", vehicle.get("label")],
             ["firmware", vehicle.get("firmware")],
             ["link", (meta.get("link") or {}).get("address")],
             ["recovered", meta.get("recovered")],
         ]
+        facts += [row for row in known if row[1] is not None]
     sections = [f"<h2>Summary</h2>{html_table(['', ''], facts)}"]
     if series:
         figure = png(attitude_figure(series))

@@ -33,7 +33,9 @@ from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
 from gcs.mavlink.decoding import decode
+from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
+from gcs.mavlink.identity import heartbeat_label, is_vehicle_heartbeat
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
 from gcs.mavlink.tlog import packet_length, read_tlog_records
 from gcs.sessions import layout
@@ -204,6 +206,8 @@ class _Decoded:
     damage: str | None
     framing: FramingCounters | None = None
     span: tuple[float, float] | None = None
+    #: the replayed vehicle's name from its HEARTBEAT (a tlog's), as a session's meta names it
+    vehicle: str | None = None
 
 
 def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChange]]) -> _Decoded:
@@ -215,11 +219,14 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
     frames = _FramesBuilder(with_packets=True)
     table = InputTableBuilder()
     counts: Counter[str] = Counter()
+    labels: dict[int, str] = {}  # each vehicle's name, from its first HEARTBEAT
     position = 0  # estimation input messages so far (the live pipeline's input index)
     for offset, usec, packet in records.records():
         sent = usec & 3 == 3
         for raw, kind, _, _ in decoder.frames(packet, final=True):
             counts[kind] += 1
+            if kind == "HEARTBEAT" and not sent and counts[kind] <= LABEL_HEARTBEATS:
+                _name_vehicle(decode(raw), labels)
             if sent or kind not in INPUT_TYPES:  # framed and counted, not decoded
                 continue
             while pending and pending[0][0] <= position:
@@ -237,7 +244,20 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
     damage = records.damage("replayed up to it")
     built = frames.build()
     span = (float(built.t[0]), float(built.t[-1])) if len(built) else None
-    return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span)
+    sampler = to_inputs.sampler
+    replayed = sampler.system if sampler.system is not None else sampler.attitude_system
+    vehicle = labels.get(replayed) if replayed is not None else next(iter(labels.values()), None)
+    return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span, vehicle)
+
+
+#: HEARTBEATs of a tlog looked at for its vehicles' names (the first few: each system sends one a second)
+LABEL_HEARTBEATS = 100
+
+
+def _name_vehicle(msg: MAVLinkMessage, labels: dict[int, str]) -> None:
+    """The vehicle's name from its first HEARTBEAT (ground stations' and companions' are none)."""
+    if msg.get_srcSystem() not in labels and is_vehicle_heartbeat(msg):
+        labels[msg.get_srcSystem()] = heartbeat_label(msg)
 
 
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
@@ -327,8 +347,19 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
         )
     if kind == "tlog":
         d = _decode_tlog(path, {}, [])
+        meta = {"vehicle": {"label": d.vehicle}} if d.vehicle else {}  # as a session's meta.json names it
         return ReplaySource(
-            path, kind, d.frames, d.table, d.counts, d.span, d.damage, framing=d.framing, packet_file=path, key=key
+            path,
+            kind,
+            d.frames,
+            d.table,
+            d.counts,
+            d.span,
+            d.damage,
+            meta=meta,
+            framing=d.framing,
+            packet_file=path,
+            key=key,
         )
     d = _decode_log(path)
     return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, key=key)
