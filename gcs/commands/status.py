@@ -74,7 +74,7 @@ def format_report(snap: StationSnapshot) -> str:
         f"vehicle    sysid {vehicle.sysid}  {vehicle.autopilot}  {vehicle.vehicle_type}  "
         f"MAVLink {vehicle.mavlink_version}  {'ARMED' if vehicle.armed else 'disarmed'}  "
         f"firmware {vehicle.firmware or '?'}"
-        + ("  TWO VEHICLES SEND AS THIS SYSTEM: give each its own system id" if vehicle.two_clocks else "")
+        + ("  TWO VEHICLES SEND AS THIS SYSTEM: give each its own system id" if vehicle.two_senders else "")
         if vehicle.sysid is not None
         else "vehicle    none heard",
         f"traffic    {stats.packets} packets  {stats.bytes_per_s:.0f} B/s  CRC errors {stats.crc_errors}  "

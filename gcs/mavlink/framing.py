@@ -47,6 +47,9 @@ class FramingCounters:
     bytes_skipped: int = 0  # bytes that belonged to no valid packet
     unknown: int = 0  # frame candidates with a message id outside the dialect (skipped)
     lost: dict[tuple[int, int], int] = field(default_factory=dict)
+    #: per (sysid, compid): packets whose sequence number went back (by 1 to 128): the network
+    #: reordering, a restart, or two senders with one id interleaving (gcs.runtime.sequence_watch)
+    stepped_back: dict[tuple[int, int], int] = field(default_factory=dict)
     mavlink1: int = 0
     mavlink2: int = 0
 
@@ -181,6 +184,8 @@ class MavlinkDecoder:
         last = self._last_seq.get(key)
         if last is not None:
             missing = (seq - last - 1) & 0xFF
-            if missing and missing < 128:  # a large jump backwards is a restart, not loss
+            if missing and missing < 128:
                 self.counters.lost[key] = self.counters.lost.get(key, 0) + missing
+            elif missing:  # a step back is no loss
+                self.counters.stepped_back[key] = self.counters.stepped_back.get(key, 0) + 1
         self._last_seq[key] = seq

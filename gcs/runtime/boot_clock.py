@@ -7,8 +7,9 @@ two clocks: every message of the younger one would be a reboot, each re-requesti
 and restarting the plots, and their data mix in one session with no word of why. They show as a
 step back followed soon (within TWO_CLOCKS_S, of the new clock and of the host's) by a step forward
 to where the old clock had got to: a rebooted vehicle's new clock never jumps back up to its old
-one (a silence after a reboot can end near the old clock's time only after as long a wait). Once two clocks are
-seen, no step is a reboot any more, and the station says what to fix.
+one (a silence after a reboot can end near the old clock's time only after as long a wait). Once two
+senders are known (here, or by their sequence numbers: gcs.runtime.sequence_watch), no step is a
+reboot any more, and the station says what to fix.
 """
 
 from __future__ import annotations
@@ -34,8 +35,8 @@ class Step(enum.Enum):
 @dataclass
 class BootClock:
     reboots: int = 0
-    #: the two clocks' readings (s) when they were told apart, else None
-    two_clocks: tuple[float, float] | None = None
+    #: two senders are known: by their clocks, or by their sequence numbers (`VehicleState`)
+    two_senders: bool = False
     #: the reading before the latest, and the latest (s)
     previous: float | None = None
     last: float | None = None
@@ -48,13 +49,13 @@ class BootClock:
         """Take one reading of the clock (s), which arrived at host time `now` (monotonic s)."""
         last = self.previous = self.last
         self.last = t
-        if self.two_clocks is not None or last is None:
+        if self.two_senders or last is None:
             return Step.ON
         before, after = self._before, self._after
         if before is not None and after is not None and t > last + REBOOT_JUMP:
             soon = last - after < TWO_CLOCKS_S and now - self._stepped_back_at < TWO_CLOCKS_S
             if soon and abs(t - before) < TWO_CLOCKS_S:  # the old clock, going on
-                self.two_clocks = (t, last)
+                self.two_senders = True
                 self.reboots -= 1  # the step back was the other vehicle's clock
                 return Step.TWO_CLOCKS
         if t < last - REBOOT_JUMP:

@@ -112,8 +112,9 @@ class VehicleSnapshot:
     firmware: str | None
     reboots: int
     heartbeats: int
-    #: two vehicles send as this one system id: their clocks interleave (gcs.runtime.boot_clock)
-    two_clocks: bool = False
+    #: two vehicles send as this one system id: their clocks or their packets' sequence numbers
+    #: interleave (gcs.runtime.boot_clock, gcs.runtime.sequence_watch)
+    two_senders: bool = False
     #: flight mode by name (ArduPilot per vehicle type, PX4 main/sub mode; the number when unknown)
     mode: str | None = None
     battery_v: float | None = None

@@ -19,6 +19,7 @@ from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
 from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
+from gcs.runtime.sequence_watch import SequenceWatch
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import AutopilotMessage, VehicleSnapshot
 
@@ -76,6 +77,7 @@ class VehicleState:
     firmware: str | None = None
     capabilities: int | None = None
     clock: BootClock = field(default_factory=BootClock)
+    sequence: SequenceWatch = field(default_factory=SequenceWatch)
     heartbeats: int = 0
     mode: str | None = None
     events: EventLog | None = None
@@ -102,6 +104,7 @@ class VehicleState:
                 await sub.queue.wait()
                 for item in sub.drain():
                     self.observe(item)
+                self._watch_sequence(time.monotonic())
                 await asyncio.sleep(OBSERVE_INTERVAL)
         finally:
             sub.close()
@@ -154,13 +157,25 @@ class VehicleState:
             self.link._event("state", f"vehicle rebooted (clock {self.clock.previous:.1f} s -> {t:.1f} s)")
             asyncio.get_running_loop().call_soon(self.rebooted.emit)
         elif step is Step.TWO_CLOCKS:
-            text = (
-                f"two vehicles are sending as system {sysid} (clocks {t:.1f} s and {self.clock.previous:.1f} s): "
-                "their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV)"
-            )
-            self.link._event("state", text)
-            if self.events is not None:
-                self.events.record("vehicle", "vehicle", event="two clocks", text=text)
+            self._two_senders(sysid, f"clocks {t:.1f} s and {self.clock.previous:.1f} s")
+
+    def _watch_sequence(self, now: float) -> None:
+        sysid, compid = self.link.target_system, self.link.target_component
+        if sysid is None or compid is None or self.clock.two_senders:
+            return
+        stepped_back = self.link.stats.framing.stepped_back.get((sysid, compid), 0)
+        if self.sequence.check(stepped_back, now):
+            self.clock.two_senders = True
+            self._two_senders(sysid, "their packets' sequence numbers interleave")
+
+    def _two_senders(self, sysid: int, seen: str) -> None:
+        text = (
+            f"two vehicles are sending as system {sysid} ({seen}): their data mix; give each its own "
+            "system id (MAV_SYSID or SYSID_THISMAV), or hear a vehicle through one route only"
+        )
+        self.link._event("state", text)
+        if self.events is not None:
+            self.events.record("vehicle", "vehicle", event="two senders", text=text)
 
     def _track(self, lat: float, lon: float) -> None:
         """Metres north and east of the first 3D fix (equirectangular: exact to well under a
@@ -195,7 +210,7 @@ class VehicleState:
             system_status=self.system_status,
             firmware=self.firmware,
             reboots=self.clock.reboots,
-            two_clocks=self.clock.two_clocks is not None,
+            two_senders=self.clock.two_senders,
             heartbeats=self.heartbeats,
             mode=self.mode,
             battery_v=self.battery_v,

@@ -86,8 +86,8 @@ function showStatus(s) {
     + s.clients.filter((c) => c.dropped_points).map((c) => ` · viewer ${c.id} dropped ${c.dropped_points}`).join("");
   const warn = Object.entries(s.estimators).filter(([, e]) => !e.reliable).map(([n, e]) => `${n}: ${e.reason}`);
   if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
-  if (s.vehicle.two_clocks) {
-    warn.unshift(`two vehicles are sending as system ${s.vehicle.sysid}: their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV)`);
+  if (s.vehicle.two_senders) {
+    warn.unshift(`two vehicles are sending as system ${s.vehicle.sysid}: their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV), or hear a vehicle through one route only`);
   }
   for (const p of s.parts.filter((x) => x.state === "failed")) warn.unshift(`station part ${p.name} failed: ${p.error}`);
   $("warnings").innerHTML = warn.map((w) => `<div>⚠ ${escapeHtml(w)}</div>`).join("");
