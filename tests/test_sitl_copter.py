@@ -173,13 +173,15 @@ def test_cold_sitl_ekf_yaw_follows_simstate_and_the_tlog_gives_the_live_estimate
     record_dir = tmp_path / "sessions"
     points: list[AttitudePoint] = []
 
-    async def session() -> float:
+    async def session():
         async with running_station(f"tcp:127.0.0.1:{sitl}", record_dir=str(record_dir)) as station:
             station.points.connect(points.extend)
             await wait_for(lambda: len(points) > 0, 60, "the first estimates")
-            return await _fly(station, points)
+            dec_at = await _fly(station, points)
+            return dec_at, station.publish().vehicle
 
-    dec_at = asyncio.run(session())
+    dec_at, vehicle = asyncio.run(session())
+    assert not vehicle.two_senders, "one real vehicle taken for two (gcs.runtime.sequence_watch)"
     ekf, truth = _series(points, "ekf"), _series(points, "truth")
     scored = errors_against(ekf, truth[truth[:, 0] >= dec_at + SETTLE])
     yaw_rms = float(np.sqrt(np.mean(scored[:, 3] ** 2)))
