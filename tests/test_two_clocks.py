@@ -9,6 +9,7 @@ import socket
 
 from live import running_sim, running_station, wait_for
 
+from gcs.commands.status import format_report
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.sequence_watch import STEPS_BACK, WINDOW_S, SequenceWatch
@@ -59,6 +60,7 @@ async def _send_two_vehicles_on_sysid_1(port: int, offset_s: float) -> None:
     """Two vehicles powered up `offset_s` apart, both at sysid 1 compid 1, each with its own
     sequence numbers, sending HEARTBEAT at 1 Hz and ATTITUDE at 50 Hz into one UDP port."""
     senders = [(Encoder(1, 1), 10.0), (Encoder(1, 1), 10.0 + offset_s)]
+    senders[1][0].mav.seq = 100  # each counts its own packets, from where it happens to be
     heartbeat = mavlink.MAVLink_heartbeat_message(2, 3, 81, 0, 4, 3)  # an ArduCopter quad
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         for k in range(10**6):
@@ -82,12 +84,16 @@ def test_two_vehicles_powered_up_together_are_told_apart_by_their_sequence_numbe
                 await wait_for(lambda: station.publish().vehicle.two_senders, 30, "two senders told apart")
             finally:
                 sending.cancel()
-            return station.publish().vehicle, [e.detail for e in station.link.events]
+            snapshot = station.publish()
+            return snapshot, [e.detail for e in station.link.events]
 
-    vehicle, events = asyncio.run(scenario())
-    assert vehicle.reboots == 0, vehicle
+    snapshot, events = asyncio.run(scenario())
+    assert snapshot.vehicle.reboots == 0, snapshot.vehicle
     told = [e for e in events if e.startswith("two vehicles are sending as system 1")]
     assert len(told) == 1 and "sequence numbers interleave" in told[0], events
+    # every step between the two senders' numbers counted as packets lost: the loss is unknown
+    assert snapshot.link.stats.packets_lost > 0
+    assert "lost unknown (two senders" in format_report(snapshot), format_report(snapshot)
 
 
 def test_one_sender_reordered_now_and_then_is_not_two():

@@ -10,7 +10,7 @@ from gcs.commands.common import tidy
 from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
 from gcs.core import strict_json
 from gcs.runtime.fleet import Fleet
-from gcs.runtime.snapshots import StationSnapshot
+from gcs.runtime.snapshots import LinkCounters, StationSnapshot
 from gcs.runtime.station import StationConfig
 
 
@@ -65,6 +65,14 @@ def format_vehicles(snapshots: list[StationSnapshot]) -> str:
     return "\n".join(lines)
 
 
+def format_loss(stats: LinkCounters, two_senders: bool) -> str:
+    """Packets lost by sequence number: unknown while two senders' numbers interleave (each step
+    between them would count as up to 127 lost)."""
+    if two_senders:
+        return "unknown (two senders' sequence numbers interleave)"
+    return f"{stats.packets_lost} ({100 * stats.loss_fraction:.2f} %)"
+
+
 def format_report(snap: StationSnapshot) -> str:
     link, vehicle, streams, stats, recording = snap.link, snap.vehicle, snap.streams, snap.link.stats, snap.recording
     heard = link.heartbeat_age_s is not None
@@ -78,7 +86,7 @@ def format_report(snap: StationSnapshot) -> str:
         if vehicle.sysid is not None
         else "vehicle    none heard",
         f"traffic    {stats.packets} packets  {stats.bytes_per_s:.0f} B/s  CRC errors {stats.crc_errors}  "
-        f"malformed {stats.malformed}  lost {stats.packets_lost} ({100 * stats.loss_fraction:.2f} %)  "
+        f"malformed {stats.malformed}  lost {format_loss(stats, vehicle.two_senders)}  "
         f"kernel drops {stats.kernel_drops}",
         f"streams    via {streams.method or '?'}  ({streams.requests_sent} requests sent)"
         if streams.method is not None or streams.requests_sent

@@ -77,7 +77,7 @@ function showStatus(s) {
   const l = s.link;
   $("link-state").textContent = `link ${l.state}`;
   $("link-state").className = `pill ${l.state}`;
-  $("link-detail").textContent = `${l.address} · ${l.packets} packets · lost ${l.packets_lost} (${fmt(100 * l.loss_fraction, 2)} %) · `
+  $("link-detail").textContent = `${l.address} · ${l.packets} packets · lost ${lossText(l, s.vehicle)} · `
     + `CRC errors ${l.crc_errors} · ${fmt(l.bytes_per_s / 1000)} kB/s · heartbeat ${fmt(l.heartbeat_age_s, 1)} s ago`;
   const sinceFrame = gcsStats.lastFrameAt ? performance.now() - gcsStats.lastFrameAt : null;
   $("data-age").textContent = `data is ${fmt(s.data_age_ms, 0)} ms old at the server; last frame ${fmt(sinceFrame, 0)} ms ago`;
@@ -144,6 +144,12 @@ function showNumbers(est, status) {
     + `<th>max session (°)</th><th>lag</th><th>IMU rate</th><th>health</th></tr>${rows.join("")}`;
 }
 
+// Packets lost by sequence number; unknown while two senders' numbers interleave (as gcs status).
+function lossText(link, vehicle) {
+  if (vehicle.two_senders) return "unknown (two senders' sequence numbers interleave)";
+  return `${link.packets_lost} (${fmt(100 * link.loss_fraction, 2)} %)`;
+}
+
 // ---- the vehicle panel ---------------------------------------------------------------------
 function showVehicle(v, link) {
   const kv = [
@@ -152,7 +158,7 @@ function showVehicle(v, link) {
     ["GPS", v.gps_fix == null ? "–" : `${v.gps_fix} · ${v.gps_satellites ?? "?"} satellites · HDOP ${v.gps_hdop == null ? "?" : v.gps_hdop.toFixed(2)}`],
     ["EKF", v.ekf_flags.length ? `${v.ekf_flags.join(", ")}${v.ekf_variance_max == null ? "" : ` · largest variance ${v.ekf_variance_max.toFixed(2)}`}` : "no EKF_STATUS_REPORT"],
     ["sensors", v.sensors_unhealthy.length ? `unhealthy: ${v.sensors_unhealthy.join(", ")}` : "all healthy"],
-    ["link", `${link.state} · loss ${fmt(100 * link.loss_fraction, 1)} % · heartbeat ${fmt(link.heartbeat_age_s, 1)} s ago`],
+    ["link", `${link.state} · loss ${lossText(link, v)} · heartbeat ${fmt(link.heartbeat_age_s, 1)} s ago`],
     ["autopilot", `${v.autopilot ?? "?"} ${v.vehicle_type ?? ""} ${v.firmware ?? ""} · ${v.system_status ?? ""}`],
   ];
   $("vehicle-state").innerHTML = kv.map(([k, x]) => `<div class="k">${k}</div><div class="v" id="vehicle-${k}">${escapeHtml(String(x))}</div>`).join("");
