@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def describe(cls: type) -> str:
     """The first line of the estimator's readable reference's docstring: a compiled class's own
     says only that it is compiled, and over two lines."""
-    from gcs.core.estimators.kernels import Compiled  # noqa: PLC0415  (loaded by registry.get already)
+    from gcs.core.estimators.compiled import Compiled  # noqa: PLC0415  (loaded by registry.get already)
 
     reference = next(k for k in cls.__mro__ if not issubclass(k, Compiled))
     return (reference.__doc__ or "").strip().splitlines()[0]

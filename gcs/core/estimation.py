@@ -18,7 +18,7 @@ from gcs.core.comparison import BatchRuns, Comparison, ComparisonSummary
 from gcs.core.comparison_compiled import NO_OUTPUTS, NO_ROWS, CompiledComparison, ReferenceRuns
 from gcs.core.estimators import registry
 from gcs.core.estimators.base import AttitudeEstimator, HealthValue
-from gcs.core.estimators.kernels import Compiled
+from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.stepping import (
     EULER,
     OUT,

@@ -29,7 +29,7 @@ import numpy as np
 from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
-from gcs.core.estimators.kernels import Compiled
+from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.runtime.bus import Message, MessageBus

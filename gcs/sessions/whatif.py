@@ -17,7 +17,7 @@ import numpy as np
 
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
-from gcs.core.estimators.kernels import Compiled
+from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import errors_at, euler_of, run_whole
 from gcs.core.samples import ImuSample
 from gcs.sessions.sources import ReplaySource

@@ -11,6 +11,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import HealthValue, initial_attitude
+from gcs.core.estimators.compiled import Kernels, MagView, StartedInPython
 from gcs.core.estimators.dcm import OMEGA_I_MAX, SPIN_RATE_LIMIT, DcmEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
@@ -199,18 +200,18 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     return code
 
 
-class DcmCompiled(k.StartedInPython, DcmEstimator):
+class DcmCompiled(StartedInPython, DcmEstimator):
     """`dcm` with its per-sample update compiled; same gains, presets, outputs and health as
     DcmEstimator (the reference)."""
 
-    KERNELS = k.Kernels(k.DCM)
+    KERNELS = Kernels(k.DCM)
     STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
         self._compiled_state(SIZE)
         self.s[ROWS : ROWS + 9 : 4] = 1.0  # R = I, q = (1, 0, 0, 0) until the first sample
         super().__init__(preset, **gains)
-        self._mag_view = k.MagView(self.s)
+        self._mag_view = MagView(self.s)
 
     # the reference's attributes the base class and callers use, kept in the state
 

@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import HealthValue, initial_attitude
+from gcs.core.estimators.compiled import Compiled, Kernels, MagView, floats, reinit_reason
 from gcs.core.estimators.ekf import MAG_SETTLE_TILT, MAG_TIME_DT, EkfEstimator
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
@@ -375,11 +376,11 @@ def gps_input(
     gps_step(s, hist, g, t, vel[0], vel[1])
 
 
-class EkfCompiled(k.Compiled, EkfEstimator):
+class EkfCompiled(Compiled, EkfEstimator):
     """`ekf` with its IMU and GPS steps compiled; same gains, presets, outputs and health as
     EkfEstimator (the reference)."""
 
-    KERNELS = k.Kernels(k.EKF, INITIALISED, HIST_N)
+    KERNELS = Kernels(k.EKF, INITIALISED, HIST_N)
     STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
@@ -420,7 +421,7 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         if code == k.DUPLICATE:
             return bool(s[INITIALISED])
         if code != INITIALISE:
-            self.last_reinit = k.reinit_reason(s, code, self.gains["max_gap"])
+            self.last_reinit = reinit_reason(s, code, self.gains["max_gap"])
         accel = np.asarray(sample.accel, float).tolist()
         m = None if mag is None else np.asarray(mag, float).tolist()
         if m is not None and not (all(map(math.isfinite, m)) and any(m)):
@@ -458,7 +459,7 @@ class EkfCompiled(k.Compiled, EkfEstimator):
         self.s[HIST_HEAD] = 0.0
 
     def update_gps(self, sample: GpsSample) -> None:
-        vel = self._no_mag if sample.vel_ned is None else k.floats(sample.vel_ned)
+        vel = self._no_mag if sample.vel_ned is None else floats(sample.vel_ned)
         gps_input(
             self.s, self.hist, self.gain_vector(), sample.t, sample.fix_type, vel, sample.vel_ned is not None,
             sample.ground_speed, sample.course,
@@ -475,7 +476,7 @@ class EkfCompiled(k.Compiled, EkfEstimator):
             h[name] = int(s[slot]) if name in _INT_STATS else float(s[slot])
         bias = s[BIAS : BIAS + 3].tolist()
         h.update(bias_x=bias[0], bias_y=bias[1], bias_z=bias[2])
-        view = k.MagView(s)
+        view = MagView(s)
         h.update(mag_disturbed=view.disturbed, mag_offset=view.offset, mag_relearned=view.relearned)
         h.update(mag_offsets_learned=view.offsets_learned, shocks=int(s[k.SHOCK_COUNT]))
         h["tilt_sigma_deg"] = math.degrees(math.sqrt(max(s[P] + s[P + 10], 0.0)))

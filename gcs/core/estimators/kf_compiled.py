@@ -11,6 +11,7 @@ import numpy as np
 
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import HealthValue
+from gcs.core.estimators.compiled import Kernels, MagView, StartedInPython
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import State
 from gcs.core.estimators.kf import (
@@ -352,11 +353,11 @@ def step(s: State, hist: State, g: State, t: float, gyro: State, accel: State, m
     return code
 
 
-class KalmanCompiled(k.StartedInPython, KalmanAttitudeFilter):
+class KalmanCompiled(StartedInPython, KalmanAttitudeFilter):
     """`kf` with its per-sample update compiled; same gains, presets, outputs and health as
     KalmanAttitudeFilter (the reference, on filterpy)."""
 
-    KERNELS = k.Kernels(k.KF)
+    KERNELS = Kernels(k.KF)
     STEP = staticmethod(step)
 
     def __init__(self, preset: str | None = None, **gains: float) -> None:
@@ -389,7 +390,7 @@ class KalmanCompiled(k.StartedInPython, KalmanAttitudeFilter):
 
     def health(self) -> dict[str, HealthValue]:
         s = self.s
-        view = k.MagView(s)
+        view = MagView(s)
         innovation = s[INNOVATION : INNOVATION + 6].tolist()
         diag = s[P : P + 36 : 7].tolist()
         return {

@@ -25,6 +25,7 @@ import numpy.typing as npt
 from gcs.core.estimators import dcm_compiled, ekf_compiled, kf_compiled, registry
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.jit import kernel
 from gcs.core.plausibility import imu_row_accepted
 from gcs.core.samples import ImuSample
@@ -172,7 +173,7 @@ class Fault:
     reason: str
 
 
-def step_batch(est: k.Compiled, batch: ImuBatch, start: int, out: BatchAttitudes) -> Fault | None:
+def step_batch(est: Compiled, batch: ImuBatch, start: int, out: BatchAttitudes) -> Fault | None:
     """`est.update_imu` then `est.attitude()` for every row from `start` on, into `out`; None at the
     end, or the fault at which the pipeline restarts the estimator (an error, a non-finite state),
     as the per-sample path restarts it: the caller goes on from the next row with a new one."""
@@ -228,5 +229,5 @@ def warm() -> None:
     accepted_rows(batch.rows)
     for name in registry.names():
         est = registry.create(name)
-        if isinstance(est, k.Compiled):
+        if isinstance(est, Compiled):
             step_batch(est, batch, 0, BatchAttitudes.empty(len(batch)))

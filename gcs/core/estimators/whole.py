@@ -22,6 +22,7 @@ from gcs.core.estimation import GainChange
 from gcs.core.estimators import ekf_compiled, registry
 from gcs.core.estimators import kernels as k
 from gcs.core.estimators.base import AttitudeEstimator
+from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.stepping import step_any
 from gcs.core.plausibility import MAX_SPEED, imu_rows_accepted
@@ -90,7 +91,7 @@ def run_inputs(
     kind: npt.NDArray[np.uint8], imu: Floats, imu_ok: npt.NDArray[np.bool_], gps_rows: Floats,
     gps_ok: npt.NDArray[np.bool_], i: int, r_imu: int, r_gps: int, out_q: Floats, out_valid: npt.NDArray[np.bool_],
 ) -> tuple[int, int, int, int]:  # fmt: skip
-    """Feed inputs i.. to estimator `which`'s kernels (kernels.Kernels) until the end, a gain change,
+    """Feed inputs i.. to estimator `which`'s kernels (compiled.Kernels) until the end, a gain change,
     a step that asks for a re-initialisation (its code; the row is then not written), or a full
     history (GROW; not stepped). Returns (input index, IMU row, GPS row, why it stopped)."""
     n = len(kind)
@@ -132,7 +133,7 @@ def run_whole(
     """gcs.core.estimation.run_estimator over column inputs (kind per input; IMU and GPS rows in
     input order; gain_change(k): the k-th GAIN input), for a compiled estimator: the same
     refusals, gain rules and results. Reference attitudes are skipped."""
-    if not isinstance(estimator, k.Compiled):
+    if not isinstance(estimator, Compiled):
         raise TypeError(f"{type(estimator).__name__} has no compiled kernels")
     kernels = estimator.KERNELS
     imu_ok, gps_ok = imu_accepted(kind, imu), gps_accepted(kind, gps)
