@@ -163,6 +163,8 @@ def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
     assert by_sysid[3]["link"] == f"udpin:127.0.0.1:{ports[1]}" and by_sysid[1]["link"] == by_sysid[2]["link"]
     assert [by_sysid[n]["autopilot"] for n in (1, 2, 3)] == ["ArduPilot", "ArduPilot", "PX4"]
     assert r["status2"]["vehicle"]["sysid"] == 2 and r["status2"]["vehicle"]["compid"] == 1
+    # three senders on one port, and a companion on sysid 1 (compid 191): no two senders on one id
+    assert not r["status2"]["vehicle"]["two_senders"] and not r["first_status"]["vehicle"]["two_senders"]
     assert r["first_status"]["vehicle"]["sysid"] == r["sysids"][0]
     assert r["missing"] == 404
     assert {"dcm", "truth"} <= set(r["history3"]["points"])
