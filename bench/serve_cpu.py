@@ -10,7 +10,8 @@ time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YA
   second, `GET /api/vehicles` every 2 s; until 2026-12-04's tenth session only the status), 5
   `/ws/live` WebSocket clients (bench.ws_clients) and, as each page's iframe, 5 viewers of the 3-D
   view on viser's WebSocket (bench.viser_clients; GCS_BENCH_3D=0 leaves them out, as the figures
-  before 2026-12-04's sixth session did), each kind in its own process.
+  before 2026-12-04's sixth session did), each kind in its own process. GCS_BENCH_PAGES=N: N pages
+  (default 5; 0: nobody watching, the station's own work alone).
   `view_windows_per_viewer_s`: the windows of viser messages each viewer received a second (one
   per drawing: at most 20 for 5 viewers since the seventh session's drawing budget,
   gcs.server.pose_refresh, 30 before; ~16 since the ninth session's 15 ms frames, the turns the
@@ -52,7 +53,9 @@ RATES = (1_000, 2_000, 5_000, 10_000, 20_000)
 CPU_RATE = 1_000
 #: alternating rounds of the CPU figures (GCS_BENCH_ROUNDS)
 ROUNDS = int(os.environ.get("GCS_BENCH_ROUNDS", "3"))
-PAGES = 5
+#: dashboard pages (GCS_BENCH_PAGES; 0: `gcs serve` estimating and recording with nobody watching,
+#: to see what the pages cost against the station's own work)
+PAGES = int(os.environ.get("GCS_BENCH_PAGES", "5"))
 #: what each page asks for, and every how many seconds: dashboard.js's pollStatus, vehicles.js's
 #: vehicle list
 PAGE_POLLS = (("/api/status", 1), ("/api/estimates", 1), ("/api/vehicles", 2))
@@ -203,15 +206,14 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
         base = f"http://127.0.0.1:{http}"
         wait_until_serving(base)
         time.sleep(2.0)  # the estimators' kernels load
-        helpers = [pollers(base, seconds + 2)]
-        helpers.append(
-            subprocess.Popen(
-                [sys.executable, "-m", "bench.ws_clients", f"ws://127.0.0.1:{http}/ws/live", str(PAGES), str(seconds)],
-                stdout=subprocess.DEVNULL,
-            )
-        )
+        helpers = []
+        if PAGES:
+            helpers.append(pollers(base, seconds + 2))
+            live_url = f"ws://127.0.0.1:{http}/ws/live"
+            clients = [sys.executable, "-m", "bench.ws_clients", live_url, str(PAGES), str(seconds)]
+            helpers.append(subprocess.Popen(clients, stdout=subprocess.DEVNULL))
         views = None
-        if VIEWS_3D:
+        if VIEWS_3D and PAGES:
             viser_url = f"ws://127.0.0.1:{http_json(f'{base}/api/status')['viser_port']}"
             views = subprocess.Popen(
                 [sys.executable, "-m", "bench.viser_clients", viser_url, str(PAGES), str(seconds)],
