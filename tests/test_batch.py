@@ -140,6 +140,16 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
     named = {Path(r["path"]).name: r["vehicle"] for r in summary if r["path"].endswith(".tlog")}
     assert named["arducopter-sitl-hop.tlog"] == named["hop-cut.tlog"] == "ArduPilot-QUADROTOR-1", named
     assert named["arduplane-sitl-vtol.tlog"] == "ArduPilot-FIXED_WING-1", named
+    # a DataFlash or ULog flight's from what the log says (it was "unknown"): the hop's banner
+    # "ArduCopter V4.7.0-dev", FRAME_CLASS 1 and MAV_SYSID 1 (as its tlog's HEARTBEAT); the
+    # fragment's "ArduPlane V3.8.2-dev", Q_ENABLE 0, SYSID_THISMAV 1; the ULog's sys_name "PX4",
+    # MAV_TYPE 2, MAV_SYS_ID 1
+    logs = {Path(r["path"]).name: r["vehicle"] for r in summary if r["path"].endswith((".BIN", ".bin", ".ulg"))}
+    assert logs == {
+        "arducopter-sitl-hop.BIN": "ArduPilot-QUADROTOR-1",
+        "ardupilot-fragment.bin": "ArduPilot-FIXED_WING-1",
+        "px4-flight-sample.ulg": "PX4-QUADROTOR-1",
+    }, logs
     assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
     attitude = dataset.read_table(batch, "attitude")
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)
