@@ -7,6 +7,7 @@ import contextlib
 import io
 import math
 import os
+import select
 import shutil
 import socket
 import subprocess
@@ -140,6 +141,16 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
     named = {Path(r["path"]).name: r["vehicle"] for r in summary if r["path"].endswith(".tlog")}
     assert named["arducopter-sitl-hop.tlog"] == named["hop-cut.tlog"] == "ArduPilot-QUADROTOR-1", named
     assert named["arduplane-sitl-vtol.tlog"] == "ArduPilot-FIXED_WING-1", named
+    # a DataFlash or ULog flight's from what the log says (it was "unknown"): the hop's banner
+    # "ArduCopter V4.7.0-dev", FRAME_CLASS 1 and MAV_SYSID 1 (as its tlog's HEARTBEAT); the
+    # fragment's "ArduPlane V3.8.2-dev", Q_ENABLE 0, SYSID_THISMAV 1; the ULog's sys_name "PX4",
+    # MAV_TYPE 2, MAV_SYS_ID 1
+    logs = {Path(r["path"]).name: r["vehicle"] for r in summary if r["path"].endswith((".BIN", ".bin", ".ulg"))}
+    assert logs == {
+        "arducopter-sitl-hop.BIN": "ArduPilot-QUADROTOR-1",
+        "ardupilot-fragment.bin": "ArduPilot-FIXED_WING-1",
+        "px4-flight-sample.ulg": "PX4-QUADROTOR-1",
+    }, logs
     assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
     attitude = dataset.read_table(batch, "attitude")
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)
@@ -190,6 +201,62 @@ def test_local_cluster_gives_the_same_dataset(batch, flights, tmp_path):
     ours, theirs = (pq.read_table(dataset.flight_dir(d, one) / "attitude.parquet") for d in (out, batch))
     assert ours.num_rows > 1000 and ours.drop_columns(["wall_time"]).equals(theirs.drop_columns(["wall_time"]))
     assert dataset.read_failures(out).to_pylist() == dataset.read_failures(batch).to_pylist()
+
+
+#: A batch writer in its own process: it holds its partition's temporary folder as write_flight
+#: does, says so, and goes on writing until it is killed.
+WRITER = """
+import sys, time
+from pathlib import Path
+from gcs.batch.dataset import writing
+folder = Path(sys.argv[1])
+with writing(folder):
+    (folder / "attitude.parquet").write_bytes(b"half a partition")
+    print("writing", flush=True)
+    time.sleep(600)
+"""
+
+
+def _writer(folder: Path) -> subprocess.Popen:
+    """A real process writing `folder`, once it holds it (or the test fails)."""
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(folder)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    ready, _, _ = select.select([proc.stdout], [], [], 120)
+    assert ready and proc.stdout.readline() == "writing\n", f"the writer of {folder} did not start"
+    return proc
+
+
+def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
+    """A writer killed with SIGKILL mid-flight (as a killed worker or scheduler leaves it) left its
+    temporary folder and the partition it was replacing: the next batch removes both and says so
+    in one line. Another run's writer, alive, keeps its folder and the partition it moved aside."""
+    out = tmp_path / "fleet"
+    target = dataset.flight_dir(out, "telemetry.tlog-0badc0de")
+    target.parent.mkdir(parents=True)
+    dead, alive = ("4242-deadbeef", "4343-a11ca7ed")
+    killed = _writer(dataset.scratch(target, dead, dataset.WRITING))
+    dataset.scratch(target, dead, dataset.REPLACED).mkdir()
+    live = _writer(dataset.scratch(target, alive, dataset.WRITING))
+    dataset.scratch(target, alive, dataset.REPLACED).mkdir()
+    try:
+        killed.kill()
+        killed.wait(timeout=60)
+        session = flights["sessions"][0]
+        ran = _cli("batch", session, "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
+        gone = [dataset.scratch(target, dead, kind).name for kind in (dataset.WRITING, dataset.REPLACED)]
+        assert f"removed 2 temporary folders a killed run left in {out}: {', '.join(sorted(gone))}\n" in ran.stdout
+        assert sorted(p.name for p in target.parent.iterdir() if p.name.startswith(".")) == sorted(
+            dataset.scratch(target, alive, kind).name for kind in (dataset.WRITING, dataset.REPLACED)
+        )
+        assert (
+            dataset.scratch(target, alive, dataset.WRITING) / "attitude.parquet"
+        ).read_bytes() == b"half a partition"
+        assert dataset.done_flights(out) == {dataset.flight_id(session)}
+        again = _cli("batch", session, "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
+        assert "removed" not in again.stdout  # the live writer's folders stay while it writes
+    finally:
+        live.kill()
+        live.wait(timeout=60)
 
 
 def test_rerun_skips_done_flights_and_force_redoes_them(batch, flights, scheduler):

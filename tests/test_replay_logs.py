@@ -16,6 +16,7 @@ from gcs.logs.readers import InputError
 from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
 from gcs.runtime.replay import ReplaySession
 from gcs.sessions.sources import open_source
+from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter
 
 
 def _replay(source) -> ReplaySession:
@@ -105,6 +106,26 @@ def within(speed: float, duration: float, seconds: float) -> bool:
     """speed is duration / seconds, both as printed (to 0.1 s and 0.01 s)."""
     slowest, fastest = (duration - 0.05) / (seconds + 0.005), (duration + 0.05) / max(seconds - 0.005, 1e-9)
     return slowest - 0.05 <= speed <= fastest + 0.05
+
+
+def test_a_dataflash_log_names_its_vehicle_only_as_far_as_it_says(hop_logs, tmp_path):
+    """The hop's samples alone say nothing of the vehicle (no vehicle in the meta, "unknown" in a
+    dataset); an ArduCopter banner says ArduPilot but neither type nor id ("?"); FRAME_CLASS 2
+    and SYSID_THISMAV 7 then say a hexarotor numbered 7."""
+    folder, _ = hop_logs
+    samples = (folder / "new.bin").read_bytes()
+    assert open_source(folder / "new.bin").meta == {}
+    told = DataflashWriter()  # the same type ids as new.bin's, and MSG
+    for name, (fmt, columns) in NEW_FORMATS.items():
+        told.define(name, fmt, columns)
+    told.define("MSG", "QZ", "TimeUS,Message", 200)
+    told.add("MSG", 0, b"ArduCopter V4.5.7 (2a3dc4b7)")
+    (tmp_path / "banner.bin").write_bytes(told.bytes() + samples)
+    assert open_source(tmp_path / "banner.bin").meta == {"vehicle": {"label": "ArduPilot-?-?"}}
+    told.add("PARM", 0, b"FRAME_CLASS", 2.0)
+    told.add("PARM", 0, b"SYSID_THISMAV", 7.0)
+    (tmp_path / "params.bin").write_bytes(told.bytes() + samples)
+    assert open_source(tmp_path / "params.bin").meta == {"vehicle": {"label": "ArduPilot-HEXAROTOR-7"}}
 
 
 def test_ulog_counts_and_span_match_pyulog(logs_dir):

@@ -145,6 +145,61 @@ def test_gcs_sim_command_prints_where_it_serves_and_stops_on_ctrl_c(tmp_path):
     assert not path.exists()
 
 
+def _sim_serving(path) -> subprocess.Popen:
+    """`gcs sim` serving pty:PATH, once it says so (the symlink is made by then)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs", "sim", "--link", f"pty:{path}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    line = proc.stdout.readline()
+    if f"pty:{path}" not in line:  # it did not serve: never leak a `gcs sim`
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"gcs sim did not serve pty:{path}: {line!r}")
+    return proc
+
+
+def _sim_refused(path) -> str:
+    """stderr of a `gcs sim` on pty:PATH that must refuse it."""
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs", "sim", "--link", f"pty:{path}"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    return done.stderr
+
+
+def test_a_port_a_killed_vehicle_left_is_replaced_a_live_one_or_a_file_never(tmp_path):
+    """`gcs sim` killed with SIGKILL leaves its link to a pseudo-terminal that is gone: the next
+    one replaces it and serves. A link to a live vehicle's port and a regular file are refused,
+    left as they were (a second vehicle took the first one's port over before)."""
+    path = tmp_path / "ttyKILLED"
+    first = _sim_serving(path)
+    try:
+        live_target = os.readlink(path)
+        assert "which is open" in _sim_refused(path)
+        assert os.readlink(path) == live_target
+    finally:
+        first.kill()  # SIGKILL: no clean-up
+        first.communicate(timeout=60)
+    assert path.is_symlink() and not path.exists()  # what it left: a link to a device that is gone
+    second = _sim_serving(path)
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            asyncio.run(read_messages(fd, {"HEARTBEAT"}))
+        finally:
+            os.close(fd)
+    finally:
+        second.send_signal(2)
+        second.communicate(timeout=60)
+    assert not path.exists() and not path.is_symlink()  # a vehicle stopped cleanly takes its link away
+    path.write_text("someone's file\n")
+    assert "not a symlink" in _sim_refused(path)
+    assert path.read_text() == "someone's file\n"
+
+
 def test_gcs_sim_help_lists_profiles_scripts_links_and_faults():
     out = subprocess.run([sys.executable, "-m", "gcs", "sim", "--help"], capture_output=True, text=True).stdout
     for word in (

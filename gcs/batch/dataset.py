@@ -9,7 +9,11 @@
       sweeps/<estimator>-<stamp>/             gain sweeps (gcs.batch.sweep)
 
 A flight's folder is written under a temporary name and renamed whole, so a crash never leaves a
-half-written partition; its presence is what "already in the dataset" means. The `flight=`
+half-written partition; its presence is what "already in the dataset" means. A writer killed
+mid-flight (a worker or scheduler killed) leaves its temporary folder, never read: the next
+`gcs batch` removes those whose writer is gone (`remove_leftovers`), never one a live run is
+writing, which holds a lock on it (flock; on NFS the kernel's lock manager keeps it across hosts,
+and it dies with its process, however killed). The `flight=`
 names are Hive partitions: `pyarrow.dataset` (and pandas, DuckDB, Spark) read every flight's
 table as one with a `flight` column (`read_table`).
 """
@@ -17,10 +21,12 @@ table as one with a `flight` column (`read_table`).
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import os
 import secrets
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import pyarrow as pa
@@ -85,27 +91,96 @@ def done_flights(dataset: Path) -> set[str]:
     return {p.name.removeprefix("flight=") for p in root.iterdir() if p.name.startswith("flight=")}
 
 
+#: A partition being written is `.flight=<id>.<token>.tmp`; the one it replaces (--force) is moved
+#: aside as `.flight=<id>.<token>.old`, the same token, until the new one is in.
+WRITING, REPLACED = "tmp", "old"
+
+
+def scratch(target: Path, token: str, kind: str) -> Path:
+    """The temporary name of a partition's folder (`kind`: WRITING or REPLACED)."""
+    return target.with_name(f".{target.name}.{token}.{kind}")
+
+
+@contextlib.contextmanager
+def writing(folder: Path) -> Iterator[None]:
+    """Make `folder` and hold an exclusive lock on it until the block ends (after it is renamed
+    in: the lock is the inode's), so `remove_leftovers` of another run leaves it alone. Should a
+    cleaner have taken and removed it between the mkdir and the lock, it is made again."""
+    while True:
+        folder.mkdir()
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            if folder.exists() and os.stat(folder).st_ino == os.fstat(fd).st_ino:
+                yield
+                return
+        finally:
+            os.close(fd)
+
+
 def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Path:
-    """Write the flight's tables into a temporary folder beside its partition, then rename it in;
-    an existing partition (--force) is moved aside only once the new one is complete."""
+    """Write the flight's tables into a temporary folder beside its partition, locked while it is
+    written, then rename it in; an existing partition (--force) is moved aside only once the new
+    one is complete."""
     target = flight_dir(dataset, flight)
     target.parent.mkdir(parents=True, exist_ok=True)
-    old = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.old")
+    token = f"{os.getpid()}-{secrets.token_hex(4)}"
+    tmp, old = scratch(target, token, WRITING), scratch(target, token, REPLACED)
 
-    def write(tmp: Path) -> None:
-        tmp.mkdir()
+    def write(folder: Path) -> None:
         for name, table in tables.items():
-            pq.write_table(table, tmp / f"{name}.parquet")
+            pq.write_table(table, folder / f"{name}.parquet")
         if target.exists():
             target.rename(old)
 
     try:
-        write_beside(target, write)
+        with writing(tmp):
+            write_beside(target, write, tmp)
     finally:
         shutil.rmtree(old, ignore_errors=True)
     with contextlib.suppress(FileNotFoundError):
         failure_file(dataset, flight).unlink()  # it can be read now
     return target
+
+
+def remove_leftovers(dataset: Path) -> list[str]:
+    """Remove the temporary partition folders whose writer is gone (killed mid-flight): a
+    `.tmp` nobody holds locked, an `.old` whose `.tmp` is not being written. Returns their names.
+    The lock is taken before the folder is removed, so a writer never loses one it holds."""
+    root = dataset / FLIGHTS
+    if not root.is_dir():
+        return []
+    removed = []
+    for folder in sorted(root.iterdir()):
+        base, _, kind = folder.name.rpartition(".")
+        if not folder.name.startswith(".flight=") or kind not in (WRITING, REPLACED):
+            continue
+        written = folder.with_name(f"{base}.{WRITING}")
+        with _unless_locked(written) as free:
+            if free:
+                shutil.rmtree(folder, ignore_errors=True)  # the old one goes with its writer's
+                removed.append(folder.name)
+    return removed
+
+
+@contextlib.contextmanager
+def _unless_locked(folder: Path) -> Iterator[bool]:
+    """True (holding its lock) when no live writer holds `folder` locked or it is gone, else False."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except FileNotFoundError:
+        yield True
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.close(fd)
 
 
 def write_failure(dataset: Path, flight: str, path: str, reason: str) -> None:

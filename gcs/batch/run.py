@@ -45,6 +45,7 @@ def find_flights(items: Iterable[str]) -> list[str]:
 class BatchOutcome:
     done: list[FlightResult]  # processed now (good and failed)
     skipped: list[str]  # already in the dataset
+    removed: list[str]  # temporary folders of writers killed mid-flight, removed first
 
 
 def run_batch(
@@ -56,9 +57,11 @@ def run_batch(
     force: bool = False,
     on_result: Callable[[FlightResult], None] | None = None,
 ) -> BatchOutcome:
-    """One task per flight not yet in the dataset at `out` (every flight with `force`)."""
+    """One task per flight not yet in the dataset at `out` (every flight with `force`), once the
+    temporary folders a killed run left there are removed."""
     root = Path(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
+    removed = dataset.remove_leftovers(root)
     done = set() if force else dataset.done_flights(root)
     todo = [f for f in flights if dataset.flight_id(f) not in done]
     skipped = [f for f in flights if dataset.flight_id(f) in done]
@@ -74,4 +77,4 @@ def run_batch(
         results.append(result)
         if on_result is not None:
             on_result(result)
-    return BatchOutcome(sorted(results, key=lambda r: r.path), skipped)
+    return BatchOutcome(sorted(results, key=lambda r: r.path), skipped, removed)

@@ -81,6 +81,9 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"gcs batch: error: {cluster_error(exc, args)}", file=sys.stderr)
         return 2
+    if outcome.removed:
+        folders = ", ".join(outcome.removed)
+        print(f"removed {len(outcome.removed)} temporary folders a killed run left in {args.out}: {folders}")
     failed = [r for r in outcome.done if not r.ok]
     written = len(outcome.done) - len(failed)
     skipped = len(outcome.skipped)

@@ -26,6 +26,7 @@ links:
   tcpin:HOST:PORT    listen for one TCP ground station (e.g. tcpin:127.0.0.1:5760)
   tcp:HOST:PORT      dial a TCP server
   pty:PATH           a pseudo-terminal serial port whose slave appears as a symlink at PATH
+                     (one a killed sim left is replaced; a live one or a file is refused)
 
 profiles:
   apm25    ArduCopter 3.2.1 on APM 2.5: MAVLink 1, all streams off until REQUEST_DATA_STREAM

@@ -39,6 +39,7 @@ from gcs.logs.dataflash_format import DataflashContents, RecordFormat, field_tex
 from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import converted
+from gcs.mavlink.identity import dataflash_label
 
 #: Record types per sensor, the first instance first (new logs use the first name only).
 IMU_TYPES = ("IMU", "IMU2", "IMU3")
@@ -48,6 +49,8 @@ GPS_TYPES = ("GPS", "GPS2")
 REFERENCES = {"ATT": "onboard", "AHR2": "ahrs2", "SIM": "truth"}
 #: Parameter record (Name, Value; untimed in ArduCopter 3.1-3.2): where COMPASS_DEC comes from.
 PARAM_TYPE = "PARM"
+#: Text messages (the firmware's banner, "ArduCopter V4.7.0-dev (90700977)"): only name the vehicle.
+MESSAGE_TYPE = "MSG"
 TYPES = (*IMU_TYPES, *MAG_TYPES, *GPS_TYPES, *REFERENCES, PARAM_TYPE)
 #: The columns each type must have to be read (else its FMT is refused as damage).
 COLUMNS = {
@@ -56,6 +59,7 @@ COLUMNS = {
     **dict.fromkeys(GPS_TYPES, ("Status", "Lat", "Lng", "Alt", "Spd", "GCrs")),
     **dict.fromkeys(REFERENCES, ("Roll", "Pitch", "Yaw")),
     PARAM_TYPE: ("Name", "Value"),
+    MESSAGE_TYPE: ("Message",),
 }
 #: GPS time (week 0 began 1980-01-06) → UNIX time, and GPS − UTC since 2017 (s).
 GPS_EPOCH_UNIX = 315_964_800
@@ -143,6 +147,19 @@ def attitude_rows(att: Records, t: Floats) -> Floats:
     return np.column_stack([t, att.column("Roll") * DEG_TO_RAD, att.column("Pitch") * DEG_TO_RAD, yaw])
 
 
+def _vehicle(contents: DataflashContents) -> str | None:
+    """The log's vehicle label from its MSG banners and the first value of each parameter."""
+    messages = contents.records.get(MESSAGE_TYPE)
+    banners = [] if messages is None else [field_text(bytes(m)) for m in messages["Message"]]
+    params: dict[str, float] = {}
+    rows = contents.records.get(PARAM_TYPE)
+    if rows is not None:
+        values = scaled(rows, contents.formats[PARAM_TYPE], "Value").tolist()
+        for raw, value in zip(rows["Name"].tolist(), values, strict=True):
+            params.setdefault(field_text(raw), value)
+    return dataflash_label(banners, params)
+
+
 class DataflashLog(LogFile):
     """The inputs of a .bin log in file order (see LogFile for what it reports): IMU instance
     `imu`, MAG and GPS instance 0, every reference. `columns()` gives them as an input table,
@@ -158,6 +175,7 @@ class DataflashLog(LogFile):
             first, more = contents.damage[0], len(contents.damage) - 1
             self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
             self.damage += f" ({more} more damaged places)" if more else ""
+        self.vehicle = _vehicle(contents)
         streams = self._streams(contents)
         return _Merged(self, streams).table()
 
@@ -166,6 +184,8 @@ class DataflashLog(LogFile):
         record of these types before them; types without time noted and left out."""
         streams = {}
         for name, rows in contents.records.items():
+            if name == MESSAGE_TYPE:
+                continue
             fmt = contents.formats[name]
             instance, time_us = record_instance(name, rows, fmt), record_time_us(name, rows, fmt)
             streams[name] = Records(name, rows, fmt, contents.positions[name], instance, time_us)

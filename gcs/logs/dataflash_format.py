@@ -55,7 +55,7 @@ TYPES = {
 #: Text format characters (char[4], char[16], char[64]) and the int16[32] array.
 TEXT = "nNZa"
 #: Columns that are text in every record type that has them (PARM's, MSG's).
-TEXT_COLUMNS = ("Name",)
+TEXT_COLUMNS = ("Name", "Message")
 #: Scaled format characters → the divisor DFReader applies (1 / its multiplier: 0.01, 1e-7).
 DIVISORS = {"c": 1 / 0.01, "C": 1 / 0.01, "e": 1 / 0.01, "E": 1 / 0.01, "L": 1 / 1.0e-7}
 #: Bytes that are no record this close to the end are a block log's padding (DFReader's rule).

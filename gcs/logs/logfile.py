@@ -21,8 +21,9 @@ class LogFile:
     or where and why reading stopped early or skipped data) and `notes` (sensors the log lacks,
     so a gyro-only heading is explained rather than hidden), `declination` (the declination its
     parameters or, failing them, the World Magnetic Model at its first 3D fix gave, and the
-    source: yielded as `GainChange`s where it changes, as from a .tlog). `imu` selects the IMU
-    instance (0: the first, the one the autopilot uses by default)."""
+    source: yielded as `GainChange`s where it changes, as from a .tlog), `vehicle` (its label as
+    gcs.mavlink.identity makes it from what the log says, None when it says nothing). `imu`
+    selects the IMU instance (0: the first, the one the autopilot uses by default)."""
 
     def __init__(self, path: str, imu: int = 0) -> None:
         self.path = path
@@ -33,6 +34,7 @@ class LogFile:
         self.damage: str | None = None
         self.notes: list[str] = []
         self.declination = VehicleDeclination()
+        self.vehicle: str | None = None
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         raise NotImplementedError  # each reader yields its samples in time order

@@ -33,6 +33,7 @@ from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, degE7_to_deg,
 from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog_format import read_ulog
+from gcs.mavlink.identity import ulog_label
 
 IMU_TOPIC = "sensor_combined"
 ATTITUDE_TOPIC = "vehicle_attitude"
@@ -150,6 +151,7 @@ class UlogFile(LogFile):
             first, more = contents.damage[0], len(contents.damage) - 1
             self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
             self.damage += f" ({more} more damaged places)" if more else ""
+        self.vehicle = ulog_label(contents.info, contents.initial_parameters)
         topics = {name: columns_of(rows) for (name, multi_id), rows in contents.topics.items() if multi_id == 0}
         imus = sorted(m for name, m in contents.topics if name == IMU_TOPIC)
         if self.imu not in imus:

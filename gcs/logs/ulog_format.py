@@ -96,12 +96,14 @@ class Damage:
 @dataclass
 class UlogContents:
     """What `read_ulog` found. `topics[(name, multi_id)]`: every data row of that topic in file
-    order (structured, pyulog's field names); `changed_parameters`: (timestamp µs, name, value)."""
+    order (structured, pyulog's field names); `changed_parameters`: (timestamp µs, name, value);
+    `info`: the text information messages ('I': sys_name, ver_hw, ver_sw ...)."""
 
     start_us: int
     topics: dict[tuple[str, int], npt.NDArray[np.void]] = field(default_factory=dict)
     initial_parameters: dict[str, float] = field(default_factory=dict)
     changed_parameters: list[tuple[int, str, float]] = field(default_factory=list)
+    info: dict[str, str] = field(default_factory=dict)
     damage: list[Damage] = field(default_factory=list)
 
 
@@ -155,6 +157,15 @@ def _parameter(payload: bytes) -> tuple[str, float] | None:
     if code is None or len(payload) - 1 - key_len != struct.calcsize(code):
         return None
     return name, float(struct.unpack_from(code, payload, 1 + key_len)[0])
+
+
+def _info(payload: bytes) -> tuple[str, str] | None:
+    """An 'I' message: (name, text) for a text one ("char[3] sys_name" "PX4"), else None."""
+    key_len = payload[0]
+    kind, _, name = _text(payload[1 : 1 + key_len]).partition(" ")
+    if not kind.startswith("char["):
+        return None
+    return name, _text(payload[1 + key_len :]).split("\0", 1)[0]
 
 
 def _segments(buf: npt.NDArray[np.uint8], contents: UlogContents) -> list[tuple[int, int]]:
@@ -245,6 +256,10 @@ def read_ulog(path: str, wanted: Collection[str]) -> UlogContents:
                     contents.initial_parameters[parameter[0]] = parameter[1]
                 elif parameter is not None:
                     parameters.append((at, *parameter))
+            elif kind == "I":
+                info = _info(payload)
+                if info is not None:
+                    contents.info.setdefault(*info)
             elif kind == "A":
                 multi_id, msg_id = struct.unpack_from("<BH", payload)
                 subscriptions.append((at, msg_id, _text(payload[3:]), multi_id))

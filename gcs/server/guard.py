@@ -28,6 +28,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 MAX_BODY = 64 * 1024
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+#: The ASGI extension for answering a WebSocket handshake with an HTTP response (uvicorn has it):
+#: a refused WebSocket then gets the status and the reason a refused request gets.
+DENIAL_RESPONSE = "websocket.http.response"
 
 #: `Origin-Agent-Cluster: ?1` makes Chromium give the page's origin a renderer process of its own.
 #: The viser 3-D view (an iframe from the same host, another port) is same-site and would otherwise
@@ -178,8 +181,8 @@ async def _reject(scope: Scope, receive: Receive, send: Send, reason: str, statu
         "origin": "refused: requests from another web page's origin are not accepted",
         "size": f"refused: request body larger than {MAX_BODY} bytes",
     }[reason]
-    if scope["type"] == "websocket":
-        await send({"type": "websocket.close", "code": 1008, "reason": text})
+    if scope["type"] == "websocket" and DENIAL_RESPONSE not in scope.get("extensions", {}):
+        await send({"type": "websocket.close", "code": 1008, "reason": text})  # seen as a bare 403
         return
     response = PlainTextResponse(
         text, status_code=status, headers={k.decode(): v.decode() for k, v in SECURITY_HEADERS}

@@ -1,7 +1,8 @@
 """Several vehicles on one server: GET /api/vehicles lists them, and every /api and /ws route is
 served again per vehicle under /api/vehicles/{sysid}/ (/api/status → /api/vehicles/2/status,
 /ws/live → /api/vehicles/2/ws/live), where `get_station` and `get_hub` (gcs.server.deps) pick
-that vehicle's core and live hub. The one-vehicle URLs keep serving the first vehicle."""
+that vehicle's core and live hub. The one-vehicle URLs keep serving the first vehicle. A sysid
+that is no number is a 422 with its reason, over REST and at a WebSocket's handshake alike."""
 
 from __future__ import annotations
 
@@ -9,8 +10,9 @@ import copy
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, Request
+from fastapi import APIRouter, FastAPI, HTTPException, Request, WebSocket, status
 from fastapi.routing import APIRoute, APIWebSocketRoute
+from starlette.convertors import Convertor, register_url_convertor
 from starlette.datastructures import State
 from starlette.routing import compile_path
 
@@ -22,6 +24,43 @@ from gcs.server.models import VehicleSummary
 VEHICLE_PREFIX = "/api/vehicles/{sysid:int}"
 
 router = APIRouter(tags=["vehicles"])
+
+
+class NotANumber(Convertor[str]):
+    """A path segment that is no system id: not all digits (VEHICLE_PREFIX's `int` takes those)."""
+
+    regex = "[^/]*[^0-9/][^/]*"
+
+    def convert(self, value: str) -> str:
+        return value
+
+    def to_string(self, value: str) -> str:
+        return value
+
+
+register_url_convertor("not_a_number", NotANumber())
+#: Any path under /api/vehicles/ whose sysid is no number: no vehicle route matches it.
+NOT_A_SYSID = "/api/vehicles/{sysid:not_a_number}/{rest:path}"
+
+
+def not_a_sysid(sysid: str) -> HTTPException:
+    """422, as for any other path parameter that is not what it must be, with the one line that
+    says so."""
+    return HTTPException(
+        status.HTTP_422_UNPROCESSABLE_CONTENT,
+        detail=f"sysid {sysid!r} is not a number (GET /api/vehicles lists the vehicles)",
+    )
+
+
+async def refuse_http(sysid: str) -> None:
+    raise not_a_sysid(sysid)
+
+
+async def refuse_websocket(websocket: WebSocket, sysid: str) -> None:
+    """Raised before the handshake is accepted, FastAPI answers it as a WebSocket denial
+    response: the client sees the 422 and the reason, as over REST, where the router's own
+    refusal was a bare 403."""
+    raise not_a_sysid(sysid)
 
 
 @router.get("/api/vehicles", response_model=list[VehicleSummary])
@@ -90,6 +129,9 @@ def serve_vehicles(
         for route in each.routes:
             if isinstance(route, APIRoute | APIWebSocketRoute) and route.path.startswith(("/api/", "/ws/")):
                 per_vehicle.routes.append(vehicle_route(route))
+    methods = ["GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"]
+    per_vehicle.add_api_route(NOT_A_SYSID, refuse_http, methods=methods, include_in_schema=False)
+    per_vehicle.add_api_websocket_route(NOT_A_SYSID, refuse_websocket)
     app.include_router(per_vehicle)
 
 

@@ -101,11 +101,11 @@ def export(
     return write_beside(Path(out), lambda tmp: write_contents(contents, fmt, tmp))
 
 
-def write_beside(target: Path, write: Callable[[Path], T]) -> T:
-    """write(tmp) on a temporary path beside target (same file system: the rename is atomic),
-    then rename it to target; on any error target is untouched and tmp removed. An OSError names
-    target, not the temporary path. tmp may be a file or a folder."""
-    tmp = target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+def write_beside(target: Path, write: Callable[[Path], T], tmp: Path | None = None) -> T:
+    """write(tmp) on a temporary path beside target (same file system: the rename is atomic;
+    one of its own unless given), then rename it to target; on any error target is untouched and
+    tmp removed. An OSError names target, not the temporary path. tmp may be a file or a folder."""
+    tmp = tmp or target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
         result = write(tmp)
         os.replace(tmp, target)

@@ -206,7 +206,8 @@ class _Decoded:
     damage: str | None
     framing: FramingCounters | None = None
     span: tuple[float, float] | None = None
-    #: the replayed vehicle's name from its HEARTBEAT (a tlog's), as a session's meta names it
+    #: the replayed vehicle's name (a tlog's from its HEARTBEAT, a log's from what it says of it),
+    #: as a session's meta names it
     vehicle: str | None = None
 
 
@@ -282,7 +283,7 @@ def _decode_log(path: str) -> _Decoded:
     log = LOG_FILES[os.path.splitext(path)[1].lower()](path)
     table = log.columns()
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
-    return _Decoded(sample_frames(table), table, dict(log.counts), log.damage, span=span)
+    return _Decoded(sample_frames(table), table, dict(log.counts), log.damage, span=span, vehicle=log.vehicle)
 
 
 def sample_frames(table: InputTable) -> Frames:
@@ -362,4 +363,5 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             key=key,
         )
     d = _decode_log(path)
-    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, key=key)
+    meta = {"vehicle": {"label": d.vehicle}} if d.vehicle else {}  # what the log says of its vehicle
+    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=meta, key=key)

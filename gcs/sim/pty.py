@@ -2,7 +2,8 @@
 
 A ground station opens that path as if it were a USB or radio serial port. Closing the endpoint
 removes the symlink and closes the master, so the ground station's reads fail with EIO exactly
-as when a USB cable is pulled; opening a new endpoint at the same path plugs it back in.
+as when a USB cable is pulled; opening a new endpoint at the same path plugs it back in. A link
+left by a vehicle killed with SIGKILL (its target gone) is replaced; a live one never is.
 
 The vehicle keeps its own slave descriptor open for as long as the port exists: with no slave
 open, Linux reports EIO on the master, which would look like a hang-up before anyone connected.
@@ -16,6 +17,20 @@ import tty
 
 from gcs.transport.address import Address
 from gcs.transport.pipes import BatchCallback, DataCallback, SerialTransport
+
+
+def remove_stale_link(path: str) -> None:
+    """Clear `path` for a new port: remove a symlink whose target is gone (left by a vehicle killed
+    with SIGKILL, which could not remove it; its pseudo-terminal went with it). Anything else
+    there is refused: a file or folder, and a link to a device that exists, which is another
+    running vehicle's port (or a terminal that took its number since)."""
+    if not os.path.lexists(path):
+        return
+    if not os.path.islink(path):
+        raise OSError(f"{path} exists and is not a symlink; not replacing it")
+    if os.path.exists(path):
+        raise OSError(f"{path} links to {os.readlink(path)}, which is open (another vehicle's port?); not replacing it")
+    os.unlink(path)
 
 
 class PtyTransport(SerialTransport):
@@ -33,15 +48,17 @@ class PtyTransport(SerialTransport):
         self._slave: int | None = None
 
     async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
-        if os.path.lexists(self.path) and not os.path.islink(self.path):
-            raise OSError(f"{self.path} exists and is not a symlink; not replacing it")
+        remove_stale_link(self.path)
         self._new_closed_future()
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line discipline: bytes pass through untouched
         os.set_blocking(master, False)
-        if os.path.islink(self.path):
-            os.unlink(self.path)  # left behind by a vehicle that was killed
-        os.symlink(os.ttyname(slave), self.path)
+        try:
+            os.symlink(os.ttyname(slave), self.path)
+        except FileExistsError:  # another vehicle made it since: it is theirs
+            os.close(master)
+            os.close(slave)
+            raise OSError(f"{self.path} was just made by another program; not replacing it") from None
         self._master, self._slave, self._fd, self._on_data = master, slave, master, on_data
         asyncio.get_running_loop().add_reader(master, self._readable)
 
