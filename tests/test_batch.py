@@ -151,6 +151,15 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
         "ardupilot-fragment.bin": "ArduPilot-FIXED_WING-1",
         "px4-flight-sample.ulg": "PX4-QUADROTOR-1",
     }, logs
+    # and its firmware from what the log says (it was empty for every bare log): a DataFlash MSG
+    # banner, a tlog's STATUSTEXT banner, a ULog's ver_sw git hash (it has no ver_sw_release); the
+    # hop's tlog has no banner and no AUTOPILOT_VERSION, and says none
+    firmware = {Path(r["path"]).name: r["firmware"] for r in summary if r["path"] not in flights["sessions"]}
+    assert firmware["arducopter-sitl-hop.BIN"] == "ArduCopter 4.7.0-dev (90700977)", firmware
+    assert firmware["ardupilot-fragment.bin"] == "ArduPlane 3.8.2-dev (8178ab40)", firmware
+    assert firmware["arduplane-sitl-vtol.tlog"] == "ArduPlane 3.10.0-dev (f2b4e06a)", firmware
+    assert firmware["px4-flight-sample.ulg"] == "git fd483321", firmware
+    assert firmware["arducopter-sitl-hop.tlog"] == "", firmware
     assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
     attitude = dataset.read_table(batch, "attitude")
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)

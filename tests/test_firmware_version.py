@@ -5,13 +5,15 @@ metadata; the APM 2.5 has no AUTOPILOT_VERSION and is known by its STATUSTEXT ba
 from __future__ import annotations
 
 import asyncio
+import shutil
 
 from live import running_sim, running_station, wait_for
 
 from gcs.mavlink.dialect import mavlink
-from gcs.runtime.firmware import banner_version, version_of
+from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.runtime.station import Station, StationConfig
 from gcs.sessions import layout
+from gcs.sessions.sources import open_source
 
 
 def version_message(flight_sw_version: int, custom: bytes):
@@ -51,6 +53,11 @@ def test_pixhawk_version_requested_at_connect_reaches_the_metadata(udp_port, tmp
     firmware, meta = asyncio.run(scenario())
     assert firmware == "4.5.7"
     assert meta["vehicle"]["firmware"] == "4.5.7"
+    # the session's tlog alone, as another tool would keep it: the same version, from the
+    # AUTOPILOT_VERSION it recorded (a bare tlog's firmware was unknown)
+    (folder,) = [p for p in tmp_path.iterdir() if layout.is_session(p)]
+    bare = shutil.copy(layout.session_file(folder, layout.TLOG), tmp_path / "flight.tlog")
+    assert open_source(bare).meta["vehicle"]["firmware"] == "4.5.7"
 
 
 def test_apm25_version_from_its_banner(udp_port):

@@ -110,8 +110,8 @@ def within(speed: float, duration: float, seconds: float) -> bool:
 
 def test_a_dataflash_log_names_its_vehicle_only_as_far_as_it_says(hop_logs, tmp_path):
     """The hop's samples alone say nothing of the vehicle (no vehicle in the meta, "unknown" in a
-    dataset); an ArduCopter banner says ArduPilot but neither type nor id ("?"); FRAME_CLASS 2
-    and SYSID_THISMAV 7 then say a hexarotor numbered 7."""
+    dataset); an ArduCopter banner says ArduPilot and its firmware but neither type nor id ("?");
+    FRAME_CLASS 2 and SYSID_THISMAV 7 then say a hexarotor numbered 7."""
     folder, _ = hop_logs
     samples = (folder / "new.bin").read_bytes()
     assert open_source(folder / "new.bin").meta == {}
@@ -121,11 +121,13 @@ def test_a_dataflash_log_names_its_vehicle_only_as_far_as_it_says(hop_logs, tmp_
     told.define("MSG", "QZ", "TimeUS,Message", 200)
     told.add("MSG", 0, b"ArduCopter V4.5.7 (2a3dc4b7)")
     (tmp_path / "banner.bin").write_bytes(told.bytes() + samples)
-    assert open_source(tmp_path / "banner.bin").meta == {"vehicle": {"label": "ArduPilot-?-?"}}
+    firmware = "ArduCopter 4.5.7 (2a3dc4b7)"
+    assert open_source(tmp_path / "banner.bin").meta == {"vehicle": {"label": "ArduPilot-?-?", "firmware": firmware}}
     told.add("PARM", 0, b"FRAME_CLASS", 2.0)
     told.add("PARM", 0, b"SYSID_THISMAV", 7.0)
     (tmp_path / "params.bin").write_bytes(told.bytes() + samples)
-    assert open_source(tmp_path / "params.bin").meta == {"vehicle": {"label": "ArduPilot-HEXAROTOR-7"}}
+    told_all = {"vehicle": {"label": "ArduPilot-HEXAROTOR-7", "firmware": firmware}}
+    assert open_source(tmp_path / "params.bin").meta == told_all
 
 
 def test_ulog_counts_and_span_match_pyulog(logs_dir):

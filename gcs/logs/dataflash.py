@@ -39,6 +39,7 @@ from gcs.logs.dataflash_format import DataflashContents, RecordFormat, field_tex
 from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import converted
+from gcs.mavlink.firmware_version import banner_version
 from gcs.mavlink.identity import dataflash_label
 
 #: Record types per sensor, the first instance first (new logs use the first name only).
@@ -147,17 +148,19 @@ def attitude_rows(att: Records, t: Floats) -> Floats:
     return np.column_stack([t, att.column("Roll") * DEG_TO_RAD, att.column("Pitch") * DEG_TO_RAD, yaw])
 
 
-def _vehicle(contents: DataflashContents) -> str | None:
-    """The log's vehicle label from its MSG banners and the first value of each parameter."""
+def _vehicle(contents: DataflashContents) -> tuple[str | None, str | None]:
+    """The log's vehicle label (from its MSG banners and the first value of each parameter) and
+    firmware (its first banner's version)."""
     messages = contents.records.get(MESSAGE_TYPE)
-    banners = [] if messages is None else [field_text(bytes(m)) for m in messages["Message"]]
+    texts = [] if messages is None else [field_text(bytes(m)) for m in messages["Message"]]
     params: dict[str, float] = {}
     rows = contents.records.get(PARAM_TYPE)
     if rows is not None:
         values = scaled(rows, contents.formats[PARAM_TYPE], "Value").tolist()
         for raw, value in zip(rows["Name"].tolist(), values, strict=True):
             params.setdefault(field_text(raw), value)
-    return dataflash_label(banners, params)
+    firmware = next((v for v in map(banner_version, texts) if v is not None), None)
+    return dataflash_label(texts, params), firmware
 
 
 class DataflashLog(LogFile):
@@ -175,7 +178,7 @@ class DataflashLog(LogFile):
             first, more = contents.damage[0], len(contents.damage) - 1
             self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
             self.damage += f" ({more} more damaged places)" if more else ""
-        self.vehicle = _vehicle(contents)
+        self.vehicle, self.firmware = _vehicle(contents)
         streams = self._streams(contents)
         return _Merged(self, streams).table()
 

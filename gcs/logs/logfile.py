@@ -22,7 +22,8 @@ class LogFile:
     so a gyro-only heading is explained rather than hidden), `declination` (the declination its
     parameters or, failing them, the World Magnetic Model at its first 3D fix gave, and the
     source: yielded as `GainChange`s where it changes, as from a .tlog), `vehicle` (its label as
-    gcs.mavlink.identity makes it from what the log says, None when it says nothing). `imu`
+    gcs.mavlink.identity makes it from what the log says, None when it says nothing) and
+    `firmware` (its version as the log gives it, None when it does not). `imu`
     selects the IMU instance (0: the first, the one the autopilot uses by default)."""
 
     def __init__(self, path: str, imu: int = 0) -> None:
@@ -35,6 +36,7 @@ class LogFile:
         self.notes: list[str] = []
         self.declination = VehicleDeclination()
         self.vehicle: str | None = None
+        self.firmware: str | None = None
 
     def __iter__(self) -> Iterator[ImuSample | GpsSample | AttitudeSample | GainChange]:
         raise NotImplementedError  # each reader yields its samples in time order

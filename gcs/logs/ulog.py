@@ -33,6 +33,7 @@ from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, degE7_to_deg,
 from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog_format import read_ulog
+from gcs.mavlink.firmware_version import packed_version
 from gcs.mavlink.identity import ulog_label
 
 IMU_TOPIC = "sensor_combined"
@@ -136,6 +137,16 @@ def merge_order(keys: list[tuple[npt.NDArray[np.uint64], int]]) -> tuple[npt.NDA
     return pairs[:, 0], pairs[:, 1]
 
 
+def _firmware(info: dict[str, str]) -> str | None:
+    """PX4's version from its info messages: "1.14.0 (fd483321)" from ver_sw_release (packed as
+    AUTOPILOT_VERSION's) and the git hash ver_sw, "git fd483321" from the hash alone."""
+    release = int(info.get("ver_sw_release", "0"))
+    commit = info.get("ver_sw", "")[:8]
+    if release:
+        return packed_version(release) + (f" ({commit})" if commit else "")
+    return f"git {commit}" if commit else None
+
+
 class UlogFile(LogFile):
     """The inputs of a .ulg in timestamp order (see LogFile for what it reports); `imu` selects
     the sensor_combined instance (multi_id). `columns()` gives them as an input table, iterating
@@ -152,6 +163,7 @@ class UlogFile(LogFile):
             self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
             self.damage += f" ({more} more damaged places)" if more else ""
         self.vehicle = ulog_label(contents.info, contents.initial_parameters)
+        self.firmware = _firmware(contents.info)
         topics = {name: columns_of(rows) for (name, multi_id), rows in contents.topics.items() if multi_id == 0}
         imus = sorted(m for name, m in contents.topics if name == IMU_TOPIC)
         if self.imu not in imus:

@@ -97,7 +97,7 @@ class Damage:
 class UlogContents:
     """What `read_ulog` found. `topics[(name, multi_id)]`: every data row of that topic in file
     order (structured, pyulog's field names); `changed_parameters`: (timestamp µs, name, value);
-    `info`: the text information messages ('I': sys_name, ver_hw, ver_sw ...)."""
+    `info`: the information messages ('I': sys_name, ver_hw, ver_sw ..., uint32_t ones in decimal)."""
 
     start_us: int
     topics: dict[tuple[str, int], npt.NDArray[np.void]] = field(default_factory=dict)
@@ -160,12 +160,16 @@ def _parameter(payload: bytes) -> tuple[str, float] | None:
 
 
 def _info(payload: bytes) -> tuple[str, str] | None:
-    """An 'I' message: (name, text) for a text one ("char[3] sys_name" "PX4"), else None."""
+    """An 'I' message: (name, text) for a text one ("char[3] sys_name" "PX4") or a uint32_t one
+    in decimal ("uint32_t ver_sw_release"), else None."""
     key_len = payload[0]
     kind, _, name = _text(payload[1 : 1 + key_len]).partition(" ")
+    value = payload[1 + key_len :]
+    if kind == "uint32_t" and len(value) == 4:
+        return name, str(struct.unpack("<I", value)[0])
     if not kind.startswith("char["):
         return None
-    return name, _text(payload[1 + key_len :]).split("\0", 1)[0]
+    return name, _text(value).split("\0", 1)[0]
 
 
 def _segments(buf: npt.NDArray[np.uint8], contents: UlogContents) -> list[tuple[int, int]]:

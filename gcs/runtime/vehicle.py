@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 from pymavlink import mavutil
 
 from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.mavlink.identity import autopilot_name, enum_name
 from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
-from gcs.runtime.firmware import banner_version, version_of
 from gcs.runtime.link import Link
 from gcs.runtime.sequence_watch import SequenceWatch
 from gcs.runtime.signal import Signal

@@ -34,6 +34,7 @@ from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.identity import heartbeat_label, is_vehicle_heartbeat
 from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
@@ -206,9 +207,16 @@ class _Decoded:
     damage: str | None
     framing: FramingCounters | None = None
     span: tuple[float, float] | None = None
-    #: the replayed vehicle's name (a tlog's from its HEARTBEAT, a log's from what it says of it),
-    #: as a session's meta names it
+    #: the replayed vehicle's name (a tlog's from its HEARTBEAT, a log's from what it says of it)
+    #: and its firmware's version, as a session's meta names them
     vehicle: str | None = None
+    firmware: str | None = None
+
+    def meta(self) -> dict:
+        """What a session's meta.json would say of the vehicle, for a bare log: only what it said."""
+        known = {"label": self.vehicle, "firmware": self.firmware}
+        vehicle = {k: v for k, v in known.items() if v}
+        return {"vehicle": vehicle} if vehicle else {}
 
 
 def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChange]]) -> _Decoded:
@@ -221,6 +229,7 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
     table = InputTableBuilder()
     counts: Counter[str] = Counter()
     labels: dict[int, str] = {}  # each vehicle's name, from its first HEARTBEAT
+    firmwares: dict[int, str] = {}  # each vehicle's firmware, from its banner or AUTOPILOT_VERSION
     position = 0  # estimation input messages so far (the live pipeline's input index)
     for offset, usec, packet in records.records():
         sent = usec & 3 == 3
@@ -228,6 +237,8 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
             counts[kind] += 1
             if kind == "HEARTBEAT" and not sent and counts[kind] <= LABEL_HEARTBEATS:
                 _name_vehicle(decode(raw), labels)
+            elif kind in FIRMWARE_TYPES and not sent:
+                _note_firmware(decode(raw), firmwares)
             if sent or kind not in INPUT_TYPES:  # framed and counted, not decoded
                 continue
             while pending and pending[0][0] <= position:
@@ -247,8 +258,9 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
     span = (float(built.t[0]), float(built.t[-1])) if len(built) else None
     sampler = to_inputs.sampler
     replayed = sampler.system if sampler.system is not None else sampler.attitude_system
-    vehicle = labels.get(replayed) if replayed is not None else next(iter(labels.values()), None)
-    return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span, vehicle)
+    sysid = replayed if replayed is not None else next(iter(labels), -1)  # else the first vehicle heard
+    vehicle, firmware = labels.get(sysid), firmwares.get(sysid)
+    return _Decoded(built, table.build(), dict(counts), damage, decoder.counters, span, vehicle, firmware)
 
 
 #: HEARTBEATs of a tlog looked at for its vehicles' names (the first few: each system sends one a second)
@@ -259,6 +271,21 @@ def _name_vehicle(msg: MAVLinkMessage, labels: dict[int, str]) -> None:
     """The vehicle's name from its first HEARTBEAT (ground stations' and companions' are none)."""
     if msg.get_srcSystem() not in labels and is_vehicle_heartbeat(msg):
         labels[msg.get_srcSystem()] = heartbeat_label(msg)
+
+
+#: What names a vehicle's firmware in a tlog (as the live vehicle state reads it)
+FIRMWARE_TYPES = ("STATUSTEXT", "AUTOPILOT_VERSION")
+
+
+def _note_firmware(msg: MAVLinkMessage, firmwares: dict[int, str]) -> None:
+    """The firmware's version as the live state takes it: the first banner, else AUTOPILOT_VERSION."""
+    sysid, known = msg.get_srcSystem(), firmwares.get(msg.get_srcSystem())
+    if msg.get_type() == "STATUSTEXT":
+        banner = banner_version(msg.text)
+        if banner is not None and (known is None or known[0].isdigit()):
+            firmwares[sysid] = banner
+    elif known is None:
+        firmwares[sysid] = version_of(msg)
 
 
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
@@ -283,7 +310,9 @@ def _decode_log(path: str) -> _Decoded:
     log = LOG_FILES[os.path.splitext(path)[1].lower()](path)
     table = log.columns()
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
-    return _Decoded(sample_frames(table), table, dict(log.counts), log.damage, span=span, vehicle=log.vehicle)
+    return _Decoded(
+        sample_frames(table), table, dict(log.counts), log.damage, span=span, vehicle=log.vehicle, firmware=log.firmware
+    )
 
 
 def sample_frames(table: InputTable) -> Frames:
@@ -348,7 +377,7 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
         )
     if kind == "tlog":
         d = _decode_tlog(path, {}, [])
-        meta = {"vehicle": {"label": d.vehicle}} if d.vehicle else {}  # as a session's meta.json names it
+        meta = d.meta()
         return ReplaySource(
             path,
             kind,
@@ -363,5 +392,4 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             key=key,
         )
     d = _decode_log(path)
-    meta = {"vehicle": {"label": d.vehicle}} if d.vehicle else {}  # what the log says of its vehicle
-    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=meta, key=key)
+    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=d.meta(), key=key)
