@@ -26,7 +26,7 @@ from gcs.commands.cli import build_parser
 from gcs.commands.common import tidy
 from gcs.logs.readers import READERS
 from gcs.mavlink.tlog import read_tlog_records
-from gcs.runtime.recorder import SENT
+from gcs.runtime.recorder import RECEIVED, SENT, TlogClock
 from gcs.sessions import layout
 from gcs.sessions.export import FORMATS
 from gcs.sessions.recovery import release_lock, take_lock
@@ -425,7 +425,16 @@ def test_tlog_stamps_never_go_backwards_with_sent_and_received_packets(udp_port,
     assert len(sent) >= 10 and len(stamps) > 2000
     received = [k for k, usec in enumerate(stamps) if usec & 3 != SENT]
     assert any(received[0] < k < received[-1] for k in sent)  # sends between received packets, not only at an end
-    backwards = [
-        (k, stamps[k - 1] - stamps[k]) for k in range(1, len(stamps)) if (stamps[k] & ~3) < (stamps[k - 1] & ~3)
-    ]
+    # the whole stamp, link bits included: pymavlink, MAVProxy and Mission Planner read it as the time
+    backwards = [(k, stamps[k - 1] - stamps[k]) for k in range(1, len(stamps)) if stamps[k] < stamps[k - 1]]
     assert backwards == [], backwards[:5]
+
+
+def test_a_packet_received_before_a_send_is_stamped_after_it_link_bits_and_all():
+    """A chunk read before a send but stamped after it takes the send's µs: with the link bits
+    (3 on the sent packet, 0 on the received) that stamp was 3 µs earlier than the send's."""
+    clock = TlogClock()
+    sent = clock.stamp(1.7e9 + 0.000101, SENT)
+    received = clock.stamp(1.7e9 + 0.000050, RECEIVED)
+    assert sent & 3 == SENT and received & 3 == RECEIVED
+    assert received > sent and received - sent <= 4

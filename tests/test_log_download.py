@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import subprocess
 import sys
 
@@ -96,10 +97,10 @@ def test_transfer_asks_again_for_what_was_lost():
 
 
 @contextlib.asynccontextmanager
-async def log_vehicle(address: str, profile: str, flight_s: float, log_drop: float = 0.0):
+async def log_vehicle(address: str, profile: str, flight_s: float, log_drop: float = 0.0, **sim_options):
     """A simulated vehicle with one earlier flight's log (log 1); the station asks for logs only
     later, so the flight is flown once the vehicle serves."""
-    async with running_sim(address, profile=profile, script="bench") as sim:
+    async with running_sim(address, profile=profile, script="bench", **sim_options) as sim:
         fly_flight_logs(sim, [flight_s])
         sim.log_server.drop = log_drop
         yield sim
@@ -228,6 +229,27 @@ def test_gcs_logs_download_latest_from_gcs_sim(tmp_path, udp_port):
     assert "log 2:" in done.stdout and "kB/s" in done.stdout and "gcs replay" in done.stdout
     (downloaded,) = out.glob("log2-*.bin")
     assert downloaded.read_bytes() == (vehicle_dir / "00000002.BIN").read_bytes()  # the flight flown live
+
+
+def test_gcs_logs_download_from_a_signing_vehicle_with_its_key(tmp_path, udp_port):
+    """`gcs logs` takes --signing-key as every link command does: a signing vehicle refuses
+    unsigned requests, and the station refuses its signed packets without the key."""
+
+    async def download() -> tuple[int | None, str, bytes]:
+        key = hashlib.sha256(b"flight test 13").digest()
+        async with log_vehicle(f"udpout:127.0.0.1:{udp_port}", "pixhawk", 4.0, signing_key=key) as sim:
+            proc = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "gcs", "logs", "download", "1", "--connect", f"udpin:127.0.0.1:{udp_port}",
+                "--out", str(tmp_path), "--signing-key", "flight test 13",
+                stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            )  # fmt: skip
+            out, err = await asyncio.wait_for(proc.communicate(), 120)
+            return proc.returncode, out.decode() + err.decode(), sim.logs.finished[0]
+
+    rc, output, log = asyncio.run(download())
+    assert rc == 0, output
+    (downloaded,) = tmp_path.glob("log1-*.bin")
+    assert downloaded.read_bytes() == log
 
 
 def test_partial_download_resumes_only_the_same_log(tmp_path):

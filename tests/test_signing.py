@@ -2,7 +2,8 @@
 (as ArduPilot would), the station with gcs.mavlink.signing. With the key the signed vehicle is
 fully usable; with a wrong key nothing is accepted and the rejections are counted; unsigned
 packets are refused when signing is required, accepted and counted when optional; a pymavlink
-client behind `--out` verifies the vehicle's original signatures; `gcs signing setup` keys a vehicle."""
+client behind `--out` verifies the vehicle's original signatures; `gcs signing setup` keys a vehicle
+and `--disable` switches its signing off."""
 
 from __future__ import annotations
 
@@ -260,3 +261,19 @@ def test_gcs_signing_setup_fails_when_the_vehicle_keeps_another_key(udp_port):
     rc, err, key = asyncio.run(scenario())
     assert rc == 1 and "vehicle 1 sent no heartbeat signed with this key within 3 s after SETUP_SIGNING" in err
     assert key == WRONG
+
+
+def test_gcs_signing_setup_disable_sends_the_zero_key_with_a_zero_timestamp(udp_port):
+    """SETUP_SIGNING stops signing only with the all-zero key and a zero timestamp; with any other
+    timestamp ArduPilot (and the simulator, which follows it) signs with the zero key, and `--disable`
+    waited in vain for unsigned heartbeats (it sent the current time)."""
+
+    async def scenario():
+        async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim:
+            rc, out, err = await _signing_setup(udp_port, "--disable", "--timeout", "10")
+            return rc, out, err, sim.signing_key, sim.received.get("SETUP_SIGNING", 0)
+
+    rc, out, err, key, received = asyncio.run(scenario())
+    assert rc == 0, err
+    assert "vehicle 1: signing switched off (its heartbeats are unsigned)" in out
+    assert key is None and received >= 1

@@ -1,7 +1,8 @@
 """MAVLink 2 signing against the real ArduCopter SITL (../shared/sitl): `gcs signing setup` over
 SERIAL0 (ArduPilot's secure channel 0, where it takes unsigned packets) gives it the key; from then
 on the vehicle signs everything it sends, a station with the key is fully usable (streams by
-SET_MESSAGE_INTERVAL, parameters), and a station with a wrong key accepts nothing and counts why."""
+SET_MESSAGE_INTERVAL, parameters), and a station with a wrong key accepts nothing and counts why;
+`gcs signing setup --disable` switches signing off again."""
 
 from __future__ import annotations
 
@@ -27,10 +28,11 @@ REFUSED = 2000
 def test_arducopter_keyed_by_gcs_signing_setup_then_usable_only_with_the_key(sitl):  # noqa: F811
     connect = f"tcp:127.0.0.1:{sitl}"
 
-    async def setup() -> tuple[int | None, str, str]:
+    async def setup(*extra: str) -> tuple[int | None, str, str]:
         proc = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "gcs", "signing", "setup", "--connect", connect, "--signing-key", PASSPHRASE,
-            "--timeout", "60", "--no-record", cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            "--timeout", "60", "--no-record", *extra, cwd=ROOT,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
         )  # fmt: skip
         out, err = await asyncio.wait_for(proc.communicate(), 120)
         return proc.returncode, out.decode(), err.decode()
@@ -39,7 +41,7 @@ def test_arducopter_keyed_by_gcs_signing_setup_then_usable_only_with_the_key(sit
     assert rc == 0, (out, err)
     assert "signing set up; its heartbeats are signed with this key" in out
 
-    async def with_key(key: bytes, right: bool):
+    async def with_key(key: bytes | None, right: bool):
         async with running_station(connect, estimate=False, signing_key=key) as station:
             if not right:  # a stretch of the vehicle's packets, each refused: the link never connects
                 refused = station.link.signing.counters.rejected
@@ -59,3 +61,11 @@ def test_arducopter_keyed_by_gcs_signing_setup_then_usable_only_with_the_key(sit
     print(f"\nwrong key: {wrong.link.signing}")
     assert nothing is None and wrong.vehicle.heartbeats == 0 and wrong.link.stats.counts == {}
     assert wrong.link.signing.good == 0 and wrong.link.signing.rejected.get("bad signature", 0) >= 3
+
+    # the all-zero key with a zero timestamp: ArduPilot stops signing (with the current time as the
+    # timestamp, as --disable sent before, it signed with the zero key and the command timed out)
+    rc, out, err = asyncio.run(setup("--disable"))
+    assert rc == 0, (out, err)
+    assert "signing switched off (its heartbeats are unsigned)" in out
+    unsigned, loop_rate = asyncio.run(with_key(None, right=True))
+    assert loop_rate == 400 and unsigned.link.signing is None

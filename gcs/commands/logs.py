@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gcs.commands.common import progress_bar
+from gcs.commands.options import add_signing_arguments, signing_key
 from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink.logtransfer import LogEntry
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError, LogDownloadProgress
@@ -44,6 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--baud", default="57600", help="serial baud rate (default 57600)")
         p.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the vehicle (default 15)")
         add_sysid_argument(p)
+        add_signing_arguments(p)  # a signing vehicle refuses the unsigned LOG_REQUEST_* and the station its packets
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,7 +53,14 @@ def run(args: argparse.Namespace) -> int:
         parse_address(args.connect)
         if not args.baud.isdigit():
             raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600")
-        config = StationConfig(args.connect, baud=int(args.baud), request_streams=False, estimate=False)
+        config = StationConfig(
+            args.connect,
+            baud=int(args.baud),
+            request_streams=False,
+            estimate=False,
+            signing_key=signing_key(args),
+            signing_required=args.signing == "required",
+        )
         if args.action == "download" and args.log != "latest" and not (args.log.isdigit() and int(args.log) > 0):
             raise ValueError(f"log {args.log!r}: give a log id (1, 2, ...) or 'latest'")
     except ValueError as exc:  # AddressError is a ValueError

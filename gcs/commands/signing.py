@@ -3,7 +3,9 @@
 secure link); then check that the vehicle signs its heartbeats with that key.
 
 `--signing-key` is the new key (a key file or a passphrase); `--disable` sends the all-zero key
-that switches signing off. Later sessions pass the same `--signing-key` to every command."""
+with a zero timestamp, which switches signing off (SETUP_SIGNING's definition; ArduPilot signs
+with a zero key sent with any other timestamp). Later sessions pass the same `--signing-key` to
+every command."""
 
 from __future__ import annotations
 
@@ -30,7 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_link_arguments(setup)
     add_sysid_argument(setup)
-    setup.add_argument("--disable", action="store_true", help="send the all-zero key: the vehicle stops signing")
+    setup.add_argument(
+        "--disable", action="store_true", help="send the all-zero key and timestamp: the vehicle stops signing"
+    )
     setup.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the vehicle (default 10)")
 
 
@@ -65,7 +69,7 @@ async def _setup(
         beats = link.bus.subscribe("signing-setup", types=["HEARTBEAT"], maxlen=100)
         try:
             for _ in range(SENDS):
-                link.send(setup_signing_message(key, sysid, compid))
+                link.send(setup_signing_message(key, sysid, compid, initial_timestamp=0 if disable else None))
                 await asyncio.sleep(0.2)
             return await _verify(beats, sysid, Signing(key), timeout, disable)
         finally:

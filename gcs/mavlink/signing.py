@@ -172,7 +172,8 @@ class Signing:
 def setup_signing_message(
     key: bytes, target_system: int, target_component: int, initial_timestamp: int | None = None
 ) -> MAVLinkMessage:
-    """SETUP_SIGNING giving the vehicle `key` (all zeros: switch signing off), as MAVProxy's
-    `signing setup` sends it; the vehicle stores it and signs from then on."""
+    """SETUP_SIGNING giving the vehicle `key`, as MAVProxy's `signing setup` sends it; the vehicle
+    stores it and signs from then on. An all-zero key with `initial_timestamp` 0 switches signing
+    off (MAVProxy's `signing remove`); with any other timestamp ArduPilot signs with zeros."""
     stamp = timestamp_now() if initial_timestamp is None else initial_timestamp
     return mavlink.MAVLink_setup_signing_message(target_system, target_component, list(key), stamp)

@@ -223,8 +223,9 @@ class SimVehicle:
 
     def set_signing_key(self, key: bytes | None, timestamp: int = 0) -> None:
         """Sign what the vehicle sends and refuse unsigned or badly signed packets (pymavlink's
-        own check, as ArduPilot's), or, with None or an all-zero key, stop: SETUP_SIGNING's rule."""
-        if key is None or not any(key):
+        own check, as ArduPilot's), or, with None or an all-zero key and a zero timestamp, stop:
+        SETUP_SIGNING's rule, as ArduPilot applies it (a zero key with a timestamp is a key)."""
+        if key is None or (not any(key) and timestamp == 0):
             self.signing_key = None
             self._parser.signing.secret_key = None
             self._encoder.mav.signing.sign_outgoing = False
