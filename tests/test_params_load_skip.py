@@ -23,12 +23,14 @@ EDITS = (
     ("FORMAT_VERSION,120", "FORMAT_VERSION,100"),
     ("ATC_RAT_RLL_P,0.135", "ATC_RAT_RLL_P,0.145"),
     ("ANGLE_MAX,3000", "ANGLE_MAX,4500"),
+    ("SYSID_THISMAV,1", "SYSID_THISMAV,2"),  # the file is another vehicle's
 )
 
 
 def test_not_loadable_names_ardupilots_read_only_and_volatile_parameters():
     for name in ("STAT_RUNTIME", "STAT_BOOTCNT", "STAT_FLTTIME", "FORMAT_VERSION", "INS_ACC_ID", "INS_GYR2_ID",
-                 "COMPASS_DEV_ID3", "BARO1_DEVID", "GND_ABS_PRESS", "ARSPD_OFFSET", "CMD_TOTAL"):  # fmt: skip
+                 "COMPASS_DEV_ID3", "BARO1_DEVID", "GND_ABS_PRESS", "ARSPD_OFFSET", "CMD_TOTAL",
+                 "SYSID_THISMAV", "MAV_SYSID", "MAV_SYS_ID"):  # fmt: skip
         assert param_files.not_loadable(name), name
     for name in ("ATC_RAT_RLL_P", "INS_ACCOFFS_X", "COMPASS_DEC", "STATUS", "SERIAL1_BAUD", "INS_ACC_IDX"):
         assert param_files.not_loadable(name) is None, name
@@ -51,7 +53,7 @@ def test_full_file_load_skips_counters_and_profile_load_writes_only_tunables(tmp
 
             rc, out, err = await _gcs("load", str(edited), "--profile", "arducopter-4", *link)
             assert rc == 0, err
-            assert "wrote 1 of 1 parameters, each verified; skipped 5" in out
+            assert "wrote 1 of 1 parameters, each verified; skipped 6" in out
             assert "skipped STAT_RUNTIME (file 1000, vehicle 86400): statistics the vehicle keeps (read-only)" in out
             assert "skipped INS_ACC_ID (file 1, vehicle 2753028): sensor id" in out
             assert "skipped ANGLE_MAX (file 4500, vehicle 3000): not in the tuning profile arducopter-4" in out
@@ -63,12 +65,13 @@ def test_full_file_load_skips_counters_and_profile_load_writes_only_tunables(tmp
 
             rc, out, err = await _gcs("load", str(edited), *link)
             assert rc == 0, err
-            assert "wrote 1 of 1 parameters, each verified; skipped 4" in out  # ANGLE_MAX now written
+            assert "wrote 1 of 1 parameters, each verified; skipped 5" in out  # ANGLE_MAX now written
             for name in ("STAT_RUNTIME", "STAT_BOOTCNT", "INS_ACC_ID", "FORMAT_VERSION"):
                 assert f"skipped {name} " in out
+            assert "skipped SYSID_THISMAV (file 2, vehicle 1): the vehicle's own system id" in out
             after = sim.params.as_dict()
             assert after["ANGLE_MAX"] == 4500
-            for name in ("STAT_RUNTIME", "STAT_BOOTCNT", "INS_ACC_ID", "FORMAT_VERSION"):
+            for name in ("STAT_RUNTIME", "STAT_BOOTCNT", "INS_ACC_ID", "FORMAT_VERSION", "SYSID_THISMAV"):
                 assert after[name] == before[name], name
 
     asyncio.run(asyncio.wait_for(scenario(), 180))

@@ -8,8 +8,10 @@ saved from the vehicle and loaded again writes back exactly what was read.
 A load never writes what the vehicle keeps for itself (`not_loadable`): ArduPilot's read-only and
 volatile parameters (its @ReadOnly / @Volatile metadata: statistics such as STAT_RUNTIME, sensor
 ids such as INS_ACC_ID, ground calibration taken at boot) and the counters pymavlink's mavparm
-excludes from loads (FORMAT_VERSION, CMD_TOTAL, LOG_LASTFILE...). A saved full table then
-loads back without rewriting a counter or another board's sensor ids.
+excludes from loads (FORMAT_VERSION, CMD_TOTAL, LOG_LASTFILE...), and the vehicle's own system id
+(SYSID_THISMAV, MAV_SYSID on ArduPilot 4.7, PX4's MAV_SYS_ID). A saved full table then loads
+back without rewriting a counter or another board's sensor ids, and one vehicle's tuning copied
+to another leaves each its own system id (two on one id mix their data on the link).
 """
 
 from __future__ import annotations
@@ -38,6 +40,10 @@ _NOT_LOADABLE = (
     (
         re.compile(r"CMD_TOTAL|CMD_INDEX|FENCE_TOTAL|RALLY_TOTAL|LOG_LASTFILE|SYS_NUM_RESETS"),
         "counter the vehicle keeps",
+    ),
+    (
+        re.compile(r"SYSID_THISMAV|MAV_SYSID|MAV_SYS_ID"),
+        "the vehicle's own system id (another vehicle's file would give two vehicles one; `gcs params set` changes it)",
     ),
 )
 
