@@ -21,6 +21,15 @@ def test_help_lists_every_subcommand_and_each_has_help():
         assert sub.returncode == 0 and "usage:" in sub.stdout
 
 
+def test_signing_setup_offers_no_option_it_would_ignore():
+    """It records nothing and requests no streams: --record-dir, --no-record, --speed, the rates
+    and the ascii options were listed in its help and silently ignored."""
+    out = subprocess.run(GCS + ["signing", "setup", "--help"], capture_output=True, text=True, check=True).stdout
+    assert "--signing-key" in out and "--connect" in out
+    for ignored in ("--record-dir", "--no-record", "--speed", "--imu-rate", "--ascii-fields"):
+        assert ignored not in out, ignored
+
+
 def test_status_json_against_apm25_reports_requested_and_achieved_rates(udp_port):
     sim = subprocess.Popen(
         GCS + ["sim", "--profile", "apm25", "--link", f"udpout:127.0.0.1:{udp_port}"],

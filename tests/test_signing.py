@@ -188,7 +188,7 @@ def test_gcs_signing_setup_keys_the_vehicle(udp_port, tmp_path):
         async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim:
             proc = await asyncio.create_subprocess_exec(
                 sys.executable, "-m", "gcs", "signing", "setup", "--connect", f"udpin:127.0.0.1:{udp_port}",
-                "--signing-key", "flight test 13", "--no-record", cwd=ROOT,
+                "--signing-key", "flight test 13", cwd=ROOT,
                 stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
             )  # fmt: skip
             out, err = await asyncio.wait_for(proc.communicate(), 60)
@@ -232,7 +232,7 @@ def test_mavsdk_behind_out_still_sees_the_signed_vehicle(udp_port):
 async def _signing_setup(udp_port: int, *extra: str) -> tuple[int | None, str, str]:
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "gcs", "signing", "setup", "--connect", f"udpin:127.0.0.1:{udp_port}",
-        "--signing-key", "flight test 13", "--no-record", *extra, cwd=ROOT,
+        "--signing-key", "flight test 13", *extra, cwd=ROOT,
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
     )  # fmt: skip
     out, err = await asyncio.wait_for(proc.communicate(), 60)

@@ -31,7 +31,7 @@ def test_arducopter_keyed_by_gcs_signing_setup_then_usable_only_with_the_key(sit
     async def setup(*extra: str) -> tuple[int | None, str, str]:
         proc = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "gcs", "signing", "setup", "--connect", connect, "--signing-key", PASSPHRASE,
-            "--timeout", "60", "--no-record", *extra, cwd=ROOT,
+            "--timeout", "60", *extra, cwd=ROOT,
             stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
         )  # fmt: skip
         out, err = await asyncio.wait_for(proc.communicate(), 120)

@@ -28,7 +28,8 @@ def add_link_arguments(
     """--connect and the link and forwarding options; with `streams`, the stream-rate, replay
     speed and ascii-line options (what the estimators need); `record`: "default" records unless
     --no-record (serve, protocol), "opt-in" only with --record (status, params: a quick look
-    leaves no session folder behind); `several`: --connect repeatable (a fleet: serve, status)."""
+    leaves no session folder behind), "never" no recording options (signing setup records
+    nothing); `several`: --connect repeatable (a fleet: serve, status)."""
     parser.add_argument(
         "--connect",
         required=connect_required,
@@ -67,7 +68,8 @@ def add_link_arguments(
             "--ascii-unit", choices=UNITS, default="deg", help="angle unit of an ascii: link (default deg)"
         )
     add_signing_arguments(parser)
-    add_record_arguments(parser, opt_in=record == "opt-in")
+    if record != "never":
+        add_record_arguments(parser, opt_in=record == "opt-in")
 
 
 def add_signing_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,8 +110,9 @@ def add_record_arguments(parser: argparse.ArgumentParser, opt_in: bool = False) 
 
 
 def record_dir(args: argparse.Namespace) -> str | None:
-    """Where to record, or None: --no-record, or an opt-in command without --record."""
-    if getattr(args, "no_record", False) or not getattr(args, "record", True):
+    """Where to record, or None: --no-record, an opt-in command without --record, or a command
+    that never records."""
+    if not hasattr(args, "record_dir") or getattr(args, "no_record", False) or not getattr(args, "record", True):
         return None
     return args.record_dir
 

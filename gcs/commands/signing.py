@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle",
         description="send SETUP_SIGNING with --signing-key (or --disable) to the vehicle",
     )
-    add_link_arguments(setup)
+    add_link_arguments(setup, streams=False, record="never")
     add_sysid_argument(setup)
     setup.add_argument(
         "--disable", action="store_true", help="send the all-zero key and timestamp: the vehicle stops signing"
