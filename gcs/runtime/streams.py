@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.params import param_name
+from gcs.mavlink.statustext import CHUNK_CHARS
 from gcs.runtime.link import Link, LinkState
 from gcs.runtime.snapshots import StreamRate, StreamsSnapshot
 
@@ -79,8 +80,6 @@ TOO_FAST = re.compile(r"too fast", re.IGNORECASE)
 LOOP_RATE_FRACTION = 0.8
 #: How long a STATUSTEXT may follow its refused COMMAND_ACK (ArduPilot queues the text).
 REASON_WAIT = 0.5
-#: STATUSTEXT.text length: a chunk this long may be continued in the next one (same id).
-STATUSTEXT_CHUNK = 50
 #: The longest wait between re-requests of one message, in `retry_interval`s: each re-request
 #: that did not bring it back doubles the wait, up to this.
 MAX_BACKOFF = 8
@@ -264,7 +263,7 @@ class StreamRequester:
                 reason.append(text)
             else:
                 continue
-            if len(text) < STATUSTEXT_CHUNK:
+            if len(text) < CHUNK_CHARS:
                 break
         return result, "".join(reason) or None
 

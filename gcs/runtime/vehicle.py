@@ -15,6 +15,7 @@ from pymavlink import mavutil
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.identity import autopilot_name, enum_name
+from gcs.mavlink.statustext import StatusTextJoiner
 from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
 from gcs.runtime.firmware import banner_version, version_of
@@ -90,6 +91,7 @@ class VehicleState:
     ekf_variance_max: float | None = None
     messages: deque[AutopilotMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_KEPT))
+    _texts: StatusTextJoiner = field(default_factory=StatusTextJoiner)
     _origin: tuple[float, float] | None = None
     _last_track: float = -math.inf
     #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
@@ -110,6 +112,8 @@ class VehicleState:
         if item.sysid != self.link.target_system:
             return
         msg = item.msg
+        for severity, text in self._texts.expire(item.host_time):
+            self._statustext(severity, text)
         if item.type == "HEARTBEAT":
             if item.compid != self.link.target_component:
                 return
@@ -138,9 +142,9 @@ class VehicleState:
             variances = (msg.velocity_variance, msg.pos_horiz_variance, msg.pos_vert_variance, msg.compass_variance)
             self.ekf_variance_max = max(variances)
         elif item.type == "STATUSTEXT":
-            self._statustext(msg.severity, msg.text)
-            if banner := banner_version(msg.text):
-                self.firmware = banner
+            chunk = (getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))  # MAVLink 1 has neither
+            for severity, whole in self._texts.add(msg.severity, msg.text.rstrip("\x00"), *chunk, item.host_time):
+                self._statustext(severity, whole)
         elif item.type == "AUTOPILOT_VERSION":
             if self.firmware is None or self.firmware[0].isdigit():  # a banner seen names more
                 self.firmware = version_of(msg)
@@ -177,7 +181,10 @@ class VehicleState:
         self.track.append((round(north, 2), round(east, 2)))
 
     def _statustext(self, severity: int, text: str) -> None:
-        text = text.rstrip("\x00").strip()
+        """One whole text (its chunks joined): the page's list, the event log, the firmware banner."""
+        text = text.strip()
+        if banner := banner_version(text):
+            self.firmware = banner
         name = enum_name("MAV_SEVERITY", severity).removeprefix("MAV_SEVERITY_")
         self.messages.appendleft(AutopilotMessage(time.time(), severity, name, text))
         if self.events is not None:
