@@ -120,10 +120,10 @@ class VehicleState:
             self.heartbeats += 1
             self.autopilot = autopilot_name(msg.autopilot)
             self.vehicle_type = enum_name("MAV_TYPE", msg.type)
-            self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             self.custom_mode = msg.custom_mode
             self.system_status = enum_name("MAV_STATE", msg.system_status)
-            self.mode = flight_mode(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode)
+            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            self._flight_state(flight_mode(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode), armed)
         elif item.type == "SYS_STATUS":
             self.battery_v = None if msg.voltage_battery == 0xFFFF else msg.voltage_battery / 1000.0
             self.battery_a = None if msg.current_battery < 0 else msg.current_battery / 100.0
@@ -151,6 +151,16 @@ class VehicleState:
             self.capabilities = msg.capabilities
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
             self._clock(item.vehicle_time, item.host_time, item.sysid)
+
+    def _flight_state(self, mode: str | None, armed: bool) -> None:
+        """Take the heartbeat's mode and arming state; each change is an event (the first
+        heartbeat's mode too, and arming found on), so the session says when the vehicle armed
+        and which mode it flew in: what the errors of a take-off or a turn are read against."""
+        if mode != self.mode and self.events is not None:
+            self.events.record("vehicle", "vehicle", event="mode", old=self.mode, new=mode)
+        if armed != self.armed and self.events is not None:
+            self.events.record("vehicle", "vehicle", event="armed" if armed else "disarmed", mode=mode)
+        self.mode, self.armed = mode, armed
 
     def _clock(self, t: float, now: float, sysid: int) -> None:
         step = self.clock.step(t, now)
