@@ -146,6 +146,23 @@ def test_a_missing_tlog_fails_at_once_in_one_line(tmp_path):
     assert done.stdout == ""
 
 
+def test_a_refused_tcp_connection_is_in_the_status_report(tcp_port):
+    """Found by auditing: `gcs status --connect tcp:...` to a SITL that was not running printed
+    "waiting, no heartbeat yet" and an empty event list; the refusal the link met and retries was
+    left out of every report until a vehicle was heard (the waiting core's view showed only its
+    own events)."""
+    address = f"tcp:127.0.0.1:{tcp_port}"  # a free port: nothing listens
+    done = subprocess.run(
+        GCS + ["status", "--connect", address, "--duration", "3"],
+        capture_output=True,
+        text=True,
+        timeout=FAIL_AT_ONCE_S,
+    )
+    assert done.returncode == 1, done.stderr
+    events = done.stdout.split("\nevents\n", 1)[1].splitlines()
+    assert f"  transport: cannot open {address}: Connection refused; retrying" in events, done.stdout
+
+
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 
 
