@@ -146,6 +146,23 @@ def test_a_missing_tlog_fails_at_once_in_one_line(tmp_path):
     assert done.stdout == ""
 
 
+def test_a_refused_tcp_connection_is_in_the_status_report(tcp_port):
+    """Found by auditing: `gcs status --connect tcp:...` to a SITL that was not running printed
+    "waiting, no heartbeat yet" and an empty event list; the refusal the link met and retries was
+    left out of every report until a vehicle was heard (the waiting core's view showed only its
+    own events)."""
+    address = f"tcp:127.0.0.1:{tcp_port}"  # a free port: nothing listens
+    done = subprocess.run(
+        GCS + ["status", "--connect", address, "--duration", "3"],
+        capture_output=True,
+        text=True,
+        timeout=FAIL_AT_ONCE_S,
+    )
+    assert done.returncode == 1, done.stderr
+    events = done.stdout.split("\nevents\n", 1)[1].splitlines()
+    assert f"  transport: cannot open {address}: Connection refused; retrying" in events, done.stdout
+
+
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 
 
@@ -157,6 +174,8 @@ LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
         (["status", "--imu-rate", "-5"], "gcs status: --imu-rate -5.0: give a rate >= 0 Hz (0 = off)"),
         (["status", "--gps-rate", "inf"], "gcs status: --gps-rate inf: give a rate >= 0 Hz (0 = off)"),
         (["status", "--heartbeat-timeout", "0"], "gcs status: --heartbeat-timeout 0.0: give seconds > 0"),
+        (["status", "--duration", "-5"], "gcs status: --duration -5.0: give seconds > 0"),
+        (["status", "--duration", "nan"], "gcs status: --duration nan: give seconds > 0"),
         (["replay", "--speed", "-1"], "gcs replay: error: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
         (["replay", "--speed", "nan"], "gcs replay: error: --speed nan: give a number >= 0 (0 = as fast as possible)"),
     ],
@@ -164,7 +183,8 @@ LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 def test_a_negative_or_not_finite_number_option_is_refused_in_one_line(argv, expected):
     """Found by auditing: `gcs replay --speed -1` (or nan) replayed as fast as possible, a negative
     or NaN --imu-rate asked the vehicle to stop the stream, --heartbeat-timeout 0 called a live
-    link lost; each now ends at once with the option and what it takes."""
+    link lost, `gcs status --duration -5` (or nan) listened for no time and reported "no heartbeat
+    yet"; each now ends at once with the option and what it takes."""
     hop = str(LOGS / "arducopter-sitl-hop.tlog")
     link = ["--connect", hop, "--duration", LISTEN_S] if argv[0] == "status" else [hop]
     done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pymavlink import mavutil
 from synthetic import Z_UP, angle_between, spinning
 
 from gcs.commands import estimate as offline
@@ -77,6 +78,25 @@ def test_tlog_input(tmp_path):
     assert estimate(LOGS / "arducopter-sitl-hop.tlog", "-e", "dcm", "-o", tmp_path / "out.csv") == 0
     header, rows = read_out(tmp_path / "out.csv")
     assert header == HEADER and len(rows) == 2197  # RAW_IMU messages in the log
+
+
+def test_tlog_imu_instance_1_is_the_second_imu(tmp_path):
+    """Found by auditing an ArduPlane SITL session: `gcs estimate FLIGHT.tlog --imu 1` (and 2)
+    wrote instance 0's attitude, byte for byte. Instance 1 of a .tlog is SCALED_IMU2, stamped in
+    whole milliseconds (time_boot_ms) where RAW_IMU carries microseconds: the rows are its
+    messages, as pymavlink reads them, and its estimate is not instance 0's."""
+    hop = LOGS / "arducopter-sitl-hop.tlog"
+    log = mavutil.mavlink_connection(str(hop))
+    second = []
+    while (msg := log.recv_match(type="SCALED_IMU2")) is not None:
+        second.append(msg.time_boot_ms / 1e3)
+    for imu in (0, 1):
+        assert estimate(hop, "-e", "dcm", "--imu", imu, "-o", tmp_path / f"imu{imu}.csv") == 0
+    _, first_rows = read_out(tmp_path / "imu0.csv")
+    _, second_rows = read_out(tmp_path / "imu1.csv")
+    t = np.array([float(row[0]) for row in second_rows])
+    np.testing.assert_allclose(t, second, atol=5e-7)  # one row per SCALED_IMU2, at its time
+    assert [row[0] for row in second_rows] != [row[0] for row in first_rows]
 
 
 def test_list(capsys):

@@ -12,6 +12,7 @@ import pytest
 from live import running_sim, running_station, sim_process, wait_for
 
 import gcs
+from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.link import LinkState
 
 #: The estimator-critical messages each profile must deliver at the requested rate.
@@ -100,6 +101,45 @@ def test_tcp_peer_that_drops_is_redialled(tcp_port):
     assert len(opened) >= 2
 
 
+def test_a_tcp_peer_restarted_mid_packet_counts_no_loss_and_no_damage(tcp_port):
+    """A SITL restarted behind a TCP link: the first connection ends mid-packet after sequence
+    number 199, the restarted peer counts from 0 again. Every packet of both arrives, and the
+    link reports no packet lost (the old decoder counted the 56 numbers between 199 and 0 lost
+    on a TCP link, which loses nothing) and no damage (the old half packet joined the new bytes)."""
+    sent_first, sent_again = 200, 100
+
+    def heartbeats(n: int) -> bytes:
+        encoder = Encoder(1, 1)  # a new peer: sequence numbers from 0
+        beat = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3, 3
+        )
+        return b"".join(encoder.encode(beat) for _ in range(n))
+
+    connections: list[asyncio.StreamWriter] = []
+
+    async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        connections.append(writer)
+        if len(connections) == 1:  # the vehicle before its restart, cut off within a packet
+            writer.write(heartbeats(sent_first + 1)[:-10])
+            await writer.drain()
+            writer.close()
+        else:
+            writer.write(heartbeats(sent_again))
+            await writer.drain()
+            await reader.read()  # open until the station closes it
+
+    async def scenario():
+        server = await asyncio.start_server(serve, "127.0.0.1", tcp_port)
+        async with server, running_station(f"tcp:127.0.0.1:{tcp_port}", estimate=False) as station:
+            counters = station.link.stats.framing
+            await wait_for(lambda: counters.packets == sent_first + sent_again, 30, "every packet of both connections")
+            return station.link.stats.snapshot(), len(connections)
+
+    link, dialled = asyncio.run(scenario())
+    assert dialled == 2
+    assert (link.packets_lost, link.crc_errors, link.malformed) == (0, 0, 0), link
+
+
 def test_pty_closed_and_recreated_at_same_path_is_reopened(tmp_path):
     path = tmp_path / "ttyACM-sim"
 
@@ -181,6 +221,11 @@ def test_a_port_that_came_back_with_the_vehicle_rebooted_scores_each_boot_agains
             first = pipeline.imu_samples
             async with sim_process(f"pty:{path}", profile="apm25", script="bench"):  # a new process: t from 0
                 await wait_for(lambda: pipeline.imu_samples > first + 200, 60, "the second boot's samples")
+            # the live figures once every byte of the port is estimated, as the session holds them all:
+            # taken while the last bytes were still read or waited for the next tick, they missed a few
+            # samples the session has (seen once under load: RMS 3e-4° apart)
+            await wait_for(lambda: not station.link.is_open, 10, "the port gone again")
+            station.estimation.catch_up()
             return station.recorder.session.folder, pipeline.comparisons["dcm"].summary()
 
     folder, live = asyncio.run(scenario())

@@ -278,3 +278,32 @@ def test_two_vehicles_starting_in_one_second_each_get_their_label(tmp_path):
     assert sorted(labels) == ["ArduPilot-QUADROTOR-1", "ArduPilot-QUADROTOR-2"], labels
     for folder, label in zip(folders, labels, strict=True):
         assert folder.name.split("_", 2)[2] == layout.safe_label(label), [f.name for f in folders]
+
+
+def test_the_event_log_follows_the_session_folder_to_its_vehicle_name(tmp_path, udp_port):
+    """Found by auditing an ArduPlane session: its events.jsonl (and gcs report) named the folder
+    ".../2026-12-05_05-42-48_unknown" at the start, a folder that never existed by the time anyone
+    read it: the session opens at the link's first byte, before the heartbeat names the vehicle,
+    and is then moved to ".../..._ardupilot-quadrotor-1". A `renamed` event now says where."""
+    root = tmp_path / "sessions"
+
+    async def record() -> None:
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"),
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root), estimate=False) as station,
+        ):
+
+            def moved() -> bool:
+                session = station.recorder.session
+                return session is not None and session.folder.name.endswith("_ardupilot-quadrotor-1")
+
+            await wait_for(moved, 60, "the folder moved to the vehicle's name")
+
+    asyncio.run(record())
+    folder = _one_session(root)
+    assert folder.name.endswith("_ardupilot-quadrotor-1"), folder
+    recording = [e for e in read_events(folder) if e["kind"] == "recording"]
+    assert [e["event"] for e in recording] == ["start", "renamed", "stop"], recording
+    start, moved, stop = recording
+    assert moved["old"] == start["folder"] and not Path(start["folder"]).exists(), recording
+    assert Path(moved["folder"]) == Path(stop["folder"]) == folder, recording

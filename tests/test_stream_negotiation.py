@@ -12,6 +12,7 @@ from live import running_sim, running_station, served_api, wait_for
 from gcs.commands.status import format_report
 from gcs.mavlink.dialect import mavlink
 from gcs.runtime.link import LinkState
+from gcs.runtime.streams import NOT_SENT
 
 REQUESTED = {"RAW_IMU": 50.0, "SCALED_IMU2": 50.0, "ATTITUDE": 50.0, "AHRS2": 50.0, "SCALED_PRESSURE": 5.0}
 
@@ -187,3 +188,34 @@ def test_a_stream_that_stays_starved_is_asked_ever_more_rarely(udp_port):
     print(f"\nre-requests of ATTITUDE {gaps} s apart (retry_interval 2 s)")
     assert rate == 1.0 and ack == "DENIED"  # refused each time: still starved
     assert gaps[0] >= 2 * 2.0 - 0.1 and gaps[1] >= 4 * 2.0 - 0.1, gaps
+
+
+def test_a_message_the_vehicle_does_not_have_says_so_where_it_shows_0_hz(udp_port):
+    """Found by auditing an APM 2.5 behind a 57600 radio: `gcs status` listed SCALED_IMU2 and AHRS2
+    "accepted 19.0 Hz achieved 0.0 Hz" with no word why (REQUEST_DATA_STREAM asks by group and
+    nothing acknowledges it; the APM 2.5 has one IMU): a link fault to the eye. Once the retry
+    interval has passed with none of it, the row says the vehicle does not send it; never a
+    message that flows."""
+
+    async def scenario():
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="apm25"),
+            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station,
+            served_api(station) as api,
+        ):
+            streams = station.streams
+            streams.check_interval, streams.retry_interval = 0.25, 2.0
+
+            def told() -> bool:
+                rows = station.publish().streams.messages
+                return "SCALED_IMU2" in rows and rows["SCALED_IMU2"].reason == NOT_SENT
+
+            await wait_for(told, 60, "SCALED_IMU2 said to be absent")
+            await wait_for(lambda: settled(station, {"RAW_IMU": 50.0}), 30, "RAW_IMU at 50 Hz")
+            return (await api.get("/api/status")).json()["link"]["streams"], format_report(station.publish())
+
+    rows, printed = asyncio.run(scenario())
+    assert rows["SCALED_IMU2"]["achieved_hz"] == 0.0 and rows["SCALED_IMU2"]["reason"] == NOT_SENT, rows
+    assert rows["RAW_IMU"]["achieved_hz"] > 0 and rows["RAW_IMU"]["reason"] != NOT_SENT, rows
+    assert rows["SCALED_IMU2"]["method"] == "REQUEST_DATA_STREAM"
+    assert NOT_SENT in printed

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import dataclasses
+import math
+import sys
 
 from gcs.commands.common import tidy
 from gcs.commands.options import add_link_arguments, links_of, station_config_or_report
@@ -22,7 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
+    if not (args.duration > 0 and math.isfinite(args.duration)):  # -5 or nan listened for 0 s
+        print(f"gcs status: --duration {args.duration!r}: give seconds > 0", file=sys.stderr)
+        return 2
     config = station_config_or_report(args, "status")
     if config is None:
         return 2

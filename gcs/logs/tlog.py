@@ -47,10 +47,15 @@ def read_tlog(
     SIMSTATE, and a declination `GainChange` from the COMPASS_DEC / EKF2_MAG_DECL the log holds
     (else the World Magnetic Model's at the first 3D fix; `inputs.declination_source` says
     which). Packets the ground station sent (link bits 3 in the timestamp) are skipped. Pass
-    `records` (read_tlog_records(path)) to learn afterwards where the file was damaged."""
+    `records` (read_tlog_records(path)) to learn afterwards where the file was damaged, and
+    `inputs` to read the declination it found; for instance 0 they pick the IMU as live does,
+    for any other they are set to that instance's stream (they took the first IMU, whatever
+    `imu` asked: `gcs estimate --imu 1` gave instance 0's attitude)."""
     imu_type, system = _imu_stream(path, imu)
     if inputs is None:
         inputs = MessageInputs(imu_type, system)
+    elif imu:
+        inputs.sampler.imu_type, inputs.sampler.system = imu_type, system
     decoder = MavlinkDecoder()
     for usec, packet in records if records is not None else read_tlog_records(path):
         if usec & 3 == 3:

@@ -73,6 +73,13 @@ class AsciiAttitudeDecoder:
         self._next_heartbeat = 0.0
         self._scale = math.radians if fmt.unit == "deg" else float
 
+    def new_stream(self) -> None:
+        """The bytes that follow come from a new connection: the old one's unfinished line is
+        dropped (counted as skipped), not joined to the new bytes."""
+        self.counters.bytes_skipped += len(self._buf)
+        del self._buf[:]
+        self._skipping = False
+
     def feed(self, data: bytes, final: bool = False) -> list[MAVLinkMessage]:
         buf = self._buf
         buf += data

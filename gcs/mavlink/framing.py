@@ -67,6 +67,16 @@ class MavlinkDecoder:
         """The messages `data` completes, decoded."""
         return [decode(packet) for packet, _, _, _ in self.frames(data, final)]
 
+    def new_stream(self) -> None:
+        """The bytes that follow come from a new connection (a redialled TCP peer, a reopened
+        port). The half frame the old one ended with is dropped (counted as skipped), not joined
+        to the new bytes into a CRC error; and the sequence numbers are forgotten: the gap across
+        a reconnection is not loss on the link (the peer may have restarted at 0, and a gap of
+        more than 255 packets wraps), so it used to count an arbitrary 0-127 packets lost."""
+        self.counters.bytes_skipped += len(self._buf)
+        self._buf = b""
+        self._last_seq.clear()
+
     def frames(self, data: bytes, final: bool = False) -> list[Frame]:
         """The packets `data` completes, CRC-checked and counted. With `final` (end of a
         datagram or of a file) an incomplete candidate at the end is given up on instead of

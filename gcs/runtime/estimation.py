@@ -54,13 +54,15 @@ STARTING = (
 )
 
 
-def live_reason(ready: bool, stale: str | None, reason: str) -> str:
+def live_reason(ready: bool, stale: str | None, reason: str, rate_limit: str | None = None) -> str:
     """An estimator's reason to read unreliable: starting first, then a lost link or a silent IMU
     (its comparison's own reason, judged over the last IMU samples, no longer says anything), then
-    the comparison's reason ("" when reliable)."""
+    the comparison's reason ("" when reliable; its IMU rate's, with what limits it when known)."""
     if not ready:
         return STARTING
-    return stale if stale is not None else reason
+    if stale is not None:
+        return stale
+    return f"{reason} ({rate_limit})" if reason and rate_limit else reason
 
 
 class LiveEstimation:
@@ -111,8 +113,10 @@ class LiveEstimation:
             return f"{silent}, longer than the {window:g} s window its rate is judged over"
         return None
 
-    def snapshot(self, now: float) -> EstimationSnapshot:
-        """What the station publishes of the estimation at host time `now` (monotonic s)."""
+    def snapshot(self, now: float, rate_limit: str | None = None) -> EstimationSnapshot:
+        """What the station publishes of the estimation at host time `now` (monotonic s).
+        `rate_limit`: what holds the raw IMU below the rate asked for, added to a too-low rate's
+        reason (its advice, "request RAW_IMU at 50 Hz", reads as if nobody had)."""
         pipeline = self.pipeline
         stale = self.stale(now)
         estimators = {}
@@ -133,7 +137,7 @@ class LiveEstimation:
                 gains=dict(est.gains.values),
                 health={k: finite(v) if isinstance(v, float) else v for k, v in est.health().items()},
                 reliable=summary["reliable"] and self.ready and stale is None,
-                reason=live_reason(self.ready, stale, summary["reason"]),
+                reason=live_reason(self.ready, stale, summary["reason"], rate_limit),
                 imu_rate_hz=round(summary["imu_rate"], 2),
                 lag_s=summary["lag"],
                 dropped=summary["dropped"],

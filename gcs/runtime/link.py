@@ -446,8 +446,10 @@ class Link:
         if self._transport is not None:  # closed: its drops stay counted
             self._closed_drops += self._transport.kernel_drops
         self._transport = transport
-        if transport is not None and self._read_intervals:
-            transport.pace_reads(self._read_interval)
+        if transport is not None:
+            self.decoder.new_stream()
+            if self._read_intervals:
+                transport.pace_reads(self._read_interval)
 
     def _set_state(self, new: LinkState) -> None:
         old, self.state = self.state, new

@@ -91,6 +91,8 @@ class Session:
 
     def __init__(self, folder: Path, meta: dict, on_error) -> None:
         self.meta = meta
+        #: the folder the event log last named (start, renamed): the writer moves it to the vehicle's name
+        self.named = folder
         self.encoders = {table: columnar.StreamEncoder(schema) for table, schema in columnar.SCHEMAS.items()}
         self.rows: dict[str, list[tuple]] = {table: [] for table in columnar.SCHEMAS if table != "attitude"}
         self.points: list[tuple[float, list]] = []  # (wall time, AttitudePoints): the attitude table's rows
@@ -254,6 +256,7 @@ class SessionRecorder:
             return None
         if self.station.estimation is not None:  # inputs delivered but not yet estimated: now, into this session
             self.station.estimation.catch_up()
+        self._note_rename(session)
         self.station.events.record("recording", client, event="stop", folder=str(session.folder))
         self._drain()
         self.session = None
@@ -390,6 +393,7 @@ class SessionRecorder:
         session = self.session
         if session is None:
             return
+        self._note_rename(session)
         estimation = self.station.estimation
         if estimation is not None:
             session.meta["estimation"]["detected_imu_type"] = estimation.imu_type
@@ -405,6 +409,15 @@ class SessionRecorder:
                 session.writer.rename_folder(layout.unique_folder(self.root, name))
 
     # ---- helpers -----------------------------------------------------------------------
+    def _note_rename(self, session: Session) -> None:
+        """The writer moved the folder to the vehicle's name (at a flush after `rename_folder`): an
+        event says where, since the start event named a folder that no longer exists ("..._unknown")."""
+        if session.folder != session.named:
+            old, session.named = session.named, session.folder
+            self.station.events.record(
+                "recording", "recorder", event="renamed", old=str(old), folder=str(session.folder)
+            )
+
     def _vehicle_label(self) -> str | None:
         v = self.station.vehicle
         if not v.heartbeats:

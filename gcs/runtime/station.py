@@ -43,7 +43,7 @@ from gcs.runtime.protocol import LiveProtocol
 from gcs.runtime.radio import RadioGovernor
 from gcs.runtime.recorder import SessionRecorder
 from gcs.runtime.signal import Signal
-from gcs.runtime.snapshots import RecordingSnapshot, StationSnapshot
+from gcs.runtime.snapshots import RadioSnapshot, RecordingSnapshot, StationSnapshot, StreamsSnapshot
 from gcs.runtime.streams import StreamPlan, StreamRequester
 from gcs.runtime.supervisor import PartStatus, Supervisor
 from gcs.runtime.tuning import TuningSession, open_session
@@ -226,16 +226,20 @@ class Station:
 
     def publish(self) -> StationSnapshot:
         """Take a snapshot of every part now and hand it to the listeners."""
+        streams, radio = self.streams.snapshot(), self.radio.snapshot()
+        estimation = self.estimation
         self._snapshot = StationSnapshot(
             published=time.time(),
             link=self.link.snapshot(),
             vehicle=self.vehicle.snapshot(),
-            streams=self.streams.snapshot(),
+            streams=streams,
             outputs=[o.snapshot() for o in self.outputs],
-            estimation=None if self.estimation is None else self.estimation.snapshot(time.monotonic()),
+            estimation=None
+            if estimation is None
+            else estimation.snapshot(time.monotonic(), imu_rate_limit(estimation.imu_type, streams, radio)),
             recording=self.recording_snapshot(),
             parts=self.supervisor.statuses(),
-            radio=self.radio.snapshot(),
+            radio=radio,
         )
         self.published.emit(self._snapshot)
         return self._snapshot
@@ -442,6 +446,22 @@ class Station:
         """Commands touch live state: only the event loop's thread may call them."""
         if self._loop_thread is not None and threading.get_ident() != self._loop_thread:
             raise RuntimeError("Station commands run on the event loop thread (use loop.call_soon_threadsafe)")
+
+
+def imu_rate_limit(imu_type: str | None, streams: StreamsSnapshot, radio: RadioSnapshot) -> str | None:
+    """What holds the raw IMU below the rate the station wanted, for a too-low rate's reason: a
+    radio's budget (an APM 2.5 behind a 57600 SiK radio) or the vehicle's refusal (ArduPlane's
+    "Increase SCHED_LOOP_RATE"); None when nothing the station knows of does."""
+    name = imu_type or "RAW_IMU"
+    row, planned = streams.messages.get(name), radio.streams.get(name)
+    if row is None:
+        return None
+    if radio.present and planned is not None and row.requested_hz < planned.wanted_hz:
+        fits, usb = f"{row.requested_hz:g}", f"{planned.wanted_hz:g}"
+        return f"{name} asked for at {fits} Hz to fit the radio's budget; over USB it can come at {usb} Hz"
+    if row.reason and row.accepted_hz is not None and row.accepted_hz < row.requested_hz:
+        return f"asked for at {row.requested_hz:g} Hz: {row.reason}"
+    return None
 
 
 def signing_of(config: StationConfig) -> Signing | None:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.params import param_name
+from gcs.mavlink.statustext import CHUNK_CHARS
 from gcs.runtime.link import Link, LinkState
 from gcs.runtime.snapshots import StreamRate, StreamsSnapshot
 
@@ -79,8 +80,8 @@ TOO_FAST = re.compile(r"too fast", re.IGNORECASE)
 LOOP_RATE_FRACTION = 0.8
 #: How long a STATUSTEXT may follow its refused COMMAND_ACK (ArduPilot queues the text).
 REASON_WAIT = 0.5
-#: STATUSTEXT.text length: a chunk this long may be continued in the next one (same id).
-STATUSTEXT_CHUNK = 50
+#: Why a message asked for shows 0 Hz when it never came (`StreamNegotiator._lacks`).
+NOT_SENT = "none arrived since it was asked for: the vehicle does not send it, or not yet"
 #: The longest wait between re-requests of one message, in `retry_interval`s: each re-request
 #: that did not bring it back doubles the wait, up to this.
 MAX_BACKOFF = 8
@@ -264,7 +265,7 @@ class StreamRequester:
                 reason.append(text)
             else:
                 continue
-            if len(text) < STATUSTEXT_CHUNK:
+            if len(text) < CHUNK_CHARS:
                 break
         return result, "".join(reason) or None
 
@@ -433,14 +434,31 @@ class StreamRequester:
     def snapshot(self) -> StreamsSnapshot:
         """Requested, accepted and achieved rates per message, and why they differ."""
         achieved = self.link.stats.rates()
+        now = time.monotonic()
         rows = {}
         for name, n in self.negotiated.items():
             got = achieved.get(name, 0.0)
             hz = n.requested_hz
+            reason = n.reason
+            if reason is None and self._lacks(name, got, now):
+                reason = NOT_SENT
             rows[name] = StreamRate(
-                hz, round(got, 2), round(got / hz, 3) if hz else None, n.ack, n.accepted_hz, n.method, n.reason
+                hz, round(got, 2), round(got / hz, 3) if hz else None, n.ack, n.accepted_hz, n.method, reason
             )
         return StreamsSnapshot(self.method, self.requests_sent, rows)
+
+    def _lacks(self, name: str, achieved_hz: float, now: float) -> bool:
+        """Accepted (or asked for by group, which nothing acknowledges), yet not one packet in the
+        `retry_interval` since: the vehicle does not have it (an APM 2.5's second IMU, SCALED_IMU2)."""
+        n = self.negotiated[name]
+        last = self._last_request.get(name)
+        return (
+            bool(n.accepted_hz)
+            and achieved_hz == 0.0
+            and name not in self._arrived
+            and last is not None
+            and now - last >= self.retry_interval
+        )
 
 
 def _text(msg) -> str:

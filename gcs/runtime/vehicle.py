@@ -16,6 +16,7 @@ from pymavlink import mavutil
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.mavlink.identity import autopilot_name, enum_name
+from gcs.mavlink.statustext import StatusTextJoiner
 from gcs.runtime.boot_clock import BootClock, Step
 from gcs.runtime.events import EventLog
 from gcs.runtime.link import Link
@@ -92,6 +93,7 @@ class VehicleState:
     ekf_variance_max: float | None = None
     messages: deque[AutopilotMessage] = field(default_factory=lambda: deque(maxlen=MESSAGES_KEPT))
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_KEPT))
+    _texts: StatusTextJoiner = field(default_factory=StatusTextJoiner)
     _origin: tuple[float, float] | None = None
     _last_track: float = -math.inf
     #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
@@ -113,16 +115,18 @@ class VehicleState:
         if item.sysid != self.link.target_system:
             return
         msg = item.msg
+        for severity, text in self._texts.expire(item.host_time):
+            self._statustext(severity, text)
         if item.type == "HEARTBEAT":
             if item.compid != self.link.target_component:
                 return
             self.heartbeats += 1
             self.autopilot = autopilot_name(msg.autopilot)
             self.vehicle_type = enum_name("MAV_TYPE", msg.type)
-            self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             self.custom_mode = msg.custom_mode
             self.system_status = enum_name("MAV_STATE", msg.system_status)
-            self.mode = flight_mode(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode)
+            armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            self._flight_state(flight_mode(msg.autopilot, msg.type, msg.base_mode, msg.custom_mode), armed)
         elif item.type == "SYS_STATUS":
             self.battery_v = None if msg.voltage_battery == 0xFFFF else msg.voltage_battery / 1000.0
             self.battery_a = None if msg.current_battery < 0 else msg.current_battery / 100.0
@@ -141,15 +145,25 @@ class VehicleState:
             variances = (msg.velocity_variance, msg.pos_horiz_variance, msg.pos_vert_variance, msg.compass_variance)
             self.ekf_variance_max = max(variances)
         elif item.type == "STATUSTEXT":
-            self._statustext(msg.severity, msg.text)
-            if banner := banner_version(msg.text):
-                self.firmware = banner
+            chunk = (getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))  # MAVLink 1 has neither
+            for severity, whole in self._texts.add(msg.severity, msg.text.rstrip("\x00"), *chunk, item.host_time):
+                self._statustext(severity, whole)
         elif item.type == "AUTOPILOT_VERSION":
             if self.firmware is None or self.firmware[0].isdigit():  # a banner seen names more
                 self.firmware = version_of(msg)
             self.capabilities = msg.capabilities
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
             self._clock(item.vehicle_time, item.host_time, item.sysid)
+
+    def _flight_state(self, mode: str | None, armed: bool) -> None:
+        """Take the heartbeat's mode and arming state; each change is an event (the first
+        heartbeat's mode too, and arming found on), so the session says when the vehicle armed
+        and which mode it flew in: what the errors of a take-off or a turn are read against."""
+        if mode != self.mode and self.events is not None:
+            self.events.record("vehicle", "vehicle", event="mode", old=self.mode, new=mode)
+        if armed != self.armed and self.events is not None:
+            self.events.record("vehicle", "vehicle", event="armed" if armed else "disarmed", mode=mode)
+        self.mode, self.armed = mode, armed
 
     def _clock(self, t: float, now: float, sysid: int) -> None:
         step = self.clock.step(t, now)
@@ -192,7 +206,10 @@ class VehicleState:
         self.track.append((round(north, 2), round(east, 2)))
 
     def _statustext(self, severity: int, text: str) -> None:
-        text = text.rstrip("\x00").strip()
+        """One whole text (its chunks joined): the page's list, the event log, the firmware banner."""
+        text = text.strip()
+        if banner := banner_version(text):
+            self.firmware = banner
         name = enum_name("MAV_SEVERITY", severity).removeprefix("MAV_SEVERITY_")
         self.messages.appendleft(AutopilotMessage(time.time(), severity, name, text))
         if self.events is not None:

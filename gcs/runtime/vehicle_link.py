@@ -133,11 +133,11 @@ class VehicleLink(Link):
 
     def snapshot(self) -> LinkSnapshot:
         own = super().snapshot()
-        if self.link is None:
-            return own
-        link = self.link.snapshot()
         # the shared link's transport, baud and errors, with this vehicle's own states: the shared
-        # link's state follows every vehicle on it, and beside this one's it showed each change twice
+        # link's state follows every vehicle on it, and beside this one's it showed each change twice.
+        # Before any vehicle is heard, the link shown (the first): why nothing comes ("cannot open
+        # tcp:...: Connection refused; retrying") is what `gcs status` and the page must say then.
+        link = self._shown.snapshot()
         shared = [e for e in link.events if e.kind != "state"]
         events = sorted([*shared, *own.events], key=lambda e: e.wall_time)[-50:]
         stats = dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops)

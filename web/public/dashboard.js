@@ -84,7 +84,13 @@ function showStatus(s) {
   const me = gcsStats.client;
   $("viewer").textContent = `${s.clients.length} viewer(s)` + (me ? ` · this page: ${me.sent_points} samples, dropped ${me.dropped_points}` : "")
     + s.clients.filter((c) => c.dropped_points).map((c) => ` · viewer ${c.id} dropped ${c.dropped_points}`).join("");
-  const warn = Object.entries(s.estimators).filter(([, e]) => !e.reliable).map(([n, e]) => `${n}: ${e.reason}`);
+  // one line per reason, naming every estimator it holds for ("dcm, kf, ekf: raw IMU at 19.0 Hz,
+  // ..."): over a 57600 radio each of the three said the same long sentence, pushing the plots down
+  const unreliable = new Map();
+  for (const [n, e] of Object.entries(s.estimators).filter(([, x]) => !x.reliable)) {
+    unreliable.set(e.reason, [...(unreliable.get(e.reason) || []), n]);
+  }
+  const warn = [...unreliable].map(([reason, names]) => `${names.join(", ")}: ${reason}`);
   if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
   if (s.vehicle.two_senders) {
     warn.unshift(`two vehicles are sending as system ${s.vehicle.sysid}: their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV), or hear a vehicle through one route only`);
@@ -130,13 +136,16 @@ function showNumbers(est, status) {
   const rows = [];
   for (const a of src.filter((x) => x.kind === "estimator")) {
     const e = status.estimators[a.source] || {};
-    const health = e.reliable === false ? e.reason : "";
+    // the reason is in the warnings above (and this cell's tooltip): in every row it wrapped each
+    // row to five lines and pushed the plots below a laptop's fold
+    const health = e.reliable === false ? `<td class="health low" title="${escapeHtml(e.reason || "")}">unreliable</td>`
+      : `<td class="health">reliable</td>`;
     for (const [ref, st] of Object.entries(a.errors)) {
       const lag = e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
       rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
         + `<td class="triple rms-window">${triple(st.window_rms_deg)}</td><td class="triple">${triple(st.window_max_deg)}</td>`
         + `<td class="triple rms-session">${triple(st.session_rms_deg)}</td><td class="triple">${triple(st.session_max_deg)}</td>`
-        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td><td class="health ${e.reliable === false ? "low" : ""}">${e.reliable === false ? "unreliable" : "reliable"}${health ? `; ${escapeHtml(health)}` : ""}</td></tr>`);
+        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td>${health}</tr>`);
     }
   }
   // the first header on two lines: on one it alone widened the table past its column at 1366 px
