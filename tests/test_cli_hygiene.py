@@ -176,6 +176,8 @@ LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
         (["status", "--heartbeat-timeout", "0"], "gcs status: --heartbeat-timeout 0.0: give seconds > 0"),
         (["status", "--duration", "-5"], "gcs status: --duration -5.0: give seconds > 0"),
         (["status", "--duration", "nan"], "gcs status: --duration nan: give seconds > 0"),
+        (["demo", "--duration", "-1"], "gcs demo: --duration -1.0: give seconds >= 0 (0: run until Ctrl-C)"),
+        (["demo", "--duration", "nan"], "gcs demo: --duration nan: give seconds >= 0 (0: run until Ctrl-C)"),
         (["replay", "--speed", "-1"], "gcs replay: error: --speed -1.0: give a number >= 0 (0 = as fast as possible)"),
         (["replay", "--speed", "nan"], "gcs replay: error: --speed nan: give a number >= 0 (0 = as fast as possible)"),
     ],
@@ -184,9 +186,10 @@ def test_a_negative_or_not_finite_number_option_is_refused_in_one_line(argv, exp
     """Found by auditing: `gcs replay --speed -1` (or nan) replayed as fast as possible, a negative
     or NaN --imu-rate asked the vehicle to stop the stream, --heartbeat-timeout 0 called a live
     link lost, `gcs status --duration -5` (or nan) listened for no time and reported "no heartbeat
-    yet"; each now ends at once with the option and what it takes."""
+    yet", `gcs demo --duration -1` (or nan) ran until Ctrl-C; each now ends at once with the option
+    and what it takes."""
     hop = str(LOGS / "arducopter-sitl-hop.tlog")
-    link = ["--connect", hop, "--duration", LISTEN_S] if argv[0] == "status" else [hop]
+    link = {"status": ["--connect", hop, "--duration", LISTEN_S], "demo": []}.get(argv[0], [hop])
     done = subprocess.run(GCS + [argv[0], *link, *argv[1:]], capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [expected], done.stderr

@@ -53,6 +53,7 @@ def test_pixhawk_version_requested_at_connect_reaches_the_metadata(udp_port, tmp
     firmware, meta = asyncio.run(scenario())
     assert firmware == "4.5.7"
     assert meta["vehicle"]["firmware"] == "4.5.7"
+    assert meta["link"]["baud"] is None  # UDP has no baud rate (it read 57600)
     # the session's tlog alone, as another tool would keep it: the same version, from the
     # AUTOPILOT_VERSION it recorded (a bare tlog's firmware was unknown)
     (folder,) = [p for p in tmp_path.iterdir() if layout.is_session(p)]

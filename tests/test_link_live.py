@@ -14,6 +14,7 @@ from live import running_sim, running_station, sim_process, wait_for
 import gcs
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.link import LinkState
+from gcs.sessions import layout
 
 #: The estimator-critical messages each profile must deliver at the requested rate.
 CRITICAL = {
@@ -189,6 +190,7 @@ def test_a_serial_port_that_vanishes_is_one_clear_line_in_the_session(tmp_path):
     noted = [e["text"] for e in gcs.open_session(folder).events.to_pylist() if e["kind"] == "link" and e["text"]]
     assert noted == details
     assert gcs.open_session(folder).errors().num_rows > 0  # the recording is whole across the gap
+    assert layout.read_meta(folder)["link"]["baud"] == 57600  # a serial port's rate
 
 
 def test_baud_auto_detects_a_rate_that_yields_mavlink(tmp_path):

@@ -70,6 +70,9 @@ def vehicle_list(text: str) -> list[tuple[str, int]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not (args.duration >= 0 and math.isfinite(args.duration)):  # -1 or nan ran until Ctrl-C
+        print(f"gcs demo: --duration {args.duration!r}: give seconds >= 0 (0: run until Ctrl-C)", file=sys.stderr)
+        return 2
     presets = presets_or_report(args, "demo")
     if presets is None:
         return 2

@@ -441,7 +441,7 @@ class SessionRecorder:
             "pid": os.getpid(),
             "gcs_version": __version__,
             "provenance": provenance().as_json(),
-            "link": {"address": str(link.address), "baud": link.baud},
+            "link": {"address": str(link.address), "baud": link.snapshot().baud},  # None but on serial
             "vehicle": self._vehicle(),
             "estimation": None
             if estimation is None
