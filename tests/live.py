@@ -49,6 +49,14 @@ async def open_page(browser, errors: list[str], width: int = 1366, height: int =
     return page
 
 
+async def open_dashboard(page, url: str, *ready: str) -> None:
+    """Load the dashboard at `url` and wait until each of the page-side conditions `ready` holds
+    (a first start may still be compiling the estimators: minutes, on a loaded machine)."""
+    await page.goto(url, timeout=300_000, wait_until="commit")
+    for condition in ready:
+        await page.wait_for_function(condition, polling=POLL_MS, timeout=300_000)
+
+
 @contextlib.asynccontextmanager
 async def dashboard(station: Station, **kwargs):
     """The station's DashboardServer on a free port (kwargs: viser, viser_port, hub, ...)."""

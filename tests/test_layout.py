@@ -12,7 +12,7 @@ import time
 
 import pytest
 from conftest import free_port
-from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process
+from live import POLL_MS, dashboard, launch_chromium, open_dashboard, open_page, running_station, sim_process
 from playwright.async_api import async_playwright
 
 VIEWPORTS = {"laptop": (1366, 768), "phone": (390, 844)}
@@ -130,13 +130,13 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
             browser = await launch_chromium(pw)
             for name, (width, height) in VIEWPORTS.items():
                 page = await open_page(browser, errors, width, height)
-                await page.goto(server.url, timeout=300_000, wait_until="commit")
-                for ready in (
+                await open_dashboard(
+                    page,
+                    server.url,
                     "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
                     "(document.querySelector('#vehicle-GPS') || {}).textContent?.includes('satellites')",
                     "window.gcsPlots && gcsStats.historyLoads >= 2 && gcsPlots.draws > 0",
-                ):
-                    await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
+                )
                 # a few more draws with live data, then the page's blocks are where they stay
                 await page.wait_for_function(
                     "(n) => gcsPlots.draws >= n", arg=await page.evaluate("gcsPlots.draws") + 5, polling=POLL_MS

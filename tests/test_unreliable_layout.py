@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, sim_process
+from live import dashboard, launch_chromium, open_dashboard, open_page, running_station, sim_process
 from playwright.async_api import async_playwright
 
 from gcs.runtime.streams import StreamPlan
@@ -50,13 +50,13 @@ async def scenario(udp_port: int) -> dict:
     ):
         browser = await launch_chromium(pw)
         page = await open_page(browser, errors, 1366, 768)
-        await page.goto(server.url, timeout=300_000, wait_until="commit")
-        for ready in (
+        await open_dashboard(
+            page,
+            server.url,
             "document.querySelectorAll('#numbers-table tr[data-estimator]').length >= 6",
             "[...document.querySelectorAll('#warnings div')].some((d) => d.textContent.includes('raw IMU at'))",
             "window.gcsPlots && gcsPlots.draws > 0",
-        ):
-            await page.wait_for_function(ready, polling=POLL_MS, timeout=300_000)
+        )
         figures = await page.evaluate(JS_FIGURES)
         await browser.close()
     assert errors == [], errors
