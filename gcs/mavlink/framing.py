@@ -47,7 +47,7 @@ class FramingCounters:
     bytes_skipped: int = 0  # bytes that belonged to no valid packet
     unknown: int = 0  # frame candidates with a message id outside the dialect (skipped)
     lost: dict[tuple[int, int], int] = field(default_factory=dict)
-    #: per (sysid, compid): packets whose sequence number went back (by 1 to 128): the network
+    #: per (sysid, compid): packets whose sequence number went back or repeated (by 0 to 128): the network
     #: reordering, a restart, or two senders with one id interleaving (gcs.runtime.sequence_watch)
     stepped_back: dict[tuple[int, int], int] = field(default_factory=dict)
     mavlink1: int = 0
