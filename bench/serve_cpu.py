@@ -23,8 +23,10 @@ time advances at the scaled rate too), paced every 5 ms; the vehicle turns at YA
   what it received is counted from the raw log it writes (mav.tlog.raw).
 CPU: psutil user+system time of the receiving process over MEASURE_S s after WARMUP_S, per
 1000 msg/s sent; the median of ROUNDS alternating rounds of the three receivers; for ours also
-its main thread alone (`ours_main_thread_pct`: the event loop). Knee: the
-highest rate of RATES at which the receiver counted every packet sent.
+its main thread alone (`ours_main_thread_pct`: the event loop). Ours and the bare loop again at
+SLOPE_RATE in each round: the line through the two rates splits each one's CPU into µs per message
+and a fixed part (% of a core whatever arrives: the turns, the pages), which shows what the ratio at
+CPU_RATE is made of. Knee: the highest rate of RATES at which the receiver counted every packet sent.
 """
 
 from __future__ import annotations
@@ -51,6 +53,9 @@ WARMUP_S = 8.0
 MEASURE_S = 10.0
 RATES = (1_000, 2_000, 5_000, 10_000, 20_000)
 CPU_RATE = 1_000
+#: a second rate the CPU is measured at, ours and bare: the two rates split each receiver's CPU into
+#: what each message costs (the slope) and what it costs whatever arrives (the turns, the pages)
+SLOPE_RATE = 5_000
 #: alternating rounds of the CPU figures (GCS_BENCH_ROUNDS)
 ROUNDS = int(os.environ.get("GCS_BENCH_ROUNDS", "3"))
 #: dashboard pages (GCS_BENCH_PAGES; 0: `gcs serve` estimating and recording with nobody watching,
@@ -293,7 +298,10 @@ def cpu_rounds(seconds: float, rounds: int) -> dict[str, list[float]]:
     """Core fraction of each receiver in `rounds` alternating rounds (ours, bare, MAVProxy when
     installed): one 10 s window swings by ±30 % on a shared machine, so each figure is the median
     of its rounds, and each ratio the median of the rounds' own ratios."""
-    cpu: dict[str, list[float]] = {"serve": [], "serve_main": [], "pymavlink": [], "MAVProxy": [], "view_hz": []}
+    cpu: dict[str, list[float]] = {
+        "serve": [], "serve_main": [], "pymavlink": [], "MAVProxy": [], "view_hz": [],
+        "serve_slope_rate": [], "pymavlink_slope_rate": [],
+    }  # fmt: skip
     for _ in range(rounds):
         served = serve(CPU_RATE, seconds, True)
         cpu["serve"].append(served["cpu"])
@@ -302,7 +310,18 @@ def cpu_rounds(seconds: float, rounds: int) -> dict[str, list[float]]:
         cpu["pymavlink"].append(bare(CPU_RATE, seconds, True)["cpu"])
         if mavproxy_exe():
             cpu["MAVProxy"].append(mavproxy(CPU_RATE, seconds)["cpu"])
+        cpu["serve_slope_rate"].append(serve(SLOPE_RATE, seconds, True)["cpu"])
+        cpu["pymavlink_slope_rate"].append(bare(SLOPE_RATE, seconds, True)["cpu"])
     return cpu
+
+
+def per_message_and_fixed(at_cpu_rate: list[float], at_slope_rate: list[float]) -> dict[str, float]:
+    """A receiver's CPU as fixed + per message (the line through its medians at the two rates):
+    µs of a core per message, and % of a core whatever arrives."""
+    low, high = statistics.median(at_cpu_rate), statistics.median(at_slope_rate)
+    per_message = (high - low) / (SLOPE_RATE - CPU_RATE)
+    fixed = low - per_message * CPU_RATE
+    return {"us_per_message": round(1e6 * per_message, 1), "fixed_core_pct": round(100 * fixed, 1)}
 
 
 def main() -> list[dict]:
@@ -343,6 +362,28 @@ def main() -> list[dict]:
     else:
         row = {"note": "mavproxy.py not found (GCS_BENCH_MAVPROXY or PATH)"}
     rows.append({"benchmark": "MAVProxy CPU per 1000 msg/s", "baseline": "MAVProxy --daemon, default logging"} | row)
+    ours = per_message_and_fixed(cpu["serve"], cpu["serve_slope_rate"])
+    theirs = per_message_and_fixed(cpu["pymavlink"], cpu["pymavlink_slope_rate"])
+    slope_k = SLOPE_RATE / 1000
+    rows.append(
+        {
+            "benchmark": f"serve CPU per 1000 msg/s at {SLOPE_RATE} msg/s ({PAGES} pages), and split",
+            "baseline": "bare pymavlink receive loop",
+            "baseline_core_pct": round(100 * statistics.median(cpu["pymavlink_slope_rate"]) / slope_k, 1),
+            "ours_core_pct": round(100 * statistics.median(cpu["serve_slope_rate"]) / slope_k, 1),
+            "ratio": round(
+                statistics.median(
+                    o / b for o, b in zip(cpu["serve_slope_rate"], cpu["pymavlink_slope_rate"], strict=True)
+                ),
+                2,
+            ),
+            # the line through the two rates: per message (the slope) and whatever arrives
+            "ours_us_per_message": ours["us_per_message"],
+            "baseline_us_per_message": theirs["us_per_message"],
+            "ours_fixed_core_pct": ours["fixed_core_pct"],
+            "baseline_fixed_core_pct": theirs["fixed_core_pct"],
+        }
+    )
     runs = [("serve", serve), ("pymavlink", bare)]
     if mavproxy_exe():
         runs.append(("MAVProxy", mavproxy))
