@@ -307,3 +307,33 @@ def test_the_event_log_follows_the_session_folder_to_its_vehicle_name(tmp_path, 
     start, moved, stop = recording
     assert moved["old"] == start["folder"] and not Path(start["folder"]).exists(), recording
     assert Path(moved["folder"]) == Path(stop["folder"]) == folder, recording
+
+
+def test_recording_ignores_what_the_working_directory_holds(tmp_path, udp_port, monkeypatch):
+    """The writer named each table's file by building its path against the working directory, and
+    the symlink check on that path ran there: a station started in a folder holding a link named
+    like a table's stream (attitude.arrows) stopped recording at its first flush. The names are
+    names now; the checks belong to the session's own folder."""
+    root = tmp_path / "sessions"
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    (cwd / layout.stream_name("attitude")).symlink_to(tmp_path / "elsewhere")
+    monkeypatch.chdir(cwd)
+
+    async def record() -> None:
+        async with (
+            running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"),
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+        ):
+
+            def attitude_written_or_failed() -> bool:
+                session = station.recorder.session
+                if station.recorder.snapshot().state == "failed":
+                    return True
+                return session is not None and layout.stream_path(session.folder, "attitude").exists()
+
+            await wait_for(attitude_written_or_failed, 120, "the attitude stream written (or the recording failed)")
+            assert station.recorder.snapshot().error is None, station.recorder.snapshot()
+
+    asyncio.run(record())
+    assert columnar.read_table(_one_session(root), "attitude").num_rows > 0

@@ -124,7 +124,7 @@ class Session:
         columns: dict[str, list[Sequence]] = {table: list(zip(*table_rows)) for table, table_rows in rows.items()}
         columns["attitude"] = columnar.attitude_columns(points)
         return {
-            layout.stream_path(Path(""), table).name: encoder.encode_columns(columns[table])
+            layout.stream_name(table): encoder.encode_columns(columns[table])
             for table, encoder in self.encoders.items()
         }
 

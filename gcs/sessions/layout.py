@@ -69,8 +69,13 @@ def session_file(folder: Path, name: str) -> Path:
     return path
 
 
+def stream_name(table: str) -> str:
+    """The file name of a table's Arrow stream in a session folder."""
+    return f"{table}{STREAM_SUFFIX}"
+
+
 def stream_path(folder: Path, table: str) -> Path:
-    return session_file(folder, f"{table}{STREAM_SUFFIX}")
+    return session_file(folder, stream_name(table))
 
 
 def parquet_path(folder: Path, table: str) -> Path:
