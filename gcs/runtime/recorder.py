@@ -458,9 +458,10 @@ class SessionRecorder:
             "recovered": False,
         }
 
-    def _on_writer_error(self, exc: OSError, name: str) -> None:
+    def _on_writer_error(self, exc: Exception, name: str) -> None:
         """From the writer thread: report in the loop (events, status), once."""
-        message = f"recording stopped: cannot write {name}: {exc.strerror or exc}; what was written is kept"
+        reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else f"{type(exc).__name__}: {exc}"
+        message = f"recording stopped: cannot write {name}: {reason}; what was written is kept"
         if self._loop is not None and not self._loop.is_closed():
             self._loop.call_soon_threadsafe(self.report_error, message)
         else:

@@ -7,7 +7,9 @@ them, which bounds what a `kill -9` can lose to one interval plus the write itse
 Each file is appended to with plain `os.write` and its last good length is remembered. On the
 first write error (full disk, removed folder, lost permission) the file is cut back to that
 length, so it ends at a complete record, recording stops, and `on_error` reports the error:
-what was written stays valid and the live view keeps running.
+what was written stays valid and the live view keeps running. A fault while encoding a flush's
+tables (a `source`) stops the recording the same way, with its reason: the thread never ends
+silently while the station still reads "recording".
 """
 
 from __future__ import annotations
@@ -19,6 +21,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gcs.sessions import layout
+
+#: what `on_error` names when a flush's tables could not be encoded
+TABLES = "the session's tables"
 
 
 class AppendFile:
@@ -59,7 +64,7 @@ class SessionWriter(threading.Thread):
         self,
         folder: Path,
         interval: float,
-        on_error: Callable[[OSError, str], None],
+        on_error: Callable[[Exception, str], None],
         sources: list[Callable[[], dict[str, bytes]]] | None = None,
     ) -> None:
         super().__init__(name=f"session-writer {folder.name}", daemon=True)
@@ -70,7 +75,7 @@ class SessionWriter(threading.Thread):
         self.files: dict[str, AppendFile] = {}
         self.bytes_written = 0
         self.last_flush: float | None = None  # monotonic
-        self.failed: OSError | None = None
+        self.failed: Exception | None = None
         self._lock = threading.Lock()
         self._buffers: dict[str, list[bytes]] = {}
         self._meta: dict | None = None
@@ -111,8 +116,14 @@ class SessionWriter(threading.Thread):
                 except OSError:
                     pass  # keep recording under the first name
             pending = {name: b"".join(parts) for name, parts in buffers.items()}
+            encoding_fault: Exception | None = None
             for source in self.sources:
-                for name, data in source().items():
+                try:
+                    encoded = source()
+                except Exception as exc:  # any fault: the raw bytes below still go to disk, then it stops
+                    encoding_fault = exc
+                    break
+                for name, data in encoded.items():
                     pending[name] = pending.get(name, b"") + data
             for name, data in pending.items():
                 if not data:
@@ -126,6 +137,10 @@ class SessionWriter(threading.Thread):
                     self.on_error(exc, name)
                     return
                 self.bytes_written += len(data)
+            if encoding_fault is not None:
+                self.failed = encoding_fault
+                self.on_error(encoding_fault, TABLES)
+                return
             if meta is not None:
                 try:
                     layout.write_meta(self.folder, meta)
