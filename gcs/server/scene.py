@@ -14,10 +14,12 @@ authentication: changes are made on the page).
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import viser
+from viser._messages import RunJavascriptMessage
 
 from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import euler_to_quat
@@ -29,18 +31,28 @@ from gcs.server.colors import COLORS, OTHER
 GHOST_OPACITY = 0.35
 
 
-#: Style for viser's own page, sent as raw HTML (`gui.add_html`, which its client renders
-#: unsanitized, so a <style> applies to the whole frame). In a frame narrower than viser's mobile
+#: Style for viser's own page. With software WebGL (a laptop without GPU drivers, headless
+#: Chromium) viser shows a notice over the top third of the view until closed, on every load; the
+#: page says it under the view instead (dashboard.js). In a frame narrower than viser's mobile
 #: breakpoint (Mantine's xs, 36em: the dashboard's 3-D view on a phone) viser's panel is a bottom
-#: sheet over the scene, open at start; and with software WebGL (a laptop without GPU drivers,
-#: headless Chromium) a notice covers the top of the view until closed. The page has the gains and
-#: the controls, so both go wherever this style is mounted: always in a phone-sized frame, on a
-#: wider one while the panel is open (its minimized title bar and the notice stay in the top
-#: corners, clear of the vehicle). tests/test_layout.py measures what is left inside the frame.
-EMBEDDED_STYLE = """<style>
+#: sheet over the scene, open at start; the page has the gains and the controls, so it goes.
+#: tests/test_layout.py measures what is left inside the frame.
+EMBEDDED_STYLE = """
 .mantine-Notifications-root { display: none !important; }
 @media (max-width: 36em) { .mantine-Paper-root[style*="position: fixed"] { display: none !important; } }
-</style>"""
+"""
+#: Mounts EMBEDDED_STYLE in the document of every client, once (viser replays the message to each
+#: client that connects). Until 2026-12-05 the style was panel HTML (`gui.add_html`), which viser
+#: mounts only while its panel is open: on a laptop-sized frame, with the panel minimized, the
+#: software-WebGL notice stayed.
+STYLE_SCRIPT = f"""
+if (!document.getElementById("gcs-style")) {{
+  const style = document.createElement("style");
+  style.id = "gcs-style";
+  style.textContent = {json.dumps(EMBEDDED_STYLE)};
+  document.head.appendChild(style);
+}}
+"""
 
 
 class LocalViserServer(viser.ViserServer):
@@ -56,7 +68,8 @@ class LocalViserServer(viser.ViserServer):
         # The page's gain panel is the control: viser's panel starts minimized to its title bar, so
         # it never covers the vehicle (at 600 px and wider); narrower, it is hidden (EMBEDDED_STYLE).
         self.gui.main_panel.minimize()
-        self.gui.add_html(EMBEDDED_STYLE, order=-1.0)
+        # viser's way to run a script on its page (it sends plotly.js so); kept for new clients
+        self._websock_server.queue_message(RunJavascriptMessage(source=STYLE_SCRIPT))
 
     def request_share_url(self, verbose: bool = True) -> str | None:
         return None

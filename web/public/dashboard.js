@@ -109,7 +109,12 @@ function showStatus(s) {
     + `<tr><th>estimator</th><th>IMU rate</th><th>health</th></tr>${est.join("")}</table>`
     + `<div class="note">lag +20 ms = estimator 20 ms behind onboard ATTITUDE (negative: ahead) · declination ${dec}</div>`;
   const frame = $("pose");
-  if (s.viser_port && !frame.src) frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/${softwareWebGL() ? "?fixedDpr=0.5" : ""}`;
+  if (s.viser_port && !frame.src) {
+    const software = softwareWebGL();
+    frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/${software ? "?fixedDpr=0.5" : ""}`;
+    // viser's own notice of it is hidden (gcs.server.scene): it covered a third of the view
+    if (software) $("pose-renderer").textContent = "Drawn without GPU acceleration (software WebGL), at half resolution.";
+  }
   if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
 }
 
