@@ -1,8 +1,10 @@
 """Every header of the dashboard's estimator tables is fully visible on a 1366×768 laptop, in real
 Chromium with the classic scrollbars a desktop browser draws, against the station and the simulator
-over UDP with live data (every row's lag known, the widest the live table gets). The audit found the
-numbers table's "health" header clipped there: the table was wider than its column and scrolled
-sideways inside its box, the header past the box's edge."""
+over UDP with live data (every estimator's lag known, the widest the live table gets). The audit
+found the numbers table's "health" header clipped there: the table was wider than its column and
+scrolled sideways inside its box, the header past the box's edge. And each estimator's lag,
+searched against onboard ATTITUDE only, shows in its onboard row alone: shown in every row,
+"dcm − truth" read as dcm that far behind (or ahead of) the truth."""
 
 from __future__ import annotations
 
@@ -29,8 +31,12 @@ JS_HEADERS = """(tables) => {
   return { page, innerWidth, headers: out };
 }"""
 
+# each row's lag cell, by estimator|reference
+JS_LAGS = """() => Object.fromEntries([...document.querySelectorAll('#numbers-table tr[data-estimator]')]
+  .map((r) => [`${r.dataset.estimator}|${r.dataset.reference}`, r.cells[5].textContent]))"""
+
 LAGS_KNOWN = """[...document.querySelectorAll('#numbers-table tr[data-estimator]')]
-  .filter((tr) => / ms$/.test(tr.cells[5].textContent)).length >= 6
+  .filter((tr) => / ms$/.test(tr.cells[5].textContent)).length >= 3
   && document.querySelectorAll('#streams th').length >= 6"""
 
 
@@ -44,6 +50,9 @@ def test_estimator_table_headers_fully_visible_at_1366(udp_port):
     assert clipped == [], f"headers not fully visible (px overflowing, past their box, past the page): {clipped}"
     scrolling = {h["table"] for h in headers if h["box_scrolls"] > 0}
     assert scrolling == set(), f"tables scrolling sideways at 1366 px: {scrolling}"
+    lags = report["lags"]
+    assert all(lags[f"{est}|truth"] == "–" for est in ("dcm", "kf", "ekf")), lags
+    assert all(lags[f"{est}|onboard"].endswith(" ms") for est in ("dcm", "kf", "ekf")), lags
 
 
 async def scenario(udp_port: int) -> dict:
@@ -60,6 +69,7 @@ async def scenario(udp_port: int) -> dict:
             await page.goto(server.url, wait_until="commit")
             await page.wait_for_function(LAGS_KNOWN, polling=POLL_MS, timeout=180_000)
             report = await page.evaluate(JS_HEADERS, list(TABLES))
+            report["lags"] = await page.evaluate(JS_LAGS)
         finally:
             await browser.close()
     assert errors == [], errors

@@ -146,11 +146,13 @@ function showNumbers(est, status) {
     const health = e.reliable === false ? `<td class="health low" title="${escapeHtml(e.reason || "")}">unreliable</td>`
       : `<td class="health">reliable</td>`;
     for (const [ref, st] of Object.entries(a.errors)) {
-      const lag = e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
+      // the lag is searched against onboard ATTITUDE only: shown in every row, "dcm − truth" read
+      // as dcm being that far behind (or ahead of) the truth
+      const lag = ref !== "onboard" || e.lag_s == null ? "–" : `${e.lag_s >= 0 ? "+" : ""}${Math.round(1000 * e.lag_s)} ms`;
       rows.push(`<tr data-estimator="${a.source}" data-reference="${ref}"><td>${a.source} − ${ref}</td>`
         + `<td class="triple rms-window">${triple(st.window_rms_deg)}</td><td class="triple">${triple(st.window_max_deg)}</td>`
         + `<td class="triple rms-session">${triple(st.session_rms_deg)}</td><td class="triple">${triple(st.session_max_deg)}</td>`
-        + `<td>${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td>${health}</tr>`);
+        + `<td class="lag">${lag}</td><td>${fmt(e.imu_rate_hz)} Hz</td>${health}</tr>`);
     }
   }
   // the first header on two lines: on one it alone widened the table past its column at 1366 px
