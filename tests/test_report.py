@@ -14,8 +14,10 @@ import termios
 import time
 
 import numpy as np
+import pyarrow.compute as pc
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
+from pymavlink import mavutil
 
 from gcs.commands.cli import main
 from gcs.provenance import provenance
@@ -106,3 +108,29 @@ def test_report_lines_break_where_yaw_crosses_180_degrees(logs_dir):
         assert np.nanmax(drawn) < 180.0, line.get_label()
         wraps += int(np.isnan(yaw).sum())
     assert wraps > 0  # the flight does cross ±180°: the gaps are there
+
+
+def test_export_of_a_tlog_carries_each_record_wall_time(logs_dir, tmp_path):
+    """A .tlog stamps every record with the host's UNIX time, and the export's wall_time column
+    promises it "for logs with host time"; a tlog's export left it empty. Each onboard row now
+    carries the stamp of the ATTITUDE record it came from, as pymavlink's own tlog reader gives it
+    (`_timestamp`), and every estimator row the stamp of its IMU record."""
+    out = tmp_path / "hop.parquet"
+    tlog = logs_dir / "arducopter-sitl-hop.tlog"
+    assert main(["export", str(tlog), "--format", "parquet", "--out", str(out)]) == 0
+    table = pq.read_table(out)
+    assert table.column("wall_time").null_count == 0, table.column("wall_time").null_count
+    stamps: dict[int, float] = {}  # ATTITUDE time_boot_ms → the record's stamp
+    log = mavutil.mavlink_connection(str(tlog))
+    while (msg := log.recv_match(type="ATTITUDE")) is not None:
+        stamps.setdefault(msg.time_boot_ms, msg._timestamp)
+    onboard = table.filter(pc.equal(table["source"], "onboard")).to_pydict()
+    assert len(onboard["t"]) > 1000
+    # the record's stamp as written (its two lowest bits carry the tlog's link flags: within 4 µs)
+    worst = max(abs(w - stamps[round(1000 * t)]) for t, w in zip(onboard["t"], onboard["wall_time"], strict=True))
+    assert worst < 5e-6, worst
+    # the estimators' rows on the same clock: within one IMU interval (25 Hz) of the onboard rows
+    dcm = table.filter(pc.equal(table["source"], "dcm")).to_pydict()
+    offsets = np.subtract(dcm["wall_time"], dcm["t"])
+    onboard_offset = np.median(np.subtract(onboard["wall_time"], onboard["t"]))
+    assert np.ptp(offsets) < 1.0 and abs(np.median(offsets) - onboard_offset) < 0.04, (np.ptp(offsets), onboard_offset)

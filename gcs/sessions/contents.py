@@ -17,7 +17,6 @@ median wall_time − t of the attitude rows, which places them on the vehicle cl
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -112,10 +111,16 @@ def events_table(events: list[dict]) -> pa.Table:
 
 
 def replayed_attitude(source: ReplaySource) -> pa.Table:
-    """Every estimator run over the source, with its references, as the attitude table (no wall
-    time: NaN)."""
+    """Every estimator run over the source, with its references, as the attitude table. Each row's
+    wall time is that of the tlog record its input came in (a live session's rows carry the time
+    they were made, a few ms later); NaN for a .bin or .ulg, which have no host clock."""
     rows: list[tuple] = []
-    source.replay(source.new_pipeline(), lambda points: rows.extend(columnar.attitude_rows(points, math.nan)))
+    wall_times = source.input_wall_times().tolist()
+    pipeline = source.new_pipeline()
+    for wall_time, item in zip(wall_times, source.table.inputs(), strict=True):
+        points = pipeline.feed(item)
+        if points:
+            rows.extend(columnar.attitude_rows(points, wall_time))
     columns: list[tuple] = list(zip(*rows)) if rows else [() for _ in columnar.ATTITUDE_SCHEMA]
     return pa.table(
         [pa.array(c, type=f.type) for c, f in zip(columns, columnar.ATTITUDE_SCHEMA)], schema=columnar.ATTITUDE_SCHEMA
@@ -151,7 +156,7 @@ class Contents:
     def attitude(self) -> pa.Table:
         """A session's recorded attitudes; a log's computed from its inputs, and a session's too
         where its attitude table is gone (a copy without it): its tlog replayed gives the numbers
-        it recorded, with no wall time (NaN), where 0 rows were exported."""
+        it recorded, where 0 rows were exported."""
         if self.kind == "session" and columnar.has_table(self.path, "attitude"):
             return columnar.read_table(self.path, "attitude")
         return replayed_attitude(self.source)

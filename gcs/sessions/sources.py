@@ -109,6 +109,14 @@ class ReplaySource:
         start = self.frames.input_start(start_frame)
         return self.table.inputs(start, int(self.frames.input_end[stop_frame - 1]))
 
+    def input_wall_times(self) -> npt.NDArray[np.float64]:
+        """Per input (`table.inputs()` order), the UNIX time (s) of the tlog record it came in;
+        NaN for a log, whose frames run on the vehicle's clock."""
+        n = len(self.table)
+        if self.frames.offset is None:
+            return np.full(n, np.nan)
+        return self.frames.t[np.searchsorted(self.frames.input_end, np.arange(n), side="right")]
+
     @cached_property
     def references(self) -> dict[str, npt.NDArray[np.float64]]:
         """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if scores against them."""
