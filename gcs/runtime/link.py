@@ -243,6 +243,12 @@ class Link:
         finally:
             self.addressed = None
 
+    def restart_sequence(self, sysid: int, compid: int, since: float) -> int:
+        """A sender rebooted: its sequence numbers started again (`MavlinkDecoder.restart_sequence`).
+        Returns the packets no longer counted as lost."""
+        decoder = self.decoder
+        return decoder.restart_sequence((sysid, compid), since) if isinstance(decoder, MavlinkDecoder) else 0
+
     def snapshot(self) -> LinkSnapshot:
         now = time.monotonic()
         self.stats.kernel_drops = self._closed_drops + (self._transport.kernel_drops if self._transport else 0)
