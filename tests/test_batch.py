@@ -213,25 +213,26 @@ def test_local_cluster_gives_the_same_dataset(batch, flights, tmp_path):
 
 
 #: A batch writer in its own process: it holds its partition's temporary folder as write_flight
-#: does, says so, and goes on writing until it is killed.
+#: does (or, given "file", a failure's temporary file as write_failure does), says so, and goes on
+#: writing until it is killed.
 WRITER = """
 import sys, time
 from pathlib import Path
 from gcs.batch.dataset import writing
-folder = Path(sys.argv[1])
-with writing(folder):
-    (folder / "attitude.parquet").write_bytes(b"half a partition")
+path, folder = Path(sys.argv[1]), sys.argv[2] == "folder"
+with writing(path, folder):
+    (path / "attitude.parquet" if folder else path).write_bytes(b"half a partition")
     print("writing", flush=True)
     time.sleep(600)
 """
 
 
-def _writer(folder: Path) -> subprocess.Popen:
-    """A real process writing `folder`, once it holds it (or the test fails)."""
-    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(folder)], stdout=subprocess.PIPE, text=True)
+def _writer(path: Path, kind: str = "folder") -> subprocess.Popen:
+    """A real process writing `path` (a "folder" or a "file"), once it holds it (or the test fails)."""
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), kind], stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     ready, _, _ = select.select([proc.stdout], [], [], 120)
-    assert ready and proc.stdout.readline() == "writing\n", f"the writer of {folder} did not start"
+    assert ready and proc.stdout.readline() == "writing\n", f"the writer of {path} did not start"
     return proc
 
 
@@ -253,7 +254,10 @@ def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights,
         session = flights["sessions"][0]
         ran = _cli("batch", session, "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
         gone = [dataset.scratch(target, dead, kind).name for kind in (dataset.WRITING, dataset.REPLACED)]
-        assert f"removed 2 temporary folders a killed run left in {out}: {', '.join(sorted(gone))}\n" in ran.stdout
+        assert (
+            f"removed 2 temporary files and folders a killed run left in {out}: {', '.join(sorted(gone))}\n"
+            in ran.stdout
+        )
         assert sorted(p.name for p in target.parent.iterdir() if p.name.startswith(".")) == sorted(
             dataset.scratch(target, alive, kind).name for kind in (dataset.WRITING, dataset.REPLACED)
         )
@@ -266,6 +270,37 @@ def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights,
     finally:
         live.kill()
         live.wait(timeout=60)
+
+
+def test_next_batch_removes_a_killed_runs_failure_file_and_sweep_folder_never_a_live_ones(flights, scheduler, tmp_path):
+    """A failure's file and a sweep's folder are written under a temporary name too, held locked
+    (dataset.write_locked): a writer killed with SIGKILL mid-write left them, and the next batch
+    removes them as it removes a partition's (it left them for good before); another run's
+    writers, alive, keep theirs."""
+    out = tmp_path / "fleet"
+    failure = dataset.failure_file(out, "junk.bin-0badc0de")
+    sweep = out / dataset.SWEEPS / "dcm-20261205-090000"
+    dead, alive = ("4242-deadbeef", "4343-a11ca7ed")
+    writers = []
+    try:
+        for target, kind in ((failure, "file"), (sweep, "folder")):
+            target.parent.mkdir(parents=True)
+            for token in (dead, alive):
+                writers.append(_writer(dataset.scratch(target, token, dataset.WRITING), kind))
+        for killed in writers[0::2]:
+            killed.kill()
+            killed.wait(timeout=60)
+        ran = _cli("batch", flights["sessions"][0], "--out", str(out), "-e", "dcm", "--scheduler", scheduler)
+        gone = [dataset.scratch(target, dead, dataset.WRITING).name for target in (failure, sweep)]
+        assert f"removed 2 temporary files and folders a killed run left in {out}: {', '.join(gone)}\n" in ran.stdout
+        for target in (failure, sweep):
+            left = [p.name for p in target.parent.iterdir() if p.name.startswith(".")]
+            assert left == [dataset.scratch(target, alive, dataset.WRITING).name], left
+        assert dataset.scratch(failure, alive, dataset.WRITING).read_bytes() == b"half a partition"
+    finally:
+        for writer in writers:
+            writer.kill()
+            writer.wait(timeout=60)
 
 
 def test_rerun_skips_done_flights_and_force_redoes_them(batch, flights, scheduler):

@@ -109,3 +109,23 @@ def test_sequence_gaps_are_counted_per_source():
     decoder = MavlinkDecoder()
     decoder.feed(b"".join(packets[:3] + packets[6:]))  # seq 3, 4, 5 missing
     assert decoder.counters.lost == {(7, 1): 3}
+
+
+def test_a_restarted_sequence_takes_back_only_the_gaps_since_the_old_boots_last_clock():
+    """A reboot behind an open port (gcs.runtime.vehicle: seen by the clock, after the fact): the
+    jump to the new boot's numbers, counted lost, is taken back; a loss before the old boot's
+    last clock reading stays counted, and so does another sender's."""
+    heartbeat = mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)
+    old, other = Encoder(7, 1), Encoder(8, 1)
+    packets = [old.encode(heartbeat) for _ in range(200)]
+    decoder = MavlinkDecoder()
+    decoder.feed(b"".join(packets[:3] + packets[6:150]) + other.encode(heartbeat))  # 3 lost
+    other.encode(heartbeat)  # one of the other sender's lost
+    decoder.feed(other.encode(heartbeat))
+    last_clock = time.monotonic()  # the old boot's last clock reading: packet 149
+    new = Encoder(7, 1)  # rebooted: numbers from 0, a jump from 149 counted as 106 lost
+    decoder.feed(b"".join(new.encode(heartbeat) for _ in range(5)))
+    assert decoder.counters.lost == {(7, 1): 3 + 106, (8, 1): 1}
+    assert decoder.restart_sequence((7, 1), last_clock) == 106
+    assert decoder.counters.lost == {(7, 1): 3, (8, 1): 1}
+    assert decoder.restart_sequence((7, 1), last_clock) == 0  # taken back once

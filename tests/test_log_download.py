@@ -252,6 +252,30 @@ def test_gcs_logs_download_from_a_signing_vehicle_with_its_key(tmp_path, udp_por
     assert downloaded.read_bytes() == log
 
 
+def test_gcs_logs_takes_baud_auto_and_heartbeat_timeout_as_every_link_command(tmp_path):
+    """`gcs logs` shares the link options of the other link commands (gcs.commands.options): on a
+    serial port (a pty the simulator serves) --baud auto finds the rate and the logs are listed;
+    a --heartbeat-timeout of 0 is refused in the same one line. Both were refused before ("--baud
+    'auto': give a rate such as 57600", "unrecognized arguments: --heartbeat-timeout")."""
+    path = tmp_path / "ttyUSB-sim"
+    logs = [sys.executable, "-m", "gcs", "logs", "list", "--connect", str(path)]
+
+    async def listing() -> tuple[int | None, str, int]:
+        async with log_vehicle(f"pty:{path}", "apm25", 4.0) as sim:
+            proc = await asyncio.create_subprocess_exec(
+                *logs, "--baud", "auto", "--heartbeat-timeout", "5", "--timeout", "30",
+                stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            )  # fmt: skip
+            out, err = await asyncio.wait_for(proc.communicate(), 120)
+            return proc.returncode, out.decode() + err.decode(), len(sim.logs.finished[0])
+
+    rc, output, size = asyncio.run(listing())
+    assert rc == 0, output
+    assert output.splitlines()[1].split()[:2] == ["1", str(size)], output
+    refused = subprocess.run([*logs, "--heartbeat-timeout", "0"], capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and refused.stderr == "gcs logs list: --heartbeat-timeout 0.0: give seconds > 0\n"
+
+
 def test_partial_download_resumes_only_the_same_log(tmp_path):
     entry = LogEntry(3, 3, 3, 1_767_225_600, 500)
     transfer = LogTransfer(entry)

@@ -114,10 +114,13 @@ def test_imu_option_selects_the_instance_in_both_formats(hop_logs, tmp_path, cap
     first = estimate(folder / "old.bin", "dcm", tmp_path / "first.csv")
     assert angle_deg(old, new).max() < 1e-3 and angle_deg(old, first).max() > 0.01
     capsys.readouterr()
-    assert main(["estimate", str(folder / "old.bin"), "-e", "dcm", "--imu", "2", "-o", str(tmp_path / "x.csv")]) == 2
-    err = capsys.readouterr().err.splitlines()
-    assert len(err) == 1 and "no IMU records of instance 2 (instances in the log: 0, 1)" in err[0]
-    assert not (tmp_path / "x.csv").exists()
+    # one line that says which instances the log has (it read "offset N: no IMU records of instance
+    # 2 (instances in the log: 0, 1); is this a DataFlash log?", after the damage of a cut log: HOP)
+    for path in (folder / "old.bin", HOP):
+        assert main(["estimate", str(path), "-e", "dcm", "--imu", "2", "-o", str(tmp_path / "x.csv")]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert err == [f"gcs estimate: error: {path}: offset 0: no IMU instance 2; the log has IMU instances 0 and 1"]
+        assert not (tmp_path / "x.csv").exists()
 
 
 def test_truncated_old_log_is_estimated_up_to_the_damage(hop_logs, tmp_path, capsys):

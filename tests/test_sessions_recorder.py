@@ -337,3 +337,27 @@ def test_recording_ignores_what_the_working_directory_holds(tmp_path, udp_port, 
 
     asyncio.run(record())
     assert columnar.read_table(_one_session(root), "attitude").num_rows > 0
+
+
+def test_a_meta_json_that_does_not_fit_leaves_the_last_one_and_no_temporary_file(tmp_path):
+    """A full disk while meta.json is replaced: the last complete meta.json stays, its temporary
+    file goes (a 0-byte meta.json.tmp stayed in the session before), and the error says both in
+    one line (what the recorder reports: "cannot write meta.json: ...")."""
+    disk = tmp_path / "disk"
+    with _small_disk(disk):
+        folder = disk / "session"
+        folder.mkdir()
+        layout.write_meta(folder, {"start": 1.0, "end": None})
+        with contextlib.suppress(OSError), open(disk / "filler", "wb", buffering=0) as filler:
+            while True:  # until the disk is full (or, under RLIMIT_FSIZE, the file at its limit)
+                filler.write(bytes(4096))
+        with pytest.raises(OSError) as failed:
+            layout.write_meta(folder, {"start": 1.0, "end": 2.0, "params": {f"P{i}": i for i in range(20_000)}})
+        left = sorted(p.name for p in folder.iterdir())
+        meta = layout.read_meta(folder)
+        tmp_size = [p.stat().st_size for p in folder.iterdir() if p.name.endswith(".tmp")]
+    message = str(failed.value)
+    print(f"\n{message}")
+    assert left == [layout.META], (left, tmp_size)
+    assert meta == {"start": 1.0, "end": None}
+    assert "meta.json left as it was, its temporary file removed" in message and "\n" not in message

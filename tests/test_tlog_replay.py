@@ -4,6 +4,7 @@ message type equals what pymavlink's own reader counts in the same file."""
 from __future__ import annotations
 
 import asyncio
+import json
 from collections import Counter
 
 import pytest
@@ -59,3 +60,20 @@ def test_tlog_replay_is_paced_by_its_timestamps(logs_dir):
 
     paced = asyncio.run(run(40.0))
     assert paced >= 88 / 40 * 0.9
+
+
+def test_gcs_status_on_a_tlog_sends_nothing_to_the_file(logs_dir, capsys):
+    """A replayed .tlog is no vehicle: `gcs status` on one sends it no stream requests, no
+    heartbeats, no version request (it sent 18 packets in 5 s before, and listed the requests as
+    unanswered), and says why no streams were requested; the file's packets are all read."""
+    from gcs.commands.cli import main
+
+    path = logs_dir / "arducopter-sitl-hop.tlog"
+    assert main(["status", "--connect", str(path), "--speed", "10", "--duration", "3", "--json"]) == 0
+    status = json.loads(capsys.readouterr().out)
+    stats = status["link"]["stats"]
+    assert stats["packets"] > 1000 and stats["counts"]["HEARTBEAT"] > 0
+    assert (stats["packets_out"], stats["bytes_out"]) == (0, 0)
+    assert status["streams"] == {"method": None, "requests_sent": 0, "messages": {}}
+    assert main(["status", "--connect", str(path), "--speed", "10", "--duration", "1"]) == 0
+    assert "streams    none requested: a replayed file is no vehicle" in capsys.readouterr().out.splitlines()

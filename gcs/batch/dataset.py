@@ -9,11 +9,12 @@
       sweeps/<estimator>-<stamp>/             gain sweeps (gcs.batch.sweep)
 
 A flight's folder is written under a temporary name and renamed whole, so a crash never leaves a
-half-written partition; its presence is what "already in the dataset" means. A writer killed
-mid-flight (a worker or scheduler killed) leaves its temporary folder, never read: the next
-`gcs batch` removes those whose writer is gone (`remove_leftovers`), never one a live run is
-writing, which holds a lock on it (flock; on NFS the kernel's lock manager keeps it across hosts,
-and it dies with its process, however killed). The `flight=`
+half-written partition; its presence is what "already in the dataset" means. A failure's file
+and a sweep's folder are written the same way. A writer killed mid-write (a worker, scheduler or
+sweep killed) leaves its temporary file or folder, never read: the next `gcs batch` removes
+those whose writer is gone (`remove_leftovers`), never one a live run is writing, which holds a
+lock on it (`writing`: flock; on NFS the kernel's lock manager keeps it across hosts, and it
+dies with its process, however killed). The `flight=`
 names are Hive partitions: `pyarrow.dataset` (and pandas, DuckDB, Spark) read every flight's
 table as one with a `flight` column (`read_table`).
 """
@@ -24,9 +25,10 @@ import contextlib
 import fcntl
 import hashlib
 import os
+import re
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pyarrow as pa
@@ -92,30 +94,50 @@ def done_flights(dataset: Path) -> set[str]:
 
 
 #: A partition being written is `.flight=<id>.<token>.tmp`; the one it replaces (--force) is moved
-#: aside as `.flight=<id>.<token>.old`, the same token, until the new one is in.
+#: aside as `.flight=<id>.<token>.old`, the same token, until the new one is in. A failure's file
+#: and a sweep's folder are written as `.<name>.<token>.tmp` beside their own.
 WRITING, REPLACED = "tmp", "old"
+#: what `scratch` names (the token: the writer's pid and 8 random hex digits, `new_token`)
+SCRATCH_NAME = re.compile(rf"\..+\.\d+-[0-9a-f]{{8}}\.({WRITING}|{REPLACED})")
+
+
+def new_token() -> str:
+    return f"{os.getpid()}-{secrets.token_hex(4)}"
 
 
 def scratch(target: Path, token: str, kind: str) -> Path:
-    """The temporary name of a partition's folder (`kind`: WRITING or REPLACED)."""
+    """The temporary name of a partition's folder, a failure's file or a sweep's folder (`kind`:
+    WRITING or REPLACED)."""
     return target.with_name(f".{target.name}.{token}.{kind}")
 
 
 @contextlib.contextmanager
-def writing(folder: Path) -> Iterator[None]:
-    """Make `folder` and hold an exclusive lock on it until the block ends (after it is renamed
-    in: the lock is the inode's), so `remove_leftovers` of another run leaves it alone. Should a
-    cleaner have taken and removed it between the mkdir and the lock, it is made again."""
+def writing(path: Path, folder: bool = True) -> Iterator[None]:
+    """Make `path` (a folder, or an empty file) and hold an exclusive lock on it until the block
+    ends (after it is renamed in: the lock is the inode's), so `remove_leftovers` of another run
+    leaves it alone. Should a cleaner have taken and removed it between its making and the lock,
+    it is made again."""
     while True:
-        folder.mkdir()
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+        if folder:
+            path.mkdir()
+            fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+        else:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
-            if folder.exists() and os.stat(folder).st_ino == os.fstat(fd).st_ino:
+            if path.exists() and os.stat(path).st_ino == os.fstat(fd).st_ino:
                 yield
                 return
         finally:
             os.close(fd)
+
+
+def write_locked(target: Path, write: Callable[[Path], object], folder: bool) -> None:
+    """write(tmp) on a scratch file or folder beside `target`, locked (`writing`), then renamed to
+    target (`write_beside`): what a failure's file and a sweep's folder are written through."""
+    tmp = scratch(target, new_token(), WRITING)
+    with writing(tmp, folder):
+        write_beside(target, write, tmp)
 
 
 def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Path:
@@ -124,7 +146,7 @@ def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Pat
     one is complete."""
     target = flight_dir(dataset, flight)
     target.parent.mkdir(parents=True, exist_ok=True)
-    token = f"{os.getpid()}-{secrets.token_hex(4)}"
+    token = new_token()
     tmp, old = scratch(target, token, WRITING), scratch(target, token, REPLACED)
 
     def write(folder: Path) -> None:
@@ -144,30 +166,31 @@ def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Pat
 
 
 def remove_leftovers(dataset: Path) -> list[str]:
-    """Remove the temporary partition folders whose writer is gone (killed mid-flight): a
-    `.tmp` nobody holds locked, an `.old` whose `.tmp` is not being written. Returns their names.
-    The lock is taken before the folder is removed, so a writer never loses one it holds."""
-    root = dataset / FLIGHTS
-    if not root.is_dir():
-        return []
+    """Remove the temporary files and folders whose writer is gone (killed mid-write), in
+    flights/, failures/ and sweeps/: a `.tmp` nobody holds locked, an `.old` whose `.tmp` is not
+    being written. Returns their names. The lock is taken before one is removed, so a writer
+    never loses one it holds."""
     removed = []
-    for folder in sorted(root.iterdir()):
-        base, _, kind = folder.name.rpartition(".")
-        if not folder.name.startswith(".flight=") or kind not in (WRITING, REPLACED):
-            continue
-        written = folder.with_name(f"{base}.{WRITING}")
-        with _unless_locked(written) as free:
-            if free:
-                shutil.rmtree(folder, ignore_errors=True)  # the old one goes with its writer's
-                removed.append(folder.name)
+    for part in (FLIGHTS, FAILURES, SWEEPS):
+        root = dataset / part
+        leftovers = sorted(p for p in root.iterdir() if SCRATCH_NAME.fullmatch(p.name)) if root.is_dir() else []
+        for path in leftovers:
+            base, _, _ = path.name.rpartition(".")
+            with _unless_locked(path.with_name(f"{base}.{WRITING}")) as free:
+                if free:  # an old partition goes with its writer's
+                    if path.is_dir():
+                        shutil.rmtree(path, ignore_errors=True)
+                    else:
+                        path.unlink(missing_ok=True)
+                    removed.append(path.name)
     return removed
 
 
 @contextlib.contextmanager
-def _unless_locked(folder: Path) -> Iterator[bool]:
-    """True (holding its lock) when no live writer holds `folder` locked or it is gone, else False."""
+def _unless_locked(path: Path) -> Iterator[bool]:
+    """True (holding its lock) when no live writer holds `path` locked or it is gone, else False."""
     try:
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+        fd = os.open(path, os.O_RDONLY)
     except FileNotFoundError:
         yield True
         return
@@ -187,7 +210,7 @@ def write_failure(dataset: Path, flight: str, path: str, reason: str) -> None:
     table = pa.Table.from_pylist([{"path": path, "reason": reason}], schema=FAILURE_SCHEMA)
     target = failure_file(dataset, flight)
     target.parent.mkdir(parents=True, exist_ok=True)
-    write_beside(target, lambda tmp: pq.write_table(table, tmp))
+    write_locked(target, lambda tmp: pq.write_table(table, tmp), folder=False)
 
 
 def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:

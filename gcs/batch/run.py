@@ -58,7 +58,7 @@ def run_batch(
     on_result: Callable[[FlightResult], None] | None = None,
 ) -> BatchOutcome:
     """One task per flight not yet in the dataset at `out` (every flight with `force`), once the
-    temporary folders a killed run left there are removed."""
+    temporary files and folders a killed run left there are removed (dataset.remove_leftovers)."""
     root = Path(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
     removed = dataset.remove_leftovers(root)

@@ -32,7 +32,6 @@ from gcs.batch.objective import OBJECTIVES, GainRange, score
 from gcs.core.estimators import registry
 from gcs.core.gains import PresetFile
 from gcs.logs.logfile import InputError
-from gcs.sessions.export import write_beside
 from gcs.sessions.whatif import run_estimator
 from gcs.sessions.workbench import workbench
 
@@ -218,10 +217,9 @@ def write_sweep(result: SweepResult, runner: Trials) -> None:
     preset = preset_of(result).to_toml()
 
     def write(tmp: Path) -> None:
-        tmp.mkdir(parents=True)
         pq.write_table(trials, tmp / "trials.parquet")
         pq.write_table(flights, tmp / "flights.parquet")
         (tmp / "preset.toml").write_text(preset)
 
     result.folder.parent.mkdir(parents=True, exist_ok=True)
-    write_beside(result.folder, write)
+    dataset.write_locked(result.folder, write, folder=True)

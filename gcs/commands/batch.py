@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if outcome.removed:
         folders = ", ".join(outcome.removed)
-        print(f"removed {len(outcome.removed)} temporary folders a killed run left in {args.out}: {folders}")
+        print(f"removed {len(outcome.removed)} temporary files and folders a killed run left in {args.out}: {folders}")
     failed = [r for r in outcome.done if not r.ok]
     written = len(outcome.done) - len(failed)
     skipped = len(outcome.skipped)

@@ -15,12 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gcs.commands.common import progress_bar
-from gcs.commands.options import add_signing_arguments, signing_key
+from gcs.commands.options import add_link_arguments, station_config_or_report
 from gcs.commands.vehicle_choice import add_sysid_argument, not_heard, one_vehicle
 from gcs.mavlink.logtransfer import LogEntry
 from gcs.runtime.logdownload import LogDownloader, LogDownloadError, LogDownloadProgress
-from gcs.runtime.station import StationConfig
-from gcs.transport.address import parse_address
 
 #: Seconds between progress lines when stderr is not a terminal.
 REPORT_INTERVAL = 5.0
@@ -39,40 +37,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         description="download one log (byte-identical, resumable)",
     )
     download.add_argument("log", nargs="?", default="latest", metavar="N|latest", help="log id (default latest)")
-    download.add_argument("--out", default="logs", metavar="DIR", help="folder for the log (default ./logs)")
+    download.add_argument(
+        "--out", dest="folder", default="logs", metavar="DIR", help="folder for the log (default ./logs)"
+    )
     for p in (list_, download):
-        p.add_argument("--connect", required=True, metavar="URL", help="the vehicle's link (as gcs status)")
-        p.add_argument("--baud", default="57600", help="serial baud rate (default 57600)")
+        # the link options of the other link commands (--baud auto, --heartbeat-timeout, signing: a
+        # signing vehicle refuses the unsigned LOG_REQUEST_* and the station its packets)
+        add_link_arguments(p, streams=False, record="never", forward=False)
         p.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for the vehicle (default 15)")
         add_sysid_argument(p)
-        add_signing_arguments(p)  # a signing vehicle refuses the unsigned LOG_REQUEST_* and the station its packets
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        parse_address(args.connect)
-        if not args.baud.isdigit():
-            raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600")
-        config = StationConfig(
-            args.connect,
-            baud=int(args.baud),
-            request_streams=False,
-            estimate=False,
-            signing_key=signing_key(args),
-            signing_required=args.signing == "required",
-        )
-        if args.action == "download" and args.log != "latest" and not (args.log.isdigit() and int(args.log) > 0):
-            raise ValueError(f"log {args.log!r}: give a log id (1, 2, ...) or 'latest'")
-    except ValueError as exc:  # AddressError is a ValueError
-        print(f"gcs logs {args.action}: {exc}", file=sys.stderr)
+    if args.action == "download" and args.log != "latest" and not (args.log.isdigit() and int(args.log) > 0):
+        print(f"gcs logs {args.action}: log {args.log!r}: give a log id (1, 2, ...) or 'latest'", file=sys.stderr)
         return 2
+    config = station_config_or_report(args, f"logs {args.action}")
+    if config is None:
+        return 2
+    config.request_streams, config.estimate = False, False
     try:
         return asyncio.run(_with_station(config, args))
     except LogDownloadError as exc:
         print(f"gcs logs {args.action}: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:  # the output folder: unwritable, full (the partial file is kept)
-        print(f"gcs logs {args.action}: error: {exc.filename or args.out}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"gcs logs {args.action}: error: {exc.filename or args.folder}: {exc.strerror or exc}", file=sys.stderr)
         return 1
 
 
@@ -86,7 +76,7 @@ async def _with_station(config, args) -> int:
             print(format_list(entries))
             return 0
         entry = pick(entries, args.log)
-        path = await downloader.download(entry, Path(args.out), progress_reporter(entry.id))
+        path = await downloader.download(entry, Path(args.folder), progress_reporter(entry.id))
         print(format_done(downloader.progress))
         print(f"replay it: gcs replay {path} --fast   or   gcs estimate {path} -e ekf --out est.csv")
         return 0

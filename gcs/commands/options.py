@@ -24,12 +24,14 @@ def add_link_arguments(
     streams: bool = True,
     record: str = "default",
     several: bool = False,
+    forward: bool = True,
 ) -> None:
     """--connect and the link and forwarding options; with `streams`, the stream-rate, replay
     speed and ascii-line options (what the estimators need); `record`: "default" records unless
     --no-record (serve, protocol), "opt-in" only with --record (status, params: a quick look
-    leaves no session folder behind), "never" no recording options (signing setup records
-    nothing); `several`: --connect repeatable (a fleet: serve, status)."""
+    leaves no session folder behind), "never" no recording options (signing setup, logs record
+    nothing); `several`: --connect repeatable (a fleet: serve, status); without `forward`, no
+    --out (logs download's --out is its folder)."""
     parser.add_argument(
         "--connect",
         required=connect_required,
@@ -41,13 +43,14 @@ def add_link_arguments(
         + ("; repeatable: every vehicle heard on every link is served" if several else ""),
     )
     parser.add_argument("--baud", default="57600", help="serial baud rate, or 'auto' (default 57600)")
-    parser.add_argument(
-        "--out",
-        action="append",
-        default=[],
-        metavar="URL",
-        help="forward every vehicle packet to this address and back (repeatable)",
-    )
+    if forward:
+        parser.add_argument(
+            "--out",
+            action="append",
+            default=[],
+            metavar="URL",
+            help="forward every vehicle packet to this address and back (repeatable)",
+        )
     parser.add_argument("--heartbeat-timeout", type=float, default=3.0, help="seconds without heartbeat before 'lost'")
     if streams:
         parser.add_argument(
@@ -122,7 +125,8 @@ def station_config(args: argparse.Namespace):
     OSError (one line) for a serial port that cannot be opened now."""
 
     connects = links_of(args)
-    addresses = [parse_address(address) for address in (*connects, *args.out)]
+    outputs: list[str] = getattr(args, "out", [])  # none without the forwarding option (forward=False)
+    addresses = [parse_address(address) for address in (*connects, *outputs)]
     if args.baud != "auto" and not args.baud.isdigit():
         raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
@@ -135,7 +139,7 @@ def station_config(args: argparse.Namespace):
     config = StationConfig(
         connect=connects[0],
         baud=baud,
-        outputs=args.out,
+        outputs=outputs,
         heartbeat_timeout=args.heartbeat_timeout,
         record_dir=record_dir(args),
         signing_key=signing_key(args),

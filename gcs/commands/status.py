@@ -14,6 +14,7 @@ from gcs.core import strict_json
 from gcs.runtime.fleet import Fleet
 from gcs.runtime.snapshots import LinkCounters, StationSnapshot
 from gcs.runtime.station import StationConfig
+from gcs.transport.address import parse_address
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,6 +95,8 @@ def format_report(snap: StationSnapshot) -> str:
         f"kernel drops {stats.kernel_drops}",
         f"streams    via {streams.method or '?'}  ({streams.requests_sent} requests sent)"
         if streams.method is not None or streams.requests_sent
+        else "streams    none requested: a replayed file is no vehicle"
+        if parse_address(snap.link.address).kind == "tlog"
         else "streams    none requested yet",
     ]
     for name, row in streams.messages.items():

@@ -219,6 +219,11 @@ class DataflashLog(LogFile):
                 keep = (s.instance == (self.imu if name in IMU_TYPES else 0)) & (s.time_us != UNTIMED)
             if keep.any():
                 used[name] = Records(name, s.rows[keep], s.fmt, s.position[keep], s.instance[keep], s.time_us[keep])
+        if imu_instances and self.imu not in imu_instances:  # --imu asks for one the log lacks
+            *others, last = map(str, imu_instances)
+            has = f"{', '.join(others)} and {last}" if others else last
+            many = "s" if others else ""
+            raise InputError(f"{self.path}: offset 0: no IMU instance {self.imu}; the log has IMU instance{many} {has}")
         if not any(name in used for name in IMU_TYPES):
             found = f"instances in the log: {', '.join(map(str, imu_instances))}" if imu_instances else "none"
             where = contents.damage[0] if contents.damage else None

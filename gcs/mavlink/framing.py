@@ -15,6 +15,8 @@ from fastcrc, which pymavlink requires and checks with), called once per packet 
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TypeAlias
 
@@ -30,6 +32,9 @@ _TYPES: dict[int, tuple[str, bytes, int]] = {
     msgid: (cls.msgname, bytes((cls.crc_extra,)), cls.unpacker.size) for msgid, cls in mavlink.mavlink_map.items()
 }
 _MARKERS = (MARKER_V1, MARKER_V2)
+#: Gaps in sequence numbers remembered per (sysid, compid), so a reboot seen later can take its own
+#: back (`MavlinkDecoder.restart_sequence`): at 1000 packets/s and 10 % loss, the last 0.3 s.
+GAPS_KEPT = 32
 
 
 #: One intact packet: (its bytes as received, its type, sysid, compid from its header). A plain
@@ -61,6 +66,8 @@ class MavlinkDecoder:
     def __init__(self) -> None:
         self._buf = b""
         self._last_seq: dict[tuple[int, int], int] = {}
+        #: per (sysid, compid): the latest gaps counted as lost, (host monotonic s, packets)
+        self._gaps: dict[tuple[int, int], deque[tuple[float, int]]] = {}
         self.counters = FramingCounters()
 
     def feed(self, data: bytes, final: bool = False) -> list[MAVLinkMessage]:
@@ -76,6 +83,24 @@ class MavlinkDecoder:
         self.counters.bytes_skipped += len(self._buf)
         self._buf = b""
         self._last_seq.clear()
+        self._gaps.clear()
+
+    def restart_sequence(self, key: tuple[int, int], since: float) -> int:
+        """Sender `key` rebooted: its sequence numbers started again, on a link that stayed open
+        (a UDP port), so the jump from the old boot's number to the new one's was counted as an
+        arbitrary 0-127 packets lost. Take back every gap counted for it from host monotonic time
+        `since` (the old boot's last reading of its clock, gcs.runtime.vehicle) on: the jump
+        cannot be told from a gap just before or after it. Returns the packets taken back."""
+        gaps = self._gaps.get(key)
+        if not gaps:
+            return 0
+        taken = sum(n for at, n in gaps if at >= since)
+        kept = [(at, n) for at, n in gaps if at < since]
+        gaps.clear()
+        gaps.extend(kept)
+        if taken:
+            self.counters.lost[key] -= taken
+        return taken
 
     def frames(self, data: bytes, final: bool = False) -> list[Frame]:
         """The packets `data` completes, CRC-checked and counted. With `final` (end of a
@@ -196,6 +221,10 @@ class MavlinkDecoder:
             missing = (seq - last - 1) & 0xFF
             if missing and missing < 128:
                 self.counters.lost[key] = self.counters.lost.get(key, 0) + missing
+                gaps = self._gaps.get(key)
+                if gaps is None:
+                    gaps = self._gaps[key] = deque(maxlen=GAPS_KEPT)
+                gaps.append((time.monotonic(), missing))
             elif missing:  # a step back is no loss
                 self.counters.stepped_back[key] = self.counters.stepped_back.get(key, 0) + 1
         self._last_seq[key] = seq

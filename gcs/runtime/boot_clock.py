@@ -40,6 +40,9 @@ class BootClock:
     #: the reading before the latest, and the latest (s)
     previous: float | None = None
     last: float | None = None
+    #: the host times (monotonic s) of those two readings
+    previous_at: float | None = None
+    last_at: float | None = None
     #: the clock before the last step back, the first reading after it, and its host time
     _before: float | None = None
     _after: float | None = None
@@ -49,6 +52,7 @@ class BootClock:
         """Take one reading of the clock (s), which arrived at host time `now` (monotonic s)."""
         last = self.previous = self.last
         self.last = t
+        self.previous_at, self.last_at = self.last_at, now
         if self.two_senders or last is None:
             return Step.ON
         before, after = self._before, self._after

@@ -231,8 +231,10 @@ class Link:
 
     def send_raw(self, packet: bytes, system: int | None = None) -> None:
         """`system`: the one system the packet is for (a forwarded one, gcs.runtime.forward), so
-        only that vehicle's view of a shared link counts and records it (gcs.runtime.vehicle_link)."""
-        if self._transport is None or self.address.framing == "ascii":  # a text device reads no MAVLink
+        only that vehicle's view of a shared link counts and records it (gcs.runtime.vehicle_link).
+        Nothing goes to a text device (it reads no MAVLink) nor to a replayed .tlog (a file is no
+        vehicle: what was sent to it counted as sent, and showed in `gcs status`)."""
+        if self._transport is None or self.address.framing == "ascii" or self.address.kind == "tlog":
             return
         self._transport.write(packet)
         self.stats.bytes_out += len(packet)
@@ -242,6 +244,12 @@ class Link:
             self.packet_sent.emit(packet)
         finally:
             self.addressed = None
+
+    def restart_sequence(self, sysid: int, compid: int, since: float) -> int:
+        """A sender rebooted: its sequence numbers started again (`MavlinkDecoder.restart_sequence`).
+        Returns the packets no longer counted as lost."""
+        decoder = self.decoder
+        return decoder.restart_sequence((sysid, compid), since) if isinstance(decoder, MavlinkDecoder) else 0
 
     def snapshot(self) -> LinkSnapshot:
         now = time.monotonic()

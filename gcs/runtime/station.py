@@ -174,8 +174,10 @@ class Station:
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
-        # not for a parameter-only command, nor for an ascii: link's text lines (no MAVLink reaches them)
-        negotiates = self.config.request_streams and self.link.address.framing != "ascii"
+        # not for a parameter-only command, nor for an ascii: link's text lines (no MAVLink reaches
+        # them), nor for a replayed .tlog (a file is no vehicle: nothing is sent to it, Link.send_raw)
+        address = self.link.address
+        negotiates = self.config.request_streams and address.framing != "ascii" and address.kind != "tlog"
         if negotiates:  # ask the firmware version
             run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
         if self._owns_link:

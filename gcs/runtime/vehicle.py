@@ -153,7 +153,7 @@ class VehicleState:
                 self.firmware = version_of(msg)
             self.capabilities = msg.capabilities
         if item.vehicle_time is not None and getattr(msg, "time_boot_ms", None) is not None:
-            self._clock(item.vehicle_time, item.host_time, item.sysid)
+            self._clock(item.vehicle_time, item.host_time, item.sysid, item.compid)
 
     def _flight_state(self, mode: str | None, armed: bool) -> None:
         """Take the heartbeat's mode and arming state; each change is an event (the first
@@ -165,10 +165,16 @@ class VehicleState:
             self.events.record("vehicle", "vehicle", event="armed" if armed else "disarmed", mode=mode)
         self.mode, self.armed = mode, armed
 
-    def _clock(self, t: float, now: float, sysid: int) -> None:
+    def _clock(self, t: float, now: float, sysid: int, compid: int) -> None:
         step = self.clock.step(t, now)
         if step is Step.REBOOT:
-            self.link._event("state", f"vehicle rebooted (clock {self.clock.previous:.1f} s -> {t:.1f} s)")
+            text = f"vehicle rebooted (clock {self.clock.previous:.1f} s -> {t:.1f} s)"
+            # its sequence numbers started again too: the jump is no loss (a reopened port's is
+            # not counted at all, but a UDP port stays open across the reboot)
+            assert self.clock.previous_at is not None  # a step back has a reading before it
+            if taken := self.link.restart_sequence(sysid, compid, self.clock.previous_at):
+                text += f"; {taken} packets of its sequence jump not counted as lost"
+            self.link._event("state", text)
             asyncio.get_running_loop().call_soon(self.rebooted.emit)
         elif step is Step.TWO_CLOCKS:
             self._two_senders(sysid, f"clocks {t:.1f} s and {self.clock.previous:.1f} s")

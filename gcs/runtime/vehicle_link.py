@@ -53,6 +53,10 @@ class VehicleLink(Link):
     def reads_paced(self) -> bool:
         return self._shown.reads_paced
 
+    def restart_sequence(self, sysid: int, compid: int, since: float) -> int:
+        """The link this vehicle is heard on frames its packets and counts their sequence."""
+        return self._shown.restart_sequence(sysid, compid, since)
+
     def _show(self, link: Link) -> None:
         """Report the link's address, framing counters, rejections and signing as this view's,
         and what the station sends on it (its heartbeats reach every vehicle there)."""

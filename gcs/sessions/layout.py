@@ -8,6 +8,7 @@ without an `end` marks a session still open, or left open by a crash.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -99,11 +100,19 @@ def read_meta(folder: Path) -> dict:
 
 def write_meta(folder: Path, meta: dict) -> None:
     """Replace meta.json atomically (write a temporary file, then rename), so a crash or a full
-    disk leaves the previous complete version in place."""
+    disk leaves the previous complete version in place. A write that fails removes its temporary
+    file (a full disk left a 0-byte meta.json.tmp in the session) and raises an OSError whose one
+    line says so."""
     tmp = folder / (META + ".tmp")
-    with open(tmp, "w") as fh:
-        fh.write(strict_json.dumps(meta, indent=2, default=str))
-    os.replace(tmp, folder / META)
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(strict_json.dumps(meta, indent=2, default=str))
+        os.replace(tmp, folder / META)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        kept = f"{exc.strerror or exc} ({META} left as it was, its temporary file removed)"
+        raise OSError(exc.errno, kept, str(folder / META)) from exc
 
 
 @dataclass(frozen=True)
