@@ -62,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"gcs logs {args.action}: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:  # the output folder: unwritable, full (the partial file is kept)
-        print(f"gcs logs {args.action}: error: {exc.filename or args.folder}: {exc.strerror or exc}", file=sys.stderr)
+        where = exc.filename or getattr(args, "folder", None)  # `list` has no folder
+        print(f"gcs logs {args.action}: error: {f'{where}: ' if where else ''}{exc.strerror or exc}", file=sys.stderr)
         return 1
 
 
