@@ -12,6 +12,7 @@ from gcs.core.estimators import registry
 from gcs.core.rotation import euler_to_quat
 from gcs.core.samples import AttitudeSample
 from gcs.logs.readers import read_samples
+from gcs.mavlink.sampling import UNREADY
 
 LOGS = Path(__file__).resolve().parents[2] / "shared/data/logs"
 D = math.radians
@@ -141,5 +142,7 @@ def test_live_numbers_equal_offline_recomputation():
         live.summary()
     offline = compare_stream(samples, registry.create("dcm")).summary()
     assert live.summary() == offline
-    assert set(offline["references"]) == {"onboard", "ahrs2", "truth"}
+    # the first 0.3 s of ATTITUDE came before the copter's EKF_STATUS_REPORT said its attitude good
+    assert set(offline["references"]) == {"onboard", UNREADY, "ahrs2", "truth"}
+    assert offline["references"][UNREADY]["n"] == 7
     assert offline["lag"] is not None and abs(offline["lag"]) <= 0.1

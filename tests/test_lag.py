@@ -1,13 +1,16 @@
-"""The running lag (gcs.core.lag, kept as references arrive) gives the lag the full search over
-the history gave (the search the Comparison ran per snapshot before issue 17, kept here as the
-readable reference) on known delays, ahead and behind, with noise, and across a clock reset."""
+"""The running lag (gcs.core.lag, kept as references arrive) gives the lag a full search over the
+history gives (every lag over every reference, as the Comparison searched per snapshot before
+issue 17, kept here as the readable reference) on known delays, ahead and behind, with noise,
+with a steady or drifting offset, and across a clock reset."""
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from gcs.core.comparison import Comparison
+from gcs.core.comparison import LAG_POINTS, Comparison
+from gcs.core.lag import CHANGE_OVER
 from gcs.core.rotation import euler_to_quat, wrap_pi_array
 from gcs.core.samples import AttitudeSample
 
@@ -18,43 +21,74 @@ def wave(t: float) -> tuple[float, float]:
     return D(20) * math.sin(2 * math.pi * 0.5 * t), D(8) * math.sin(2 * math.pi * 0.3 * t + 1.0)
 
 
-def full_search(est: np.ndarray, ref: np.ndarray, lag_max=0.5, lag_step=0.01) -> float | None:
-    """Every lag on the grid over every reference: the mean of roll² + pitch² errors."""
+def turning(t: float) -> tuple[float, float]:
+    """A slow roll into a turn (1°/s) with small corrections: the attitude changes little within
+    a second but a lot over the history, as a plane's in a turn."""
+    return D(1.0) * t + D(1.0) * math.sin(2 * math.pi * 0.5 * t), D(1.0) * math.sin(2 * math.pi * 0.3 * t + 1.0)
+
+
+def decimated(ref: np.ndarray, spacing: float = 30.0 / LAG_POINTS) -> np.ndarray:
+    """The references the running lag keeps: one at least `spacing` after the last kept."""
+    kept, last = [], -math.inf
+    for row in ref:
+        if row[0] >= last + spacing:
+            kept.append(row)
+            last = row[0]
+    return np.array(kept)
+
+
+def full_search(est: np.ndarray, ref: np.ndarray, lag_max=0.5, lag_step=0.01, history=30.0) -> float | None:
+    """Every lag on the grid over every reference kept (`decimated`) of the last `history` s: the
+    mean of the squared change of the roll and pitch errors since the reference kept CHANGE_OVER
+    before (the newest at least that old, at most twice)."""
+    ref = decimated(ref)
+    pairs = []
+    for i, t in enumerate(ref[:, 0]):
+        older = np.flatnonzero(ref[:i, 0] <= t - CHANGE_OVER)
+        if t >= ref[-1, 0] - history and len(older) and ref[older[-1], 0] >= t - 2 * CHANGE_OVER:
+            pairs.append((i, older[-1]))
+    now, before = np.array(pairs).T
     steps = int(round(lag_max / lag_step))
     best, best_cost = None, math.inf
     for k in range(-steps, steps + 1):
         lag = k * lag_step
         ts = ref[:, 0] + lag
         inside = (ts >= est[0, 0]) & (ts <= est[-1, 0])
-        if inside.sum() < 10:
+        both = inside[now] & inside[before]
+        if both.sum() < 10:
             continue
-        dr = wrap_pi_array(np.interp(ts[inside], est[:, 0], est[:, 1]) - ref[inside, 1])
-        dp = np.interp(ts[inside], est[:, 0], est[:, 2]) - ref[inside, 2]
-        cost = float(np.mean(dr * dr + dp * dp))
+        dr = wrap_pi_array(np.interp(ts, est[:, 0], est[:, 1]) - ref[:, 1])
+        dp = np.interp(ts, est[:, 0], est[:, 2]) - ref[:, 2]
+        change_r, change_p = (dr[now] - dr[before])[both], (dp[now] - dp[before])[both]
+        cost = float(np.mean(change_r**2 + change_p**2))
         if cost < best_cost:
             best, best_cost = lag, cost
     return best
 
 
-def run(lag: float, duration: float, t0: float = 0.0, noise: float = 0.0, c: Comparison | None = None):
-    """Estimator = the truth delayed by `lag` at 200 Hz, ATTITUDE at 50 Hz; returns the comparison
-    and the last 30 s of both as arrays (t, roll, pitch)."""
+def run(
+    lag: float, duration: float, t0: float = 0.0, noise: float = 0.0, c: Comparison | None = None,
+    offset: Callable[[float], float] = lambda t: 0.0, motion: Callable[[float], tuple[float, float]] = wave,
+):  # fmt: skip
+    """Estimator = the truth (`motion`) delayed by `lag` plus `offset(t)` (rad, on roll and pitch)
+    at 200 Hz, ATTITUDE at 50 Hz; returns the comparison and both as arrays (t, roll, pitch)."""
     c = c or Comparison()
     rng = np.random.default_rng(1)
     est, ref = [], []
     for k in range(int(duration * 200)):
         t = t0 + k / 200
         if k % 4 == 0:
-            roll, pitch = wave(t)
+            roll, pitch = motion(t)
             c.add_reference(AttitudeSample(t, roll, pitch, 0.3, "onboard"))
             ref.append((t, roll, pitch))
-        roll, pitch = wave(t - lag)
-        roll, pitch = roll + noise * rng.standard_normal(), pitch + noise * rng.standard_normal()
+        roll, pitch = motion(t - lag)
+        roll, pitch = (
+            roll + offset(t) + noise * rng.standard_normal(),
+            pitch + offset(t) + noise * rng.standard_normal(),
+        )
         c.add_estimate(t, euler_to_quat(roll, pitch, 0.0))
         est.append((t, roll, pitch))
-    est_a, ref_a = np.array(est), np.array(ref)
-    last = est_a[-1, 0]
-    return c, est_a[est_a[:, 0] >= last - 30.0], ref_a[ref_a[:, 0] >= last - 30.0]
+    return c, np.array(est), np.array(ref)
 
 
 @pytest.mark.parametrize("lag", [0.07, -0.03, 0.0, 0.31])
@@ -69,6 +103,19 @@ def test_noisy_delay_as_the_full_search():
     c, est, ref = run(0.12, 45.0, noise=D(0.5))
     assert c.lag() == pytest.approx(full_search(est, ref), abs=1e-9)
     assert c.lag() == pytest.approx(0.12, abs=0.011)
+
+
+@pytest.mark.parametrize(
+    "offset", [lambda t: D(3.0), lambda t: D(0.1) * t], ids=["steady 3 deg", "drifting 0.1 deg per s"]
+)
+def test_an_offset_in_a_turn_is_not_a_lag(offset):
+    """0.07 s late in a slow turn, and off by a steady 3° (dcm's roll in a turn, read off the
+    centripetal acceleration) or by an offset growing 0.1°/s (dcm's as the turn goes on): the lag
+    found is the true one. The mean squared error minimised before traded the offset for a slope
+    of the attitude: a lag of -0.4 s or beyond the search."""
+    c, est, ref = run(0.07, 40.0, offset=offset, motion=turning)
+    assert c.lag() == pytest.approx(0.07, abs=1e-9)
+    assert full_search(est, ref) == pytest.approx(0.07, abs=1e-9)
 
 
 def test_clock_going_back_starts_the_lag_again():

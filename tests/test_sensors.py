@@ -127,6 +127,29 @@ def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
     assert [(s.source, s.t) for s in released] == [("ahrs2", pytest.approx(1.040344))]
 
 
+def _ekf_status(flags: int):
+    return wire(mavlink.MAVLink_ekf_status_report_message(flags, 0, 0, 0, 0, 0))
+
+
+def test_attitude_is_onboard_only_while_the_vehicles_ekf_says_its_attitude_is_good():
+    """ATTITUDE becomes UNREADY while the last EKF_STATUS_REPORT says the EKF is not initialised
+    or its attitude not good (an ArduPlane's boot: a DCM swinging to 70° pitch), "onboard" before
+    any report (a vehicle that sends none) and again once the EKF says so, and after a reboot
+    until the new boot's first report. AHRS2 and SIMSTATE are not renamed."""
+    inputs = sampling.MessageInputs()
+    sources = []
+    for t_ms, flags in ((1000, None), (2000, mavlink.EKF_UNINITIALIZED), (3000, 0),
+                        (4000, mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ), (5000, 0), (500, None)):  # fmt: skip
+        if flags is not None:
+            assert inputs.feed(_ekf_status(flags)) == []
+        out = inputs.feed(_raw_imu(t_ms * 1000))
+        out += inputs.feed(wire(mavlink.MAVLink_attitude_message(t_ms, 0.1, 1.2, 0.3, 0, 0, 0)))
+        out += inputs.feed(wire(mavlink.MAVLink_simstate_message(0.12, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0)))
+        sources.append([s.source for s in out if isinstance(s, AttitudeSample)])
+    unready = [sampling.UNREADY, "truth"]
+    assert sources == [["onboard", "truth"], unready, unready, ["onboard", "truth"], unready, ["onboard", "truth"]]
+
+
 def dataflash_samples(tmp_path, formats, records, imu=0):
     """The samples DataflashLog reads from a .bin of these record layouts and records (without
     the declination changes: a 3D fix gives one)."""

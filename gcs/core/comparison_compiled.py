@@ -33,7 +33,7 @@ from gcs.core.comparison import (
 )
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import attitude_error
-from gcs.core.lag import best_lag, lag_grid, score_reference
+from gcs.core.lag import BLOCKS, CHANGE_OVER, SQUARES, SUMMED, best_lag, lag_grid, score_reference
 from gcs.core.samples import AttitudeSample
 
 Floats = npt.NDArray[np.float64]
@@ -126,29 +126,31 @@ def _lag_score(
     offsets: Floats, t: float, roll: float, pitch: float,
 ) -> None:  # fmt: skip
     """RunningLag._score: one waiting reference scored for every lag, into the running sums."""
-    k = len(offsets)
-    row = scored[0, _push(scored_b, 0)]
+    summed = 1 + SQUARES * len(offsets)  # the row's SQUARES and PAIRED blocks, after its time
+    at = _push(scored_b, 0)
+    row = scored[0, at]
     row[0] = t
+    before, paired = at, False
+    for r in range(at - 1, scored_b[0, START] - 1, -1):  # the newest CHANGE_OVER before, a few back
+        if scored[0, r, 0] <= t - CHANGE_OVER:
+            before, paired = r, scored[0, r, 0] >= t - 2 * CHANGE_OVER
+            break
     live = lag_est[0, lag_est_b[0, START] : lag_est_b[0, END]]
     score_reference(
-        t, roll, pitch, live[:, 0], live[:, 1], live[:, 2], p[LAG_MAX], p[LAG_STEP], offsets, row[1 : 1 + k],
-        row[1 + k :],
+        t, roll, pitch, live[:, 0], live[:, 1], live[:, 2], p[LAG_MAX], p[LAG_STEP], offsets, row[1:],
+        scored[0, before, 1:], paired,
     )  # fmt: skip
-    lag_sums[0] += row[1 : 1 + k]
-    lag_sums[1] += row[1 + k :]
+    lag_sums += row[summed:]
     start = t - p[HISTORY]
     while scored[0, scored_b[0, START], 0] < start:
-        old = scored[0, scored_b[0, START]]
-        lag_sums[0] -= old[1 : 1 + k]
-        lag_sums[1] -= old[1 + k :]
+        lag_sums -= scored[0, scored_b[0, START], summed:]
         scored_b[0, START] += 1
         counts[LAG_REMOVED] += 1
     if counts[LAG_REMOVED] >= RESUM_EVERY:
         counts[LAG_REMOVED] = 0
         lag_sums[:] = 0.0
         for r in range(scored_b[0, START], scored_b[0, END]):  # in order, as np.sum(axis=0) adds them
-            lag_sums[0] += scored[0, r, 1 : 1 + k]
-            lag_sums[1] += scored[0, r, 1 + k :]
+            lag_sums += scored[0, r, summed:]
 
 
 @kernel
@@ -426,8 +428,8 @@ class CompiledComparison:
         self.src_sums = np.zeros((sources, 9))
         self.lag_est = _Buffer(1, 3)  # t, roll, pitch, lag_step apart
         self.waiting = _Buffer(1, 3)  # references the lag cannot score yet
-        self.scored = _Buffer(1, 1 + 2 * len(self.ks), 64)  # t, cost per lag, covered per lag
-        self.lag_sums = np.zeros((2, len(self.ks)))  # cost and covered, summed over scored
+        self.scored = _Buffer(1, 1 + BLOCKS * len(self.ks), 64)  # t, RunningLag's row
+        self.lag_sums = np.zeros(SUMMED * len(self.ks))  # the rows' SQUARES and PAIRED, summed over scored
         self._state = self._arrays()
 
     @property
@@ -487,7 +489,7 @@ class CompiledComparison:
 
     def lag(self) -> float | None:
         """Comparison.lag."""
-        return best_lag(self.lag_sums[0], self.lag_sums[1], self.ks, self.lag_step)
+        return best_lag(self.lag_sums, self.ks, self.lag_step)
 
     def reliability(self) -> tuple[bool, str]:
         return reliability(self.imu_rate(), self.min_imu_rate)

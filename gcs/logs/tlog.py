@@ -9,7 +9,7 @@ from gcs.core.estimation import EstimationInput
 from gcs.logs.logfile import InputError
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, MessageInputs
+from gcs.mavlink.sampling import IMU_TYPES, SAMPLED_TYPES, MessageInputs
 from gcs.mavlink.tlog import TlogRecords, read_tlog_records
 
 #: IMU instance → message type (ArduPilot sends its first IMU as RAW_IMU, the others scaled).
@@ -61,5 +61,5 @@ def read_tlog(
         if usec & 3 == 3:
             continue
         for raw, kind, _, _ in decoder.frames(packet, final=True):
-            if kind in INPUT_TYPES:  # what the live estimation subscribes to, no more
+            if kind in SAMPLED_TYPES:  # what the live estimation subscribes to, no more
                 yield from inputs.feed(decode(raw), (usec & ~3) / 1e6)

@@ -30,7 +30,7 @@ from gcs.core.samples import (
     ms_to_s,
     usec_to_s,
 )
-from gcs.mavlink.dialect import MAVLinkMessage
+from gcs.mavlink.dialect import MAVLinkMessage, mavlink
 from gcs.mavlink.imu_packets import IMU_AXES, ImuPacket
 from gcs.mavlink.params import param_name
 
@@ -163,6 +163,13 @@ def sample_from_message(msg: MAVLinkMessage) -> ImuSample | GpsSample | BaroSamp
 
 #: MAVLink attitude message → reference name.
 REFERENCE_MESSAGES = {"ATTITUDE": "onboard", "AHRS2": "ahrs2", "SIMSTATE": "truth"}
+#: The reference name of ATTITUDE while the vehicle's EKF says its attitude is not yet (or no
+#: longer) good (`MessageSampler`): scored apart from "onboard", so that it is not taken for the
+#: estimators' error against the vehicle's attitude.
+UNREADY = "onboard-unready"
+#: EKF_STATUS_REPORT flags (ArduPilot) of an EKF whose attitude can be trusted: attitude good,
+#: and not "never healthy yet".
+EKF_READY, EKF_NEVER_HEALTHY = mavlink.EKF_ATTITUDE, mavlink.EKF_UNINITIALIZED
 
 #: Messages whose time_usec is microseconds since boot (others may carry UNIX or GPS time).
 _BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
@@ -235,6 +242,13 @@ class MessageSampler:
     stream is `imu_type` (None: RAW_IMU or HIGHRES_IMU at once, else a SCALED_IMU* type once it has
     streamed alone for SECONDARY_IMU_WAIT s). GPS_RAW_INT time_usec is used when it is boot
     time; otherwise (UNIX time on ArduPilot) the fix gets the vehicle time at its arrival.
+
+    ATTITUDE is the reference "onboard" unless the vehicle's last EKF_STATUS_REPORT said its EKF
+    was not initialised or its attitude not good: it is then `UNREADY`. At boot an ArduPlane's
+    ATTITUDE comes from a DCM still settling and swings to ~70° pitch on the ground for a few
+    seconds, which scored as "onboard" dominated every estimator's session error
+    (docs/estimators/comparison.md). A vehicle that sends no EKF_STATUS_REPORT (PX4, APM 2.5),
+    and the first second after boot before its first one, are taken as ready.
     """
 
     def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:
@@ -244,6 +258,8 @@ class MessageSampler:
         self.clock = VehicleClock()
         self._secondary_since: dict[str, float] = {}
         self._leading: MAVLinkMessage | None = None  # an AHRS2 waiting for its slot's time
+        #: whether the vehicle's last EKF_STATUS_REPORT (if any) said its attitude can be trusted
+        self.ekf_ready = True
 
     def feed(self, msg: MAVLinkMessage | ImuPacket) -> list[ImuSample | GpsSample | AttitudeSample]:
         """The samples msg completes, in order: usually none or one; an AHRS2 held for its slot's
@@ -281,6 +297,9 @@ class MessageSampler:
         now = self.clock.latest.get(system)
         if kind in LEADING_MESSAGES:
             self._leading = msg
+            return out
+        if kind == "EKF_STATUS_REPORT" and not isinstance(msg, ImuPacket):
+            self.ekf_ready = ekf_ready(int(msg.flags))
             return out
         if now is None:
             return out
@@ -320,7 +339,10 @@ class MessageSampler:
             if abs(gps.t - now) > GPS_CLOCK_TOLERANCE:
                 gps = dataclasses.replace(gps, t=now)
             return gps
-        return attitude_from_message(msg, now)
+        sample = attitude_from_message(msg, now)
+        if sample is not None and kind == "ATTITUDE" and not self.ekf_ready:
+            return dataclasses.replace(sample, source=UNREADY)
+        return sample
 
     def _is_imu_stream(self, kind: str, now: float) -> bool:
         if self.imu_type is None:
@@ -333,8 +355,16 @@ class MessageSampler:
         return kind == self.imu_type
 
 
-#: Every message type that can become an estimation input.
+def ekf_ready(flags: int) -> bool:
+    """Whether an EKF_STATUS_REPORT's flags say the vehicle's attitude can be trusted."""
+    return bool(flags & EKF_READY) and not flags & EKF_NEVER_HEALTHY
+
+
+#: Every message type that can become an estimation input (a recording's input positions count them).
 INPUT_TYPES = frozenset({*IMU_TYPES, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTATE", "PARAM_VALUE"})
+#: What the sampler reads: the inputs, and EKF_STATUS_REPORT, which names ATTITUDE's reference. It
+#: is no input (not counted in the input positions, so older recordings' gain changes keep theirs).
+SAMPLED_TYPES = INPUT_TYPES | {"EKF_STATUS_REPORT"}
 
 
 #: The vehicle clock going back by more than this (s) is a reboot.
@@ -383,6 +413,7 @@ class MessageInputs:
         after = clock.get(self.sampler.system) if self.sampler.system is not None else None
         if before is not None and after is not None and after < before - REBOOT_CLOCK_JUMP:
             self.vehicle_declination.reboot()
+            self.sampler.ekf_ready = True  # not known again until the new boot's first EKF_STATUS_REPORT
         if kind == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
             change = self._wmm_declination(msg, wall_time)
             if change is not None:

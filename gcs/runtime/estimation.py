@@ -10,7 +10,7 @@ from gcs.core import comparison_compiled
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline
 from gcs.core.estimators import registry, stepping
 from gcs.core.estimators.stepping import ImuRow
-from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.mavlink.sampling import INPUT_TYPES, SAMPLED_TYPES, MessageInputs
 from gcs.mavlink.tlog import tlog_wall_time
 from gcs.runtime import heap
 from gcs.runtime.bus import Message, Subscription
@@ -69,8 +69,10 @@ class LiveEstimation:
     """Runs an EstimationPipeline on a live link's bus and hands every AttitudePoint to the
     listeners (dashboard streams, the session recorder).
 
-    `messages_fed` counts the input messages taken from the bus: the input position at which a
-    gain change is recorded, so that a replay re-applies it exactly where it was applied live.
+    `messages_fed` counts the input messages (`INPUT_TYPES`) taken from the bus: the input position
+    at which a gain change is recorded, so that a replay re-applies it exactly where it was applied
+    live. EKF_STATUS_REPORT is taken too (`SAMPLED_TYPES`: it names ATTITUDE's reference) but not
+    counted, as the replay does not count it.
     """
 
     def __init__(self, link: Link, pipeline: EstimationPipeline | None = None, tick: float = TICK) -> None:
@@ -172,7 +174,7 @@ class LiveEstimation:
         recorder keeps them; subscribed only when its task ran, the estimation missed them, and the
         session's replay had samples the live run never estimated."""
         if self._sub is None:
-            self._sub = self.link.bus.subscribe("estimation", types=INPUT_TYPES, maxlen=100_000)
+            self._sub = self.link.bus.subscribe("estimation", types=SAMPLED_TYPES, maxlen=100_000)
 
     async def run(self) -> None:
         self.subscribe()
@@ -225,7 +227,7 @@ class LiveEstimation:
         declination = self.inputs.vehicle_declination
         imu_before = self.pipeline.imu_samples
         for item in items:
-            self.messages_fed += 1
+            self.messages_fed += item.type in INPUT_TYPES
             imu = item.imu
             if imu is not None and feed_imu(imu, inputs):
                 continue

@@ -24,6 +24,7 @@ from gcs.core.colors import hex_color
 from gcs.core.comparison import errors_against
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
+from gcs.mavlink.sampling import UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
 from gcs.sessions.contents import Contents, read_events
@@ -194,6 +195,26 @@ def accuracy_rows(pipeline) -> list[list]:
     return rows
 
 
+#: s: references further apart than this are told as two intervals
+INTERVAL_GAP = 1.0
+
+
+def unready_note(series: dict[str, np.ndarray]) -> str:
+    """What the onboard figures leave out: ATTITUDE while the vehicle's EKF was not ready (at
+    boot), scored as its own reference (gcs.mavlink.sampling.UNREADY); "" when there was none."""
+    if UNREADY not in series:
+        return ""
+    t = series[UNREADY][:, 0]
+    breaks = np.flatnonzero(np.diff(t) > INTERVAL_GAP)
+    starts, ends = t[np.r_[0, breaks + 1]], t[np.r_[breaks, len(t) - 1]]
+    spans = ", ".join(f"{a:.1f}–{b:.1f} s" for a, b in zip(starts, ends, strict=True))
+    return (
+        f"<p class='note'>{UNREADY}: the vehicle's ATTITUDE while its EKF_STATUS_REPORT said its EKF was not "
+        f"initialised or its attitude not good ({len(t)} references, vehicle time {spans}). It is scored apart: "
+        "the onboard rows and the errors against onboard leave it out.</p>"
+    )
+
+
 def traffic_rows(source) -> list[list]:
     """Per message / record type: count and mean rate over the source's span."""
     span = (source.span[1] - source.span[0]) if source.span else 0.0
@@ -302,6 +323,7 @@ def render(
             ["estimator", "reference", "n", "RMS roll", "RMS pitch", "RMS yaw", "max roll", "max pitch", "max yaw"],
             accuracy_rows(pipeline),
         )
+        + unready_note(series)
     )
     for name, comparison in pipeline.comparisons.items():
         reliable, reason = comparison.reliability()

@@ -37,7 +37,7 @@ from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.identity import heartbeat_label, is_vehicle_heartbeat
-from gcs.mavlink.sampling import INPUT_TYPES, MessageInputs
+from gcs.mavlink.sampling import INPUT_TYPES, SAMPLED_TYPES, MessageInputs
 from gcs.mavlink.tlog import packet_length, read_tlog_records
 from gcs.sessions import layout
 
@@ -247,11 +247,11 @@ def _decode_tlog(path: str, config: dict, gain_events: list[tuple[int, GainChang
                 _name_vehicle(decode(raw), labels)
             elif kind in FIRMWARE_TYPES and not sent:
                 _note_firmware(decode(raw), firmwares)
-            if sent or kind not in INPUT_TYPES:  # framed and counted, not decoded
+            if sent or kind not in SAMPLED_TYPES:  # framed and counted, not decoded
                 continue
             while pending and pending[0][0] <= position:
                 table.append(pending.pop(0)[1])
-            position += 1
+            position += kind in INPUT_TYPES
             for item in to_inputs.feed(decode(raw), (usec & ~3) / 1e6):
                 table.append(item)
         frames.append((usec & ~3) / 1e6, offset, sent, len(table))
