@@ -99,7 +99,7 @@ def test_truncated_dataflash_replays_up_to_the_damage_and_says_where(logs_dir, c
     duration, total, speed, decoding, estimators, start_up, overall = map(float, found.groups())
     assert abs(decoding + estimators - total) <= 0.02  # each printed to 0.01 s
     assert within(speed, duration, total) and within(overall, duration, total + start_up)
-    assert overall < speed
+    assert overall <= speed  # equal as printed when the start-up rounds to 0 (kernels already loaded in-process)
 
 
 def within(speed: float, duration: float, seconds: float) -> bool:
