@@ -160,7 +160,10 @@ def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(ba
     assert firmware["arduplane-sitl-vtol.tlog"] == "ArduPlane 3.10.0-dev (f2b4e06a)", firmware
     assert firmware["px4-flight-sample.ulg"] == "git fd483321", firmware
     assert firmware["arducopter-sitl-hop.tlog"] == "", firmware
-    assert all(r["reference"] in ("onboard", "ahrs2", "truth") and r["n"] > 0 for r in summary)
+    # onboard-unready: ATTITUDE sent while the vehicle's EKF said it was not ready (its boot)
+    assert all(r["reference"] in ("onboard", "onboard-unready", "ahrs2", "truth") and r["n"] > 0 for r in summary)
+    unready = {Path(r["path"]).name for r in summary if r["reference"] == "onboard-unready"}
+    assert unready and all(name.endswith(".tlog") for name in unready), unready  # EKF_STATUS_REPORT
     attitude = dataset.read_table(batch, "attitude")
     assert set(attitude["flight"].unique().to_pylist()) == dataset.done_flights(batch)
 
