@@ -7,6 +7,7 @@ Slices keep the test to seconds: every trial and file is covered, not every samp
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import h5py
 import numpy as np
@@ -113,6 +114,15 @@ def test_gain_changes_duplicates_gaps_and_a_clock_going_back(name):
     inputs = [*s[:300], s[299], GainChange(name, gain, 0.5), *s[300:800], *shifted, *rebooted]
     assert assert_same(name, inputs) == len(s) + 1
     assert_same(name, inputs, declination=math.radians(7.0))
+
+
+@pytest.mark.parametrize("name", REFERENCES)
+def test_a_start_waiting_for_its_field(name):
+    """A start on field-less samples, as ArduPilot's first RAW_IMU after a boot: held until the
+    field comes, its tilt carried by the gyro through a fast rotation meanwhile."""
+    samples = broad_inputs(next(BROAD.glob("07_*.hdf5")), count=600)
+    inputs = [replace(x, mag=None) for x in samples[:20]] + samples[20:]
+    assert assert_same(name, inputs) == len(samples)
 
 
 def log_inputs(path, imu_samples: int) -> list:

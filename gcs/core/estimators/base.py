@@ -4,7 +4,8 @@ dashboard treat them alike, and the policies they share so they can be compared 
 * **Frames.** Samples may be in any right-handed sensor frame (MAVLink's FRD, a z-up IMU, ...). Earth
   is NED, defined by physics only: "down" opposes the specific force at rest, north is the horizontal
   field turned by `declination`; the quaternion rotates sensor → NED.
-* **Initialisation** (`initial_attitude`): tilt from the accelerometer, heading from the magnetometer (or 0).
+* **Initialisation** (`initial_attitude`): tilt from the accelerometer, heading from the magnetometer (or 0);
+  a start waits up to FIELD_WAIT s for a sample with a field (`_start_force`).
 * **Time** (`_check_time`): the vehicle clock. A repeated timestamp is ignored; a clock going back or a
   gap longer than `max_gap` re-initialises the filter, with the reason kept for `health()`.
 Details: docs/estimators/common.md
@@ -49,6 +50,12 @@ SHOCK_GAINS: tuple[Gain, ...] = (
 PICK_GAINS: tuple[Gain, ...] = (
     Gain("pick_dt", 0.01, 0.0, 10.0, "s", "IMU intervals longer than this are picked samples: trapezoid + coning"),
 )
+
+#: s of vehicle time a (re)start waits for a sample with a magnetic field before it starts without
+#: one: ArduPilot's first RAW_IMU after a boot carry an all-zero field, its compass not read yet
+#: (SITL: 4-5 samples, 80-100 ms), and a heading made up without one (-90° on ArduPlane) took the
+#: heading loop seconds to undo. A source with no magnetometer starts this much later.
+FIELD_WAIT = 1.0
 
 #: A number or a label in `AttitudeEstimator.health()`; a few are per-axis tuples.
 HealthValue = float | str | tuple[float, ...]
@@ -104,6 +111,10 @@ class AttitudeEstimator(ABC):
         self.reinit_count = 0
         self.last_reinit = ""  # why the filter last (re)initialised
         self.duplicates = 0
+        #: a start waiting for a field: the first held sample's time, the last one's, and the first
+        #: one's specific force carried to it (`_start_force`)
+        self.field_wait: tuple[float, float, npt.NDArray[np.float64]] | None = None
+        self.force_carried = False  # whether the last start's force was carried from a held sample
 
     def set_gain(self, name: str, value: float) -> tuple[float, float]:
         """Validate and apply one gain now; returns (old, new)."""
@@ -131,6 +142,40 @@ class AttitudeEstimator(ABC):
         self.t = t
         self.reinit_count += 1
         self.last_reinit = reason
+        return None
+
+    def _start_force(
+        self, t: float, gyro: npt.ArrayLike, accel: npt.ArrayLike, has_field: bool
+    ) -> npt.NDArray[np.float64] | None:
+        """The specific force to (re)initialise the tilt from at vehicle time t, or None: wait.
+
+        A sample without a magnetic field is held (None) until one with a field comes or FIELD_WAIT
+        s have passed since the first held one (a clock going back starts the wait again); a held
+        sample starts nothing, and the caller does not count it as a re-initialisation. After a
+        wait the tilt is the first held sample's, carried to this sample by the gyro (each held
+        sample turns the sensor by ω dt: a fixed earth vector seen from it turns by -ω dt,
+        Rodrigues), and the heading is then the field's over that tilt: as AP_AHRS_DCM takes its
+        first yaw from the compass over the attitude it already has (`have_initial_yaw`). The
+        samples that bring ArduPlane SITL's first field carry a boot jolt of 0.3 g along x, which
+        as gravity would be 17° of pitch and 34° of heading (so `dcm` and `kf` then also start
+        their averaged specific force at the carried one: `force_carried`).
+        """
+        f = np.array(accel, dtype=float)
+        held = self.field_wait
+        if held is not None and t >= held[0]:
+            t0, t_prev, f = held
+            wx, wy, wz = (float(v) * (t - t_prev) for v in np.asarray(gyro, dtype=float))
+            angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+            if angle > 0.0:
+                k = np.array([wx, wy, wz]) / angle
+                kf = np.cross(k, f)
+                f = f - math.sin(angle) * kf + (1.0 - math.cos(angle)) * np.cross(k, kf)
+        else:
+            t0 = t
+        if has_field or t - t0 >= FIELD_WAIT:
+            self.force_carried, self.field_wait = held is not None, None
+            return f
+        self.field_wait = (t0, t, f)
         return None
 
     def _common_health(self) -> dict[str, HealthValue]:

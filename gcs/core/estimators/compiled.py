@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.core import rotation
 from gcs.core.estimators.base import GpsAcceleration
@@ -180,6 +181,8 @@ class StartedInPython(Compiled):
 
     gps: GpsAcceleration
     last_reinit: str
+    _start_force: Callable[[float, npt.ArrayLike, npt.ArrayLike, bool], npt.NDArray[np.float64] | None]
+    force_carried: bool
 
     @property
     def valid(self) -> bool:
@@ -203,7 +206,12 @@ class StartedInPython(Compiled):
         if s[ACCEL_NORM] < 1e-6:  # no direction to start from: wait for the next sample
             s[T] = math.nan
             return bool(s[VALID])
-        self._start(sample)
+        force = self._start_force(sample.t, sample.gyro, sample.accel, sample.mag is not None)
+        if force is None:
+            s[T] = math.nan
+            self.reinit_count -= 1
+            return bool(s[VALID])
+        self._start(replace(sample, accel=force))
         return True
 
     def _start(self, sample: ImuSample) -> None:

@@ -176,10 +176,17 @@ class DcmEstimator(AttitudeEstimator):
             if self.accel_norm < 1e-6:  # cannot level on a zero vector: wait for a usable sample
                 self.t = None
                 return self.valid
-            R = initial_attitude(sample.accel, sample.mag, self.gains["declination"])
+            force = self._start_force(sample.t, sample.gyro, sample.accel, sample.mag is not None)
+            if force is None:  # no heading yet: wait for a field
+                self.t = None
+                self.reinit_count -= 1
+                return self.valid
+            R = initial_attitude(force, sample.mag, self.gains["declination"])
             north, east, down = (vec3(float(v) for v in row) for row in R)
             self.rows = (north, east, down)
             self._reset_correction((gx, gy, gz))
+            if self.force_carried:  # the average starts at the carried force, not at the next (jolted) sample
+                self.f_avg = (0.0, 0.0, -float(np.linalg.norm(force)))
             self.valid = True
             return True
         if dt == 0.0:

@@ -234,6 +234,8 @@ class DcmCompiled(StartedInPython, DcmEstimator):
         s[ROWS : ROWS + 9] = np.asarray(R, dtype=float).reshape(-1)
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
         self._reset_correction(vec3(float(v) for v in sample.gyro))
+        if self.force_carried:
+            s[FAVG_SET], s[FAVG : FAVG + 3] = 1.0, (0.0, 0.0, -float(np.linalg.norm(sample.accel)))
         s[k.VALID] = 1.0
 
     @property

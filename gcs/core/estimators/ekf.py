@@ -155,7 +155,7 @@ class EkfEstimator(AttitudeEstimator):
             return self.initialised
         dt = self._check_time(sample.t)
         if dt is None or not self.initialised:
-            return self._initialise(sample.t, accel, mag)
+            return self._initialise(sample.t, gyro, accel, mag)
         if dt == 0.0:
             return True
         g = self.gains.values
@@ -199,11 +199,15 @@ class EkfEstimator(AttitudeEstimator):
         self._gps_t = sample.t
 
     # -- filter steps -------------------------------------------------------------------------
-    def _initialise(self, t: float, accel: list[float], mag: list[float] | None) -> bool:
+    def _initialise(self, t: float, gyro: list[float], accel: list[float], mag: list[float] | None) -> bool:
         """Attitude from this sample (base policy); velocity zero; the bias estimate is kept."""
         if accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2] < 1e-6:
             return False
-        R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), self.gains["declination"])
+        force = self._start_force(t, gyro, accel, mag is not None)
+        if force is None:  # no heading yet: start from the next field
+            self.initialised = False
+            return False
+        R = initial_attitude(force, None if mag is None else np.array(mag), self.gains["declination"])
         self.q = tuple(matrix_to_quat(R).tolist())
         self.v = (0.0, 0.0, 0.0)
         self._gyro_prev = None

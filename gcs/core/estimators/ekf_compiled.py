@@ -426,14 +426,18 @@ class EkfCompiled(Compiled, EkfEstimator):
         m = None if mag is None else np.asarray(mag, float).tolist()
         if m is not None and not (all(map(math.isfinite, m)) and any(m)):
             m = None
-        return self._start(accel, m)
+        return self._start(sample.t, sample.gyro, accel, m)
 
-    def _start(self, accel: list[float], mag: list[float] | None) -> bool:
+    def _start(self, t: float, gyro: npt.ArrayLike, accel: list[float], mag: list[float] | None) -> bool:
         """EkfEstimator._initialise on the kernel state."""
         if accel[0] * accel[0] + accel[1] * accel[1] + accel[2] * accel[2] < 1e-6:
             return False
+        force = self._start_force(t, gyro, accel, mag is not None)
+        if force is None:
+            self.initialised = False
+            return False
         s, g = self.s, self.gains
-        R = initial_attitude(np.array(accel), None if mag is None else np.array(mag), g["declination"])
+        R = initial_attitude(force, None if mag is None else np.array(mag), g["declination"])
         s[k.Q : k.Q + 4] = matrix_to_quat(R)
         s[V : V + 3] = 0.0
         s[GYRO_PREV_SET] = 0.0

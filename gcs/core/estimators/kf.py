@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -289,7 +290,8 @@ class KalmanAttitudeFilter(AttitudeEstimator):
         self.rates_prev = euler_rates(roll, pitch, sample.gyro, g["cos_pitch_min"])
         self.gyro_prev = vec3(float(v) for v in sample.gyro)
         self.bias = (0.0, 0.0, 0.0)
-        self.f_avg = None
+        # after a wait for a field the average starts at the carried force, not at the next (jolted) sample
+        self.f_avg = (0.0, 0.0, -float(np.linalg.norm(sample.accel))) if self.force_carried else None
         self.accel_dev = 0.0
         self.kf.x = np.array([[roll], [pitch], [yaw or 0.0], *([v] for v in self.rates_prev)])
         self.kf.P = np.diag([g[f"q_{s}"] for s in _ANGLES + _RATES])
@@ -305,7 +307,12 @@ class KalmanAttitudeFilter(AttitudeEstimator):
             if self.accel_norm < 1e-6:  # cannot level on a zero vector: wait for a usable sample
                 self.t = None
                 return self.valid
-            self._initialise(sample)
+            force = self._start_force(sample.t, sample.gyro, sample.accel, sample.mag is not None)
+            if force is None:  # no heading yet: wait for a field
+                self.t = None
+                self.reinit_count -= 1
+                return self.valid
+            self._initialise(replace(sample, accel=force))
             return True
         if dt == 0.0:
             return self.valid

@@ -377,6 +377,8 @@ class KalmanCompiled(StartedInPython, KalmanAttitudeFilter):
         s[RATES_PREV : RATES_PREV + 3] = rates
         s[GYRO_PREV : GYRO_PREV + 3] = np.asarray(sample.gyro, float)
         s[FAVG_SET] = s[ACCEL_DEV] = 0.0
+        if self.force_carried:
+            s[FAVG_SET], s[FAVG : FAVG + 3] = 1.0, (0.0, 0.0, -float(np.linalg.norm(sample.accel)))
         s[BIAS : BIAS + 3] = 0.0
         s[X : X + 6] = (roll, pitch, yaw or 0.0, *rates)
         s[P : P + 36] = np.diag([g[f"q_{a}"] for a in _ANGLES + _RATES]).reshape(-1)
