@@ -78,15 +78,27 @@ def sitl(tmp_path):
 
 
 @contextlib.contextmanager
-def sitl_process(folder: Path, program: str, model: str, defaults: str, speedup: int, serial0: str | None = None):
-    """SITL `program` (bin/) with `defaults` (params/) in a new scratch folder, yielding its SERIAL0
-    TCP port (or with `serial0`, e.g. "udpclient:127.0.0.1:PORT", SERIAL0 there instead);
-    SIGTERM, then SIGKILL, at the end."""
+def sitl_process(
+    folder: Path,
+    program: str,
+    model: str,
+    defaults: str,
+    speedup: int,
+    serial0: str | None = None,
+    params: dict[str, float] | None = None,
+):
+    """SITL `program` (bin/) with `defaults` (params/) and then `params` over them, in a new
+    scratch folder, yielding its SERIAL0 TCP port (or with `serial0`, e.g.
+    "udpclient:127.0.0.1:PORT", SERIAL0 there instead); SIGTERM, then SIGKILL, at the end."""
     instance = _free_instance()
     folder.mkdir()
     log = open(folder / "sitl.out", "wb")
+    files = [str(SITL / "params" / defaults)]
+    if params:
+        (folder / "test.parm").write_text("".join(f"{name} {value}\n" for name, value in params.items()))
+        files.append(str(folder / "test.parm"))
     argv = [str(SITL / "bin" / program), "--model", model, "--speedup", str(speedup), f"-I{instance}",
-            "--defaults", str(SITL / "params" / defaults), "--home", HOME]  # fmt: skip
+            "--defaults", ",".join(files), "--home", HOME]  # fmt: skip
     if serial0 is not None:
         argv += ["--serial0", serial0]
     proc = subprocess.Popen(argv, cwd=folder, stdout=log, stderr=subprocess.STDOUT)

@@ -219,3 +219,35 @@ def test_a_message_the_vehicle_does_not_have_says_so_where_it_shows_0_hz(udp_por
     assert rows["RAW_IMU"]["achieved_hz"] > 0 and rows["RAW_IMU"]["reason"] != NOT_SENT, rows
     assert rows["SCALED_IMU2"]["method"] == "REQUEST_DATA_STREAM"
     assert NOT_SENT in printed
+
+
+def test_ekf_status_report_is_asked_of_an_ardupilot_with_an_ekf_not_of_an_apm25(udp_port):
+    """gcs asks for EKF_STATUS_REPORT (the onboard/onboard-unready rule's input) at 1 Hz on an
+    ArduPilot 4.x, accepted by SET_MESSAGE_INTERVAL; the APM 2.5 (MAVLink 1, DCM only) has none to
+    send, and gets neither a request nor a stream or radio row for it: read once its SCALED_IMU2,
+    which it lacks too, is told absent (NOT_SENT), as EKF_STATUS_REPORT would be if asked."""
+
+    async def run(profile: str, port: int, ready):
+        async with (
+            running_sim(f"udpout:127.0.0.1:{port}", profile=profile),
+            running_station(f"udpin:127.0.0.1:{port}", estimate=False) as station,
+        ):
+            station.streams.check_interval, station.streams.retry_interval = 0.25, 2.0
+            await wait_for(lambda: ready(station.publish().streams.messages), 60, f"the {profile}'s streams")
+            snapshot = station.publish()
+            radio = snapshot.radio.streams if snapshot.radio is not None else {}
+            return snapshot.streams.messages, radio, station.vehicle.ekf_flags
+
+    def accepted(name: str):
+        return lambda rows: name in rows and rows[name].accepted_hz and rows[name].achieved_hz > 0
+
+    def told_absent(name: str):
+        return lambda rows: name in rows and rows[name].reason == NOT_SENT
+
+    pixhawk, _, flags = asyncio.run(run("pixhawk", udp_port, accepted("EKF_STATUS_REPORT")))
+    row = pixhawk["EKF_STATUS_REPORT"]
+    assert (row.method, row.ack, row.accepted_hz, row.reason) == ("SET_MESSAGE_INTERVAL", "ACCEPTED", 1.0, None), row
+    assert "ATTITUDE" in flags, flags
+    apm25, radio, _ = asyncio.run(run("apm25", udp_port, told_absent("SCALED_IMU2")))
+    assert "RAW_IMU" in apm25 and "EKF_STATUS_REPORT" not in apm25, apm25
+    assert "EKF_STATUS_REPORT" not in radio, radio

@@ -51,6 +51,7 @@ STREAM_GROUPS = {
     "AHRS2": mavlink.MAV_DATA_STREAM_EXTRA1,
     "SIMSTATE": mavlink.MAV_DATA_STREAM_EXTRA1,
     "AHRS": mavlink.MAV_DATA_STREAM_EXTRA3,
+    "EKF_STATUS_REPORT": mavlink.MAV_DATA_STREAM_EXTRA3,
 }
 
 #: Message ids by name, for SET_MESSAGE_INTERVAL.
@@ -68,6 +69,7 @@ MESSAGE_IDS = {
         "SCALED_PRESSURE",
         "AHRS",
         "SYS_STATUS",
+        "EKF_STATUS_REPORT",
     )
 }
 
@@ -96,8 +98,16 @@ class StreamPlan:
     gps_hz: float = 5.0
     aux_hz: float = 5.0  # barometer and onboard-AHRS health
     status_hz: float = 1.0  # SYS_STATUS: battery and sensor health for the vehicle panel
+    #: EKF_STATUS_REPORT (ArduPilot): whether the vehicle's attitude is trustworthy yet, which
+    #: names ATTITUDE's reference (gcs.mavlink.sampling: onboard or onboard-unready) and fills the
+    #: panel's EKF row. A vehicle behind a radio may stream none unless asked (SRx_EXTRA3 0).
+    ekf_hz: float = 1.0
 
-    def for_autopilot(self, autopilot: str | None) -> dict[str, float]:
+    def for_autopilot(self, autopilot: str | None, mavlink_version: int | None = None) -> dict[str, float]:
+        """The rates wanted from a vehicle of this family. EKF_STATUS_REPORT is not asked of an
+        ArduPilot speaking MAVLink 1 only: ArduPilot before 3.5, the APM 2.5's firmware, whose
+        DCM-only build has no EKF to report on (a 0 Hz "none arrived" row it cannot fix); an old
+        board that has one still sends it with its EXTRA3 group, asked for AHRS."""
         if autopilot == "PX4":
             return {
                 "HIGHRES_IMU": self.imu_hz,
@@ -105,6 +115,7 @@ class StreamPlan:
                 "GPS_RAW_INT": self.gps_hz,
                 "SYS_STATUS": self.status_hz,
             }
+        ekf = {"EKF_STATUS_REPORT": self.ekf_hz} if mavlink_version != 1 else {}
         return {
             "RAW_IMU": self.imu_hz,
             "SCALED_IMU2": self.imu_hz,
@@ -115,6 +126,7 @@ class StreamPlan:
             "SCALED_PRESSURE": self.aux_hz,
             "AHRS": self.aux_hz,
             "SYS_STATUS": self.status_hz,
+            **ekf,
         }
 
 
@@ -187,7 +199,8 @@ class StreamRequester:
 
     async def _request_all(self, replies) -> None:
         self.autopilot = await self._autopilot(replies)
-        wanted = {name: self.target_rate(name, hz) for name, hz in self.plan.for_autopilot(self.autopilot).items()}
+        plan = self.plan.for_autopilot(self.autopilot, self.link.vehicle_mavlink)
+        wanted = {name: self.target_rate(name, hz) for name, hz in plan.items()}
         if self.rate_cap is not None:  # the radio's budget
             wanted = self.rate_cap(wanted)
         self.negotiated = {name: Negotiated(hz) for name, hz in wanted.items()}

@@ -27,11 +27,18 @@ class EstimatesBodies:
         return cached[1]
 
 
+#: s of vehicle time a source's latest attitude may lag the newest source's and still be current.
+#: A source that stopped keeps its last value for ever (onboard-unready, the ATTITUDE sent while
+#: the vehicle's EKF was not ready, ends seconds after boot): the page read it as the attitude now.
+STALE_AFTER = 5.0
+
+
 def estimates_of(snap: StationSnapshot) -> EstimatesResponse:
     estimation = snap.estimation
     if estimation is None:
         return EstimatesResponse(sources={})
     sources = {}
+    newest = max((a.t for a in estimation.latest.values()), default=0.0)
     for name, a in estimation.latest.items():
         est = estimation.estimators.get(name)
         errors = {ref: s for ref, s in est.errors.items() if ref in ERROR_REFERENCES} if est else {}
@@ -43,5 +50,6 @@ def estimates_of(snap: StationSnapshot) -> EstimatesResponse:
             pitch_deg=a.pitch_deg,
             yaw_deg=a.yaw_deg,
             errors=errors,
+            stale=newest - a.t > STALE_AFTER,
         )
     return EstimatesResponse(sources=sources)

@@ -35,6 +35,11 @@ class SourceEstimate(Angles):
     errors: dict[str, ErrorStats] = Field(
         default_factory=dict, description="estimators only: against 'onboard' and 'truth' when present"
     )
+    stale: bool = Field(
+        default=False,
+        description="its latest attitude is over STALE_AFTER s of vehicle time older than the newest source's: "
+        "it stopped (onboard-unready once the vehicle's EKF is ready), its value is not current",
+    )
 
 
 class EstimatesResponse(BaseModel):

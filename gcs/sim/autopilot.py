@@ -274,11 +274,10 @@ class Autopilot:
             *truth.euler, *map(float, truth.specific_force), *map(float, truth.omega_body), _deg_e7(lat), _deg_e7(lon)
         )
 
-    def with_heartbeat(self, t: float) -> list:
-        """Sent once a second after HEARTBEAT, outside the requested streams: ArduPilot's
-        EKF_STATUS_REPORT (flags of a healthy EKF3 with a 3D fix, small variances); PX4 has none."""
-        if self.profile.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA or self.profile.imu_count < 2:
-            return []
+    def _ekf_status_report(self, t: float):
+        """ArduPilot's EKF_STATUS_REPORT: flags of a healthy EKF3 with a 3D fix, small variances
+        (only the pixhawk profile has it, streamed when asked for as ArduCopter's SRx default 0 has it;
+        the APM 2.5 and PX4 have none)."""
         flags = (
             mavlink.EKF_ATTITUDE
             | mavlink.EKF_VELOCITY_HORIZ
@@ -289,7 +288,7 @@ class Autopilot:
             | mavlink.EKF_PRED_POS_HORIZ_REL
             | mavlink.EKF_PRED_POS_HORIZ_ABS
         )
-        return [mavlink.MAVLink_ekf_status_report_message(flags, 0.05, 0.08, 0.06, 0.03, 0.0)]
+        return mavlink.MAVLink_ekf_status_report_message(flags, 0.05, 0.08, 0.06, 0.03, 0.0)
 
     @staticmethod
     def statustext(severity: int, text: str):

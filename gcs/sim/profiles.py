@@ -133,6 +133,7 @@ PIXHAWK = Profile(
         "SCALED_PRESSURE",
         "GPS_RAW_INT",
         "SIMSTATE",
+        "EKF_STATUS_REPORT",
         "AUTOPILOT_VERSION",
     ),
     groups={  # libraries/GCS_MAVLink/GCS_MAVLink_Parameters.cpp (4.x), messages the sim has
@@ -140,7 +141,7 @@ PIXHAWK = Profile(
         EXTENDED_STATUS: ("SYS_STATUS", "GPS_RAW_INT"),
         POSITION: ("GLOBAL_POSITION_INT",),
         EXTRA1: ("ATTITUDE", "SIMSTATE", "AHRS2"),
-        EXTRA3: ("AHRS",),
+        EXTRA3: ("AHRS", "EKF_STATUS_REPORT"),
     },
     param_rows=param_tables.arducopter_4,
     interval_cap_hz=320.0,  # 0.8 × SCHED_LOOP_RATE 400 (ardupilot#28144)

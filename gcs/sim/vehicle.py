@@ -194,8 +194,6 @@ class SimVehicle:
                 out += [self._encode(m) for m in self.log_server.pump(due, self.armed)]
             else:
                 out.append(self._encode(self.autopilot.build(stream.name, due)))
-                if stream.name == "HEARTBEAT":
-                    out += [self._encode(m) for m in self.autopilot.with_heartbeat(due)]
         self.t = max(self.t, t)
         return out
 

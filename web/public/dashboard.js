@@ -136,8 +136,10 @@ const triple = (xs) => xs ? xs.map(deg).join(" / ") : "–";
 
 function showNumbers(est, status) {
   const src = Object.values(est.sources);
-  $("now-table").innerHTML = `<tr><th>now (°)</th>${src.map((a) => `<th style="color:${COLORS[a.source] || "#555"}">${a.source}</th>`).join("")}</tr>`
-    + ["roll", "pitch", "yaw"].map((ax) => `<tr><td>${ax}</td>${src.map((a) => `<td data-source="${a.source}" data-axis="${ax}">${deg(a[`${ax}_deg`])}</td>`).join("")}</tr>`).join("");
+  // a source that stopped (onboard-unready once the EKF is ready) is not the attitude now: left out
+  const now = src.filter((a) => !a.stale);
+  $("now-table").innerHTML = `<tr><th>now (°)</th>${now.map((a) => `<th style="color:${COLORS[a.source] || "#555"}">${a.source}</th>`).join("")}</tr>`
+    + ["roll", "pitch", "yaw"].map((ax) => `<tr><td>${ax}</td>${now.map((a) => `<td data-source="${a.source}" data-axis="${ax}">${deg(a[`${ax}_deg`])}</td>`).join("")}</tr>`).join("");
   const rows = [];
   for (const a of src.filter((x) => x.kind === "estimator")) {
     const e = status.estimators[a.source] || {};
