@@ -135,3 +135,13 @@ async def wait_for(predicate, timeout: float, what: str, poll: float = 0.05) -> 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         await asyncio.sleep(poll)
+
+
+async def resend_until(condition, what: str, resend, timeout: float = 90.0, every: float = 0.5) -> None:
+    """Send (`resend()`) until `condition()` holds, again every `every` s: a command a vehicle may
+    drop or refuse while it is busy (a mode change, arming), to a deadline."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        resend()
+        await asyncio.sleep(every)

@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 
 import pytest
-from live import running_station, wait_for
+from live import resend_until, running_station, wait_for
 from test_sitl_copter import _command
 from test_sitl_plane_streams import plane  # noqa: F401 (the fixture)
 
@@ -38,23 +37,16 @@ def test_plane_mode_changes_and_arming_are_in_the_session_and_its_report(plane, 
             await wait_for(lambda: any(m.text == "Throttle failsafe off" for m in vehicle.messages), 60, "RC input")
             await station.params.set("ARMING_CHECK", 0)
 
-            async def until(condition, what: str, resend) -> None:
-                deadline = time.monotonic() + 90
-                while not condition():
-                    assert time.monotonic() < deadline, f"timed out waiting for {what}"
-                    resend()
-                    await asyncio.sleep(0.5)
-
             def set_mode(mode: int) -> None:
                 _command(station, mavlink.MAV_CMD_DO_SET_MODE, 1, mode)
 
             def arm(on: bool) -> None:
                 _command(station, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, float(on))
 
-            await until(lambda: vehicle.custom_mode == FBWA, "FBWA", lambda: set_mode(FBWA))
-            await until(lambda: vehicle.armed, "arming", lambda: arm(True))
-            await until(lambda: not vehicle.armed, "disarming", lambda: arm(False))
-            await until(lambda: vehicle.custom_mode == MANUAL, "MANUAL", lambda: set_mode(MANUAL))
+            await resend_until(lambda: vehicle.custom_mode == FBWA, "FBWA", lambda: set_mode(FBWA))
+            await resend_until(lambda: vehicle.armed, "arming", lambda: arm(True))
+            await resend_until(lambda: not vehicle.armed, "disarming", lambda: arm(False))
+            await resend_until(lambda: vehicle.custom_mode == MANUAL, "MANUAL", lambda: set_mode(MANUAL))
 
     asyncio.run(scenario())
     (folder,) = [p for p in record_dir.iterdir() if layout.is_session(p)]

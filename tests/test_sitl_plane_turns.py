@@ -15,10 +15,9 @@ attitude says of a plane in a steady turn and of its boot.
 from __future__ import annotations
 
 import asyncio
-import time
 
 import pytest
-from live import running_station, wait_for
+from live import resend_until, running_station, wait_for
 from test_sitl_copter import _command, sitl_process
 
 from gcs.commands.cli import main
@@ -62,13 +61,6 @@ def plane_flight(tmp_path_factory):
             await wait_for(lambda: estimation.inputs.gps_fix, 120, "a 3D GPS fix", poll=0.2)
             await station.params.set("ARMING_CHECK", 0)
 
-            async def until(condition, what: str, resend) -> None:
-                deadline = time.monotonic() + 90
-                while not condition():
-                    assert time.monotonic() < deadline, f"timed out waiting for {what}"
-                    resend()
-                    await asyncio.sleep(0.5)
-
             async def fly_for(seconds: float) -> None:
                 start = vehicle_time(pipeline)
                 await wait_for(lambda: vehicle_time(pipeline) >= start + seconds, 30 + 3 * seconds / SPEEDUP, "flight")
@@ -76,12 +68,12 @@ def plane_flight(tmp_path_factory):
             def set_mode(mode: int) -> None:
                 _command(station, mavlink.MAV_CMD_DO_SET_MODE, 1, mode)
 
-            await until(lambda: vehicle.custom_mode == TAKEOFF, "TAKEOFF", lambda: set_mode(TAKEOFF))
-            await until(
+            await resend_until(lambda: vehicle.custom_mode == TAKEOFF, "TAKEOFF", lambda: set_mode(TAKEOFF))
+            await resend_until(
                 lambda: vehicle.armed, "arming", lambda: _command(station, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
             )
             await fly_for(CLIMB)
-            await until(lambda: vehicle.custom_mode == RTL, "RTL", lambda: set_mode(RTL))
+            await resend_until(lambda: vehicle.custom_mode == RTL, "RTL", lambda: set_mode(RTL))
             lags = []
             for _ in range(int(LOITER / EVERY)):
                 await fly_for(EVERY)
