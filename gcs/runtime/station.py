@@ -199,8 +199,11 @@ class Station:
         if self.recorder is not None:
             self.recorder.close()
         if self._workers is not None:
-            self._workers.shutdown(wait=False, cancel_futures=True)
-            self._workers = None
+            workers, self._workers = self._workers, None
+            # joined, off the loop: a pool left shutting down (wait=False) raced CPython 3.11's exit
+            # hook, which then wrote to the pool's closed wakeup pipe ("Bad file descriptor" printed
+            # at the process's exit, once in 24 CI runs)
+            await asyncio.to_thread(workers.shutdown, wait=True, cancel_futures=True)
 
     async def link_finished(self) -> None:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
