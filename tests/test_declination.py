@@ -172,3 +172,32 @@ def test_live_station_uses_the_wmm_records_it_and_replays_identically(tmp_path):
         a = json.dumps(live["estimators"][name]["comparison"], sort_keys=True)
         b = json.dumps(offline["estimators"][name]["comparison"], sort_keys=True)
         assert a == b, f"{name}: live and replay differ"
+
+
+@pytest.mark.slow
+def test_station_keeps_asking_until_the_vehicle_sets_its_declination():
+    """ArduPilot sets COMPASS_DEC when it sets its home, seconds after the first 3D fix, and does
+    not send it: a vehicle that answers 0 at the fix and sets its value later (without a word)
+    has that value in the estimators a few seconds after, not the WMM's for the whole flight."""
+    import asyncio
+
+    from conftest import free_port
+    from live import running_sim, running_station, wait_for
+
+    port = free_port()
+
+    async def fly() -> tuple[str, float | None, float]:
+        async with running_station(f"udpin:127.0.0.1:{port}") as station:
+            inputs = station.estimation.inputs
+            async with running_sim(f"udpout:127.0.0.1:{port}", script="bench", speed=2.0) as sim:
+                home_value = sim.params["COMPASS_DEC"]
+                sim.params["COMPASS_DEC"] = 0.0  # a fresh ArduPilot before its home is set
+                await wait_for(lambda: inputs.declination_source.startswith("WMM"), 30, "the WMM at the first fix")
+                asked = sim.received.get("PARAM_REQUEST_READ", 0)
+                sim.params["COMPASS_DEC"] = home_value + D(1.0)  # its home set: told to nobody
+                await wait_for(lambda: inputs.declination_source == "vehicle COMPASS_DEC", 30, "the vehicle's value")
+                assert sim.received.get("PARAM_REQUEST_READ", 0) > asked
+                return inputs.declination_source, inputs.declination, home_value + D(1.0)
+
+    source, used, given = asyncio.run(fly())
+    assert used == pytest.approx(given, abs=1e-6)

@@ -55,6 +55,12 @@ from gcs.sessions.workbench import warm_up
 #: Seconds between published snapshots (and comparison rows in a recording).
 SNAPSHOT_INTERVAL = 1.0
 
+#: ArduPilot sets COMPASS_DEC when it sets its home, which can be seconds after the first 3D fix the
+#: station sees, and does not send the new value: from that fix the station asks every
+#: DECLINATION_RETRY s until the vehicle has given a non-zero one, at most DECLINATION_ASKS times.
+DECLINATION_RETRY = 5.0
+DECLINATION_ASKS = 12
+
 #: How much lower the worker process's priority is than the station's (Unix nice increment).
 WORKER_NICE = 10
 
@@ -133,7 +139,7 @@ class Station:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
             # does not say so) and after a reboot; every change is recorded in the event log
             self.link.state_changed.connect(self._ask_declination)
-            self.estimation.gps_locked.connect(self._request_declination)
+            self.estimation.gps_locked.connect(self._ask_declination_until_given)
             self.vehicle.rebooted.connect(self._request_declination)
             self.estimation.declination_changed.connect(self._declination_changed)
         #: every snapshot as it is published
@@ -437,6 +443,19 @@ class Station:
 
     def _request_declination(self) -> None:
         self.params.request(DECLINATION_PARAMS)
+
+    def _ask_declination_until_given(self) -> None:
+        if not self.supervisor.running("declination"):
+            self.supervisor.start("declination", self._declination_asks())
+
+    async def _declination_asks(self) -> None:
+        assert self.estimation is not None
+        declination = self.estimation.inputs.vehicle_declination
+        for _ in range(DECLINATION_ASKS):
+            if declination.vehicle is not None:
+                return
+            self._request_declination()
+            await asyncio.sleep(DECLINATION_RETRY)
 
     def _declination_changed(self, source: str, value: float | None) -> None:
         deg = None if value is None else round(math.degrees(value), 3)
