@@ -18,7 +18,7 @@ The interval is the shortest that keeps the fan-out within `sends_per_s` (each s
 client costs the loop ~26 µs of CPU, `bench.ws_fanout`, and every frame costs the live
 estimation and the link a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one
 viewer, 6 for two, 3 ms more for each further one, 15 ms from 5 on (67 frames/s: more than a
-60 Hz page draws). Points that come sooner (a backlog's turns, back to back) wait for the gap,
+60 Hz page draws) and with none. Points that come sooner (a backlog's turns, back to back) wait for the gap,
 up to half an interval, so frames then come at most twice per interval; fewer viewers wait less.
 The longest interval is the dial between CPU and latency: with 5 pages, 10 ms frames instead of
 5 ms took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms
@@ -129,7 +129,11 @@ class LiveHub:
 
     def flush_interval(self) -> float:
         """Seconds between flushes: the fan-out within `sends_per_s`, between `frame_interval`
-        and `max_frame_interval`."""
+        and `max_frame_interval`; the longest while nobody watches (the link's reads and the
+        estimation's turns follow it: 4 ms cost `gcs serve` 5.0 % of a core per 1000 msg/s with
+        no page open against 3.5 % with five pages at 15 ms)."""
+        if not self.clients:
+            return self.max_frame_interval
         return min(self.max_frame_interval, max(self.frame_interval, len(self.clients) / self.sends_per_s))
 
     def _flush(self) -> None:
