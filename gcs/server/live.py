@@ -14,16 +14,16 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   once, and those bytes go straight to each client's socket. A client that
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
-The interval is the shortest that keeps the fan-out within `sends_per_s` (each send to each
-client costs the loop ~26 µs of CPU, `bench.ws_fanout`, and every frame costs the live
-estimation and the link a turn), between `frame_interval` and `max_frame_interval`: 4 ms for one
-viewer, 6 for two, 3 ms more for each further one, 15 ms from 5 on (67 frames/s: more than a
-60 Hz page draws) and with none. Points that come sooner (a backlog's turns, back to back) wait for the gap,
-up to half an interval, so frames then come at most twice per interval; fewer viewers wait less.
-The longest interval is the dial between CPU and latency: with 5 pages, 10 ms frames instead of
-5 ms took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms
-from 19.4 to 16.5 % (medians of six alternating pairs), while the WebSocket p99 with 20 clients
-under a CPU hog went from 11.6 to 17.1 ms, within the 20 ms the issue asks (docs/benchmarks.md).
+Frames go out every `frame_interval` (15 ms, 67 frames/s: more than a 60 Hz page draws), however
+many pages are open. Points that come sooner (a backlog's turns, back to back) wait for the gap,
+up to half an interval, so frames then come at most twice per interval. The interval is the dial
+between CPU and latency, for the fan-out (each send to each client costs the loop ~26 µs,
+`bench.ws_fanout`) and more for the turns it paces: with 5 pages, 10 ms frames instead of 5 ms
+took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms from
+19.4 to 16.5 %, while the WebSocket p99 with 20 clients under a CPU hog went from 11.6 to 17.1 ms,
+within the 20 ms the issue asks. Until 2026-12-05 fewer pages got shorter intervals (4 ms for
+one): one page then cost 7.5 % of a core per 1000 msg/s against five pages' 4.7 %, for a median
+latency of 0.2 ms instead of ~7 ms that no 60 Hz screen shows (docs/benchmarks.md).
 The live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`),
 so its points come in one batch per interval and go out right after it. Figures:
 docs/benchmarks.md; data flow: docs/design.md
@@ -61,17 +61,13 @@ class LiveHub:
         self,
         seconds: float = 600.0,
         max_rate: float = 400.0,
-        frame_interval: float = 0.004,
+        frame_interval: float = 0.015,
         client_max_frames: int = 1000,
-        sends_per_s: float = 333.0,
-        max_frame_interval: float = 0.015,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.capacity = int(seconds * max_rate)
         self.seconds = seconds
         self.frame_interval = frame_interval
-        self.sends_per_s = sends_per_s
-        self.max_frame_interval = max_frame_interval
         self.client_max_frames = client_max_frames
         #: host seconds for the flush gap and the data age (a test moves it by hand)
         self.clock = clock
@@ -128,13 +124,8 @@ class LiveHub:
             client.offer(frame, 0, framed)
 
     def flush_interval(self) -> float:
-        """Seconds between flushes: the fan-out within `sends_per_s`, between `frame_interval`
-        and `max_frame_interval`; the longest while nobody watches (the link's reads and the
-        estimation's turns follow it: 4 ms cost `gcs serve` 5.0 % of a core per 1000 msg/s with
-        no page open against 3.5 % with five pages at 15 ms)."""
-        if not self.clients:
-            return self.max_frame_interval
-        return min(self.max_frame_interval, max(self.frame_interval, len(self.clients) / self.sends_per_s))
+        """Seconds between flushes (what the link's reads and the estimation's ticks follow)."""
+        return self.frame_interval
 
     def _flush(self) -> None:
         self._flush_handle = None

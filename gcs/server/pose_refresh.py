@@ -15,8 +15,8 @@ for 5 viewers at 27 Hz on asyncio's loop, docs/benchmarks.md; less on uvloop, wh
 now, gcs.server.scene.LocalViserServer). Like the live hub's frames, the drawings keep that
 fan-out within a budget, `windows_per_s` viewer-windows a second: 30 Hz for up to 3 viewers,
 20 Hz for 5, 10 Hz for 10, at most: a drawing comes in the first turn that brings attitudes a
-whole period after the last, so on the live hub's 15 ms turns (5 pages) it comes every 60 ms,
-~16.7 Hz."""
+whole period after the last, so on the live hub's 15 ms turns it comes every 60 ms with 5 viewers,
+~16.7 Hz, and every 45 ms with one (22 Hz)."""
 
 from __future__ import annotations
 

@@ -112,8 +112,6 @@ def serve_vehicles(
                 max_rate=hub.capacity / hub.seconds,
                 frame_interval=hub.frame_interval,
                 client_max_frames=hub.client_max_frames,
-                sends_per_s=hub.sends_per_s,
-                max_frame_interval=hub.max_frame_interval,
                 clock=hub.clock,
             )
             app.state.hubs[id(entry.station)] = vehicle_hub
