@@ -135,11 +135,13 @@ class Station:
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         self.link.noted.connect(self._link_noted)
+        #: the estimation saw a first 3D fix: the declination part asks until the vehicle gives it
+        self._gps_locked = asyncio.Event()
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
             # does not say so) and after a reboot; every change is recorded in the event log
             self.link.state_changed.connect(self._ask_declination)
-            self.estimation.gps_locked.connect(self._ask_declination_until_given)
+            self.estimation.gps_locked.connect(self._gps_locked.set)
             self.vehicle.rebooted.connect(self._request_declination)
             self.estimation.declination_changed.connect(self._declination_changed)
         #: every snapshot as it is published
@@ -194,6 +196,7 @@ class Station:
             run("radio", self.radio.run())
         if self.estimation is not None:
             run("estimation", self.estimation.run())
+            run("declination", self._ask_declination_until_given())
         if self.recorder is not None:
             run("recorder", self.recorder.run())
         run("snapshots", self._publish_loop())
@@ -444,18 +447,19 @@ class Station:
     def _request_declination(self) -> None:
         self.params.request(DECLINATION_PARAMS)
 
-    def _ask_declination_until_given(self) -> None:
-        if not self.supervisor.running("declination"):
-            self.supervisor.start("declination", self._declination_asks())
-
-    async def _declination_asks(self) -> None:
+    async def _ask_declination_until_given(self) -> None:
+        """From each first 3D fix (a reboot's too), ask every DECLINATION_RETRY s until the vehicle
+        has given a non-zero value, at most DECLINATION_ASKS times."""
         assert self.estimation is not None
         declination = self.estimation.inputs.vehicle_declination
-        for _ in range(DECLINATION_ASKS):
-            if declination.vehicle is not None:
-                return
-            self._request_declination()
-            await asyncio.sleep(DECLINATION_RETRY)
+        while True:
+            await self._gps_locked.wait()
+            self._gps_locked.clear()
+            for _ in range(DECLINATION_ASKS):
+                if declination.vehicle is not None:
+                    break
+                self._request_declination()
+                await asyncio.sleep(DECLINATION_RETRY)
 
     def _declination_changed(self, source: str, value: float | None) -> None:
         deg = None if value is None else round(math.degrees(value), 3)

@@ -59,11 +59,6 @@ class Supervisor:
     def task(self, name: str) -> asyncio.Task[None]:
         return self._tasks[name]
 
-    def running(self, name: str) -> bool:
-        """Whether part `name` has been started and has not ended."""
-        task = self._tasks.get(name)
-        return task is not None and not task.done()
-
     async def stop(self, first: str | None = None) -> None:
         """Cancel every part (`first` alone before the others) and wait for them to end."""
         if first in self._tasks:
