@@ -15,15 +15,11 @@ event loop, and goes to two places, both O(1) per point and never awaiting anyon
   stops reading loses its oldest frames, counted for it alone; the others and the link never
   wait, and nothing is decimated for a client that keeps up.
 Frames go out every `frame_interval` (15 ms, 67 frames/s: more than a 60 Hz page draws), however
-many pages are open. Points that come sooner (a backlog's turns, back to back) wait for the gap,
-up to half an interval, so frames then come at most twice per interval. The interval is the dial
-between CPU and latency, for the fan-out (each send to each client costs the loop ~26 µs,
-`bench.ws_fanout`) and more for the turns it paces: with 5 pages, 10 ms frames instead of 5 ms
-took `gcs serve` from 21.8 to 18.0 % of a core per 1000 msg/s, and 15 ms instead of 10 ms from
-19.4 to 16.5 %, while the WebSocket p99 with 20 clients under a CPU hog went from 11.6 to 17.1 ms,
-within the 20 ms the issue asks. Until 2026-12-05 fewer pages got shorter intervals (4 ms for
-one): one page then cost 7.5 % of a core per 1000 msg/s against five pages' 4.7 %, for a median
-latency of 0.2 ms instead of ~7 ms that no 60 Hz screen shows (docs/benchmarks.md).
+many pages are open: the interval also paces the link's reads and the estimation's ticks, whose
+turns cost more than the sends (shorter intervals for fewer pages made one page cost more than
+five). Points that come sooner (a backlog's turns, back to back) wait for the gap, up to half an
+interval, so frames then come at most twice per interval. The interval is the dial between CPU
+and latency (figures for 5, 10 and 15 ms, and for one page at 4 ms: docs/benchmarks.md).
 The live estimation's tick follows this interval (the dashboard paces it: `Station.pace_points`),
 so its points come in one batch per interval and go out right after it. Figures:
 docs/benchmarks.md; data flow: docs/design.md
