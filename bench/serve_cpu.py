@@ -26,7 +26,10 @@ CPU: psutil user+system time of the receiving process over MEASURE_S s after WAR
 its main thread alone (`ours_main_thread_pct`: the event loop). Ours and the bare loop again at
 SLOPE_RATE in each round: the line through the two rates splits each one's CPU into µs per message
 and a fixed part (% of a core whatever arrives: the turns, the pages), which shows what the ratio at
-CPU_RATE is made of. Knee: the highest rate of RATES at which the receiver counted every packet sent.
+CPU_RATE is made of. Ours again with one page and with none at CPU_RATE in each round,
+against the same rounds' PAGES pages: fewer pages should cost no more (until 2026-12-05 one page
+cost 1.6× five: its frames, and so the link's reads, came every 4 ms).
+Knee: the highest rate of RATES at which the receiver counted every packet sent.
 """
 
 from __future__ import annotations
@@ -197,7 +200,7 @@ def wait_until_serving(base: str, timeout: float = 120) -> None:
             time.sleep(0.5)
 
 
-def serve(rate: int, seconds: float, measure: bool) -> dict:
+def serve(rate: int, seconds: float, measure: bool, pages: int = PAGES) -> dict:
     port, http = free_port(), free_port()
     with tempfile.TemporaryDirectory() as tmp:
         # GCS_BENCH_PROFILE=FILE: the server under cProfile, written at its clean stop
@@ -212,16 +215,16 @@ def serve(rate: int, seconds: float, measure: bool) -> dict:
         wait_until_serving(base)
         time.sleep(2.0)  # the estimators' kernels load
         helpers = []
-        if PAGES:
-            helpers.append(pollers(base, seconds + 2))
+        if pages:
+            helpers.append(pollers(base, seconds + 2, pages))
             live_url = f"ws://127.0.0.1:{http}/ws/live"
-            clients = [sys.executable, "-m", "bench.ws_clients", live_url, str(PAGES), str(seconds)]
+            clients = [sys.executable, "-m", "bench.ws_clients", live_url, str(pages), str(seconds)]
             helpers.append(subprocess.Popen(clients, stdout=subprocess.DEVNULL))
         views = None
-        if VIEWS_3D and PAGES:
+        if VIEWS_3D and pages:
             viser_url = f"ws://127.0.0.1:{http_json(f'{base}/api/status')['viser_port']}"
             views = subprocess.Popen(
-                [sys.executable, "-m", "bench.viser_clients", viser_url, str(PAGES), str(seconds)],
+                [sys.executable, "-m", "bench.viser_clients", viser_url, str(pages), str(seconds)],
                 stdout=subprocess.PIPE,
                 text=True,
             )
@@ -300,7 +303,7 @@ def cpu_rounds(seconds: float, rounds: int) -> dict[str, list[float]]:
     of its rounds, and each ratio the median of the rounds' own ratios."""
     cpu: dict[str, list[float]] = {
         "serve": [], "serve_main": [], "pymavlink": [], "MAVProxy": [], "view_hz": [],
-        "serve_slope_rate": [], "pymavlink_slope_rate": [],
+        "serve_slope_rate": [], "pymavlink_slope_rate": [], "serve_one_page": [], "serve_no_page": [],
     }  # fmt: skip
     for _ in range(rounds):
         served = serve(CPU_RATE, seconds, True)
@@ -312,6 +315,8 @@ def cpu_rounds(seconds: float, rounds: int) -> dict[str, list[float]]:
             cpu["MAVProxy"].append(mavproxy(CPU_RATE, seconds)["cpu"])
         cpu["serve_slope_rate"].append(serve(SLOPE_RATE, seconds, True)["cpu"])
         cpu["pymavlink_slope_rate"].append(bare(SLOPE_RATE, seconds, True)["cpu"])
+        cpu["serve_one_page"].append(serve(CPU_RATE, seconds, True, pages=1)["cpu"])
+        cpu["serve_no_page"].append(serve(CPU_RATE, seconds, True, pages=0)["cpu"])
     return cpu
 
 
@@ -332,8 +337,11 @@ def main() -> list[dict]:
     def pct(values: list[float]) -> float:
         return round(100 * statistics.median(values) / per_k, 1)
 
+    def ratio_of(ours: str, baseline: str) -> float:
+        return round(statistics.median(o / b for o, b in zip(cpu[ours], cpu[baseline], strict=True)), 2)
+
     def ratio(baseline: str) -> float:
-        return round(statistics.median(o / b for o, b in zip(cpu["serve"], cpu[baseline], strict=True)), 2)
+        return ratio_of("serve", baseline)
 
     rows = [
         {
@@ -382,6 +390,18 @@ def main() -> list[dict]:
             "baseline_us_per_message": theirs["us_per_message"],
             "ours_fixed_core_pct": ours["fixed_core_pct"],
             "baseline_fixed_core_pct": theirs["fixed_core_pct"],
+        }
+    )
+    rows.append(
+        {
+            "benchmark": "serve CPU per 1000 msg/s with one page, and with none",
+            "baseline": f"the same with {PAGES} pages",
+            "baseline_core_pct": pct(cpu["serve"]),
+            "ours_core_pct": pct(cpu["serve_one_page"]),
+            "ours_no_page_core_pct": pct(cpu["serve_no_page"]),
+            "ratio": ratio_of("serve_one_page", "serve"),
+            "ratio_no_page": ratio_of("serve_no_page", "serve"),
+            "target": "≤ 1 (fewer pages cost no more)",
         }
     )
     runs = [("serve", serve), ("pymavlink", bare)]
