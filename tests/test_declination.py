@@ -186,7 +186,7 @@ def test_station_keeps_asking_until_the_vehicle_sets_its_declination():
 
     port = free_port()
 
-    async def fly() -> tuple[str, float | None, float]:
+    async def fly() -> tuple[float | None, float]:
         async with running_station(f"udpin:127.0.0.1:{port}") as station:
             inputs = station.estimation.inputs
             async with running_sim(f"udpout:127.0.0.1:{port}", script="bench", speed=2.0) as sim:
@@ -197,7 +197,7 @@ def test_station_keeps_asking_until_the_vehicle_sets_its_declination():
                 sim.params["COMPASS_DEC"] = home_value + D(1.0)  # its home set: told to nobody
                 await wait_for(lambda: inputs.declination_source == "vehicle COMPASS_DEC", 30, "the vehicle's value")
                 assert sim.received.get("PARAM_REQUEST_READ", 0) > asked
-                return inputs.declination_source, inputs.declination, home_value + D(1.0)
+                return inputs.declination, home_value + D(1.0)
 
-    source, used, given = asyncio.run(fly())
+    used, given = asyncio.run(fly())
     assert used == pytest.approx(given, abs=1e-6)
