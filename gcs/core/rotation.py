@@ -142,14 +142,6 @@ def quat_to_euler(q: VectorLike) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
-def matrix_to_euler(R: npt.NDArray[np.float64]) -> tuple[float, float, float]:
-    """Z-Y-X Euler angles (roll, pitch, yaw) in radians of a body→earth rotation matrix."""
-    pitch = -math.asin(max(-1.0, min(1.0, R[2, 0])))
-    roll = math.atan2(R[2, 1], R[2, 2])
-    yaw = math.atan2(R[1, 0], R[0, 0])
-    return roll, pitch, yaw
-
-
 def wrap_pi(angle: float) -> float:
     """Angle wrapped into (-pi, pi]."""
     a = math.fmod(angle + math.pi, 2 * math.pi)

@@ -17,7 +17,6 @@ to another leaves each its own system id (two on one id mix their data on the li
 from __future__ import annotations
 
 import re
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,19 +100,6 @@ def save(path: str | Path, values: dict[str, float], comment: str | None = None)
     path = Path(path)
     path.write_text(dumps(values, comment), encoding="utf-8")
     return path
-
-
-def save_snapshot(directory: str | Path, values: dict[str, float], label: str = "snapshot") -> Path:
-    """The table as it was now, in DIRECTORY/LABEL-YYYYmmdd-HHMMSS.param (a pre-flight record
-    that stays readable by Mission Planner and MAVProxy)."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    return save(
-        directory / f"{label}-{stamp}.param",
-        values,
-        comment=f"{label} of {len(values)} parameters at {time.strftime('%Y-%m-%d %H:%M:%S %z')}",
-    )
 
 
 @dataclass(frozen=True, slots=True)
