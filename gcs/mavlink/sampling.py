@@ -248,7 +248,9 @@ class MessageSampler:
     ATTITUDE comes from a DCM still settling and swings to ~70° pitch on the ground for a few
     seconds, which scored as "onboard" dominated every estimator's session error
     (docs/estimators/comparison.md). A vehicle that sends no EKF_STATUS_REPORT (PX4, APM 2.5),
-    and the first second after boot before its first one, are taken as ready.
+    and the first second after boot before its first one, are taken as ready. PX4's
+    ESTIMATOR_STATUS is not needed for this: its EKF2 publishes no attitude while its own is not
+    valid, so an ATTITUDE from it was good.
     """
 
     def __init__(self, imu_type: str | None = None, system: int | None = None) -> None:

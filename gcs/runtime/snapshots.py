@@ -125,7 +125,8 @@ class VehicleSnapshot:
     gps_fix: str | None = None  # "3D", "RTK fixed", ...
     gps_satellites: int | None = None
     gps_hdop: float | None = None
-    #: EKF_STATUS_REPORT flags set, by name (ArduPilot), and the largest of its variances
+    #: the autopilot estimator's flags set, by name: EKF_STATUS_REPORT's (ArduPilot) or
+    #: ESTIMATOR_STATUS's (PX4); the largest of EKF_STATUS_REPORT's variances (None from PX4)
     ekf_flags: list[str] = field(default_factory=list)
     ekf_variance_max: float | None = None
     #: newest first

@@ -70,6 +70,7 @@ MESSAGE_IDS = {
         "AHRS",
         "SYS_STATUS",
         "EKF_STATUS_REPORT",
+        "ESTIMATOR_STATUS",
     )
 }
 
@@ -101,6 +102,8 @@ class StreamPlan:
     #: EKF_STATUS_REPORT (ArduPilot): whether the vehicle's attitude is trustworthy yet, which
     #: names ATTITUDE's reference (gcs.mavlink.sampling: onboard or onboard-unready) and fills the
     #: panel's EKF row. A vehicle behind a radio may stream none unless asked (SRx_EXTRA3 0).
+    #: PX4's ESTIMATOR_STATUS (0.5 Hz by default) fills that row too, at the same rate; it names no
+    #: reference: PX4's EKF2 publishes no attitude while its own is not valid.
     ekf_hz: float = 1.0
 
     def for_autopilot(self, autopilot: str | None, mavlink_version: int | None = None) -> dict[str, float]:
@@ -114,6 +117,7 @@ class StreamPlan:
                 "ATTITUDE": self.attitude_hz,
                 "GPS_RAW_INT": self.gps_hz,
                 "SYS_STATUS": self.status_hz,
+                "ESTIMATOR_STATUS": self.ekf_hz,
             }
         ekf = {"EKF_STATUS_REPORT": self.ekf_hz} if mavlink_version != 1 else {}
         return {

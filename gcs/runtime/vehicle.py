@@ -1,7 +1,8 @@
 """The vehicle as its messages describe it: heartbeat (mode, armed), SYS_STATUS (battery, sensor
-health), GPS_RAW_INT (fix, satellites, HDOP, the track on a local grid), EKF_STATUS_REPORT (the
-autopilot estimator's flags), STATUSTEXT (the autopilot's messages, also recorded in the session's
-event log); and its clock: reboots, or two vehicles sending as one system (gcs.runtime.boot_clock)."""
+health), GPS_RAW_INT (fix, satellites, HDOP, the track on a local grid), EKF_STATUS_REPORT or, from
+PX4, ESTIMATOR_STATUS (the autopilot estimator's flags), STATUSTEXT (the autopilot's messages, also
+recorded in the session's event log); and its clock: reboots, or two vehicles sending as one
+system (gcs.runtime.boot_clock)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ OBSERVED_TYPES = (
     "SYS_STATUS",
     "GPS_RAW_INT",
     "EKF_STATUS_REPORT",
+    "ESTIMATOR_STATUS",
     "STATUSTEXT",
     "AUTOPILOT_VERSION",
     *CLOCK_TYPES,
@@ -144,6 +146,11 @@ class VehicleState:
             self.ekf_flags = flag_names("EKF_STATUS_FLAGS", msg.flags, "EKF_")
             variances = (msg.velocity_variance, msg.pos_horiz_variance, msg.pos_vert_variance, msg.compass_variance)
             self.ekf_variance_max = max(variances)
+        elif item.type == "ESTIMATOR_STATUS":
+            # PX4's EKF2 solution flags: the same names as ArduPilot's for bits 1-512, but 1024 is
+            # a GPS glitch here (ArduPilot's "uninitialised"); its test ratios are not variances
+            self.ekf_flags = flag_names("ESTIMATOR_STATUS_FLAGS", msg.flags, "ESTIMATOR_")
+            self.ekf_variance_max = None
         elif item.type == "STATUSTEXT":
             chunk = (getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0))  # MAVLink 1 has neither
             for severity, whole in self._texts.add(msg.severity, msg.text.rstrip("\x00"), *chunk, item.host_time):

@@ -290,6 +290,22 @@ class Autopilot:
         )
         return mavlink.MAVLink_ekf_status_report_message(flags, 0.05, 0.08, 0.06, 0.03, 0.0)
 
+    def _estimator_status(self, t: float):
+        """PX4's ESTIMATOR_STATUS: EKF2's solution flags of a healthy filter using GPS, small test
+        ratios and accuracies (only the px4 profile has it)."""
+        flags = (
+            mavlink.ESTIMATOR_ATTITUDE
+            | mavlink.ESTIMATOR_VELOCITY_HORIZ
+            | mavlink.ESTIMATOR_VELOCITY_VERT
+            | mavlink.ESTIMATOR_POS_HORIZ_REL
+            | mavlink.ESTIMATOR_POS_HORIZ_ABS
+            | mavlink.ESTIMATOR_POS_VERT_ABS
+            | mavlink.ESTIMATOR_PRED_POS_HORIZ_REL
+            | mavlink.ESTIMATOR_PRED_POS_HORIZ_ABS
+        )
+        ratios, accuracies = (0.1, 0.1, 0.2, 0.1, 0.0, 0.0), (0.6, 0.9)  # vel, pos h/v, mag, hagl, tas; m
+        return mavlink.MAVLink_estimator_status_message(int(round(t * 1e6)), flags, *ratios, *accuracies)
+
     @staticmethod
     def statustext(severity: int, text: str):
         """A STATUSTEXT as ArduPilot sends it (e.g. "Arming motors"): 50 bytes, NUL-padded."""

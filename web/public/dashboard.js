@@ -174,7 +174,7 @@ function showVehicle(v, link) {
     ["mode", v.mode ?? "–"], ["armed", v.armed ? "ARMED" : "disarmed"],
     ["battery", v.battery_v == null ? "–" : `${v.battery_v.toFixed(2)} V${v.battery_a == null ? "" : ` · ${v.battery_a.toFixed(1)} A`}${v.battery_remaining_pct == null ? "" : ` · ${v.battery_remaining_pct} %`}`],
     ["GPS", v.gps_fix == null ? "–" : `${v.gps_fix} · ${v.gps_satellites ?? "?"} satellites · HDOP ${v.gps_hdop == null ? "?" : v.gps_hdop.toFixed(2)}`],
-    ["EKF", v.ekf_flags.length ? `${v.ekf_flags.join(", ")}${v.ekf_variance_max == null ? "" : ` · largest variance ${v.ekf_variance_max.toFixed(2)}`}` : "no EKF_STATUS_REPORT"],
+    ["EKF", v.ekf_flags.length ? `${v.ekf_flags.join(", ")}${v.ekf_variance_max == null ? "" : ` · largest variance ${v.ekf_variance_max.toFixed(2)}`}` : "no EKF_STATUS_REPORT or ESTIMATOR_STATUS yet"],
     ["sensors", v.sensors_unhealthy.length ? `unhealthy: ${v.sensors_unhealthy.join(", ")}` : "all healthy"],
     ["link", `${link.state} · loss ${lossText(link, v)} · heartbeat ${fmt(link.heartbeat_age_s, 1)} s ago`],
     ["autopilot", `${v.autopilot ?? "?"} ${v.vehicle_type ?? ""} ${v.firmware ?? ""} · ${v.system_status ?? ""}`],
