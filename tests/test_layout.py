@@ -1,10 +1,11 @@
 """One responsive layout, on a 1366×768 laptop and a 390×844 phone, with live data in every panel:
 no horizontal scroll, no element overlapping another (bounding boxes of every block of the page),
-the 3-D view at least a quarter of the laptop's viewport, and inside the 3-D view's frame (viser's
-own page) nothing drawn over the scene on the phone (viser's bottom sheet and its software-WebGL
-notice hidden) nor over the vehicle on the laptop (the minimized panel sits in a top corner), and
-viser's software-WebGL notice nowhere (the page says it under the view); screenshots of both into
-test-artifacts/ (layout-laptop.png, layout-phone.png)."""
+the 3-D view at least a quarter of the laptop's viewport, every chart above the laptop's fold (with
+two reboots' notes above them too), and inside the 3-D view's frame (viser's own page) nothing drawn
+over the scene on the phone (viser's bottom sheet and its software-WebGL notice hidden) nor over
+the vehicle on the laptop (the minimized panel sits in a top corner), and viser's software-WebGL
+notice nowhere (the page says it under the view); screenshots of both into test-artifacts/
+(layout-laptop.png, layout-phone.png)."""
 
 from __future__ import annotations
 
@@ -100,6 +101,8 @@ def test_layout_laptop_and_phone(udp_port, artifacts_dir):
         assert r["boxes"] >= len(BLOCKS) + 5, (name, r)  # six charts and every panel were measured
     assert report["laptop"]["pose_fraction"] >= 0.25, report["laptop"]
     assert report["laptop"]["charts_below_fold"] == 0, report["laptop"]  # roll, pitch and yaw in sight
+    with_note = report["laptop"]["with_note"]  # ... with two lines more above them (they pushed the yaw row off)
+    assert with_note["charts_below_fold"] == 0 and with_note["overlaps"] == [], with_note
     readout = report["laptop"]["readout"]  # the values under the cursor, in the chart's title
     assert readout.startswith("t ") and "onboard" in readout and "dcm" in readout and "°" in readout, readout
     for name, r in report.items():
@@ -148,6 +151,13 @@ async def scenario(udp_port: int, artifacts_dir) -> dict:
                     "(n) => gcsPlots.draws >= n", arg=await page.evaluate("gcsPlots.draws") + 5, polling=POLL_MS
                 )
                 report[name] = await page.evaluate(JS_LAYOUT, BLOCKS)
+                if name == "laptop":  # lines above the plots, as two reboots' notes: the charts make room
+                    for from_s in (120.0, 45.0):
+                        await page.evaluate(f"showRestart({{at: new Date(), from: {from_s}, to: 0.5}})")
+                    await page.wait_for_function(
+                        "(n) => gcsPlots.draws >= n", arg=await page.evaluate("gcsPlots.draws") + 3, polling=POLL_MS
+                    )
+                    report[name]["with_note"] = await page.evaluate(JS_LAYOUT, BLOCKS)
                 over = await page.query_selector(".chart .u-over")
                 assert over is not None
                 await over.hover()

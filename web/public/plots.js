@@ -167,7 +167,7 @@ function wrapGaps(u, si, i0, i1, _nullGaps) {
 // chart's height): the colours are the table's, and the values under the cursor are one line in
 // the chart's title.
 class Chart {
-  constructor(parent, title, lines, axis, hooks) {
+  constructor(parent, title, lines, axis, hooks, height) {
     this.lines = lines; this.axis = axis; this.key = "";
     const box = document.createElement("div"); box.className = "chart";
     const h3 = document.createElement("h3"); h3.textContent = title;
@@ -175,7 +175,7 @@ class Chart {
     h3.appendChild(this.readout); box.appendChild(h3); parent.appendChild(box);
     this.box = box;
     const opts = {
-      width: this.widthFor(), height: Plots.chartHeight(),
+      width: this.widthFor(), height,
       scales: { x: { time: false } },
       cursor: { sync: { key: "gcs" }, drag: { x: true, y: false, setScale: false } },
       legend: { show: false },
@@ -214,14 +214,16 @@ class Chart {
     for (const b of this.binners) { b.update(t1); const ys = new Array(2 * n); b.fill(c0, n, ys); data.push(ys); }
     this.u.batch(() => { this.u.setData(data); this.u.setScale("x", { min: t0, max: t1 }); });
   }
-  resize() { this.u.setSize({ width: this.widthFor(), height: Plots.chartHeight() }); this.key = ""; }
+  resize(height) { this.u.setSize({ width: this.widthFor(), height }); this.key = ""; }
 }
 
 // Everything the page plots: the sources, the error series, six charts and the draw loop.
 class Plots {
-  // Two columns of three charts share the height left under the tables on a laptop (all six above
-  // the fold at 1366×768); one column scrolls on a phone.
-  static chartHeight() { return innerWidth <= 1100 ? 140 : Math.max(90, Math.min(220, Math.floor((innerHeight - 420) / 3))); }
+  // A phone's one column of charts scrolls, 140 px each. Wider, the three rows share the height the
+  // window has left under everything above them, as laid out (`fit`): a warning or a reboot note
+  // above takes its lines from the charts rather than pushing the yaw row off screen (at 1366×768
+  // it did, with one line); 90 to 220 px each.
+  static NARROW = 1100;
   constructor(parent, estimators, onRestart) {
     this.parent = parent; this.estimators = estimators; this.onRestart = onRestart || (() => {});
     this.sources = {}; this.errors = [];
@@ -231,10 +233,26 @@ class Plots {
     this.window = 30; this.paused = false; this.view = null;  // view: {t0, t1} when zoomed or paused
     this.dirty = true; this.frames = 0; this.draws = 0; this.fps = 0; this.nextDraw = 0;
     this.restarts = [];
+    this.height = 140;  // until the first `fit`, which the observer below calls when it starts
     this.build();
-    addEventListener("resize", () => { for (const c of this.charts) c.resize(); this.dirty = true; });
+    addEventListener("resize", () => this.fit(true));
+    const above = new ResizeObserver(() => this.fit(false));
+    for (let el = parent; el && el !== document.body; el = el.parentElement)
+      for (let s = el.previousElementSibling; s; s = s.previousElementSibling) above.observe(s);
     requestAnimationFrame((ts) => this.frame(ts));
     setInterval(() => { this.fps = this.frames; this.frames = 0; this.trim(); }, 1000);
+  }
+  // Each chart's height for the room left (see NARROW); every chart again when the window resized.
+  fit(resized) {
+    let height = 140;
+    if (innerWidth > Plots.NARROW) {
+      const bottom = Math.max(...this.charts.map((c) => c.box.getBoundingClientRect().bottom)) + scrollY;
+      height = Math.max(90, Math.min(220, this.height + Math.floor((innerHeight - 1 - bottom) / 3)));
+    }
+    if (height === this.height && !resized) return;
+    this.height = height;
+    for (const c of this.charts) c.resize(height);
+    this.dirty = true;
   }
   build() {
     this.parent.innerHTML = "";
@@ -242,8 +260,8 @@ class Plots {
     const srcLines = Object.keys(this.sources).map((s) => ({ label: s, color: COLORS[s] || "#888", dash: DASH[s], series: this.sources[s] }));
     const errLines = this.errors.map((x) => ({ label: x.name, color: COLORS[x.e] || "#888", dash: x.r === "truth" ? [6, 3] : [], series: x.series }));
     this.charts = [
-      ...AXES.map((a, i) => new Chart(this.parent, `${a} (°)`, srcLines, i, hooks)),
-      ...AXES.map((a, i) => new Chart(this.parent, `${a} error (°): solid − onboard, dashed − truth`, errLines, i, hooks)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} (°)`, srcLines, i, hooks, this.height)),
+      ...AXES.map((a, i) => new Chart(this.parent, `${a} error (°): solid − onboard, dashed − truth`, errLines, i, hooks, this.height)),
     ];
   }
   newest() { let t = -Infinity; for (const s of Object.values(this.sources)) t = Math.max(t, s.last()); return t; }
