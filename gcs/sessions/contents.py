@@ -116,11 +116,8 @@ def replayed_attitude(source: ReplaySource) -> pa.Table:
     they were made, a few ms later); NaN for a .bin or .ulg, which have no host clock."""
     rows: list[tuple] = []
     wall_times = source.input_wall_times().tolist()
-    pipeline = source.new_pipeline()
-    for wall_time, item in zip(wall_times, source.table.inputs(), strict=True):
-        points = pipeline.feed(item)
-        if points:
-            rows.extend(columnar.attitude_rows(points, wall_time))
+    for index, points in source.outputs(source.new_pipeline()):
+        rows.extend(columnar.attitude_rows(points, wall_times[index]))
     columns: list[tuple] = list(zip(*rows)) if rows else [() for _ in columnar.ATTITUDE_SCHEMA]
     return pa.table(
         [pa.array(c, type=f.type) for c, f in zip(columns, columnar.ATTITUDE_SCHEMA)], schema=columnar.ATTITUDE_SCHEMA

@@ -145,23 +145,31 @@ class ReplaySource:
             estimators[name] = registry.create(name, preset, **{**gains, **overrides.get(name, {})})
         return EstimationPipeline(estimators)
 
+    def outputs(
+        self, pipeline: EstimationPipeline, progress: Callable[[int, int], None] | None = None
+    ) -> Iterator[tuple[int, list[AttitudePoint]]]:
+        """Feed every input to `pipeline` in order, at once (no pacing), yielding (input index,
+        points) for each input that made points; `progress(done, total)` is told every 50000
+        inputs and at the end."""
+        total = len(self.table)
+        for index, item in enumerate(self.table.inputs()):
+            points = pipeline.feed(item)
+            if points:
+                yield index, points
+            if progress is not None and (index + 1) % 50_000 == 0:
+                progress(index + 1, total)
+        if progress is not None:
+            progress(total, total)
+
     def replay(
         self,
         pipeline: EstimationPipeline,
-        on_points: Callable[[list[AttitudePoint]], None] | None = None,
+        on_points: Callable[[list[AttitudePoint]], None],
         progress: Callable[[int, int], None] | None = None,
     ) -> EstimationPipeline:
-        """Feed every input to `pipeline` at once (no pacing), handing the points it produces to
-        `on_points`; `progress(done, total)` is told every 50000 inputs and at the end."""
-        total = len(self.table)
-        for done, item in enumerate(self.table.inputs(), start=1):
-            points = pipeline.feed(item)
-            if points and on_points is not None:
-                on_points(points)
-            if progress is not None and done % 50_000 == 0:
-                progress(done, total)
-        if progress is not None:
-            progress(total, total)
+        """`outputs`, handing each input's points to `on_points`; returns the pipeline."""
+        for _, points in self.outputs(pipeline, progress):
+            on_points(points)
         return pipeline
 
 
