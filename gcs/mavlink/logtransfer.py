@@ -89,8 +89,6 @@ class LogTransfer:
         self.idle_timeout, self.merge_gap = idle_timeout, merge_gap
         self.outstanding: DataRequest | None = None
         self.requests = 0  # LOG_REQUEST_DATA sent, the first included
-        self.duplicates = 0  # chunks that arrived twice
-        self.strays = 0  # LOG_DATA of another log or off the chunk grid
         self._last_activity = 0.0
         self._sent_at: float | None = None  # when the outstanding request went, until its first chunk
         self.response_time: float | None = None  # smoothed request → first chunk (s)
@@ -119,8 +117,7 @@ class LogTransfer:
         """One LOG_DATA; True if it brought a new chunk."""
         k, off_grid = divmod(ofs, LOG_DATA_LEN)
         if log_id != self.entry.id or off_grid or k >= self.chunks or count != self._chunk_len(k):
-            self.strays += 1
-            return False
+            return False  # another log's, or off the chunk grid
         self._last_activity = now
         if self._sent_at is not None:
             sample, self._sent_at = now - self._sent_at, None
@@ -130,8 +127,7 @@ class LogTransfer:
         if request is not None and ofs + count >= min(request.ofs + request.count, self.entry.size):
             self.outstanding = None  # the vehicle has sent the last chunk of this request
         if self.have[k]:
-            self.duplicates += 1
-            return False
+            return False  # a chunk that arrived twice
         self.have[k] = 1
         self.data[ofs : ofs + count] = payload[:count]
         self.received += 1
