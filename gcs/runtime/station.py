@@ -135,11 +135,11 @@ class Station:
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
         self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
         self.link.noted.connect(self._link_noted)
-        #: the estimation saw a first 3D fix: the declination part asks until the vehicle gives it
-        self._gps_locked = asyncio.Event()
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
             # does not say so) and after a reboot; every change is recorded in the event log
+            #: the estimation saw a first 3D fix: the declination part asks until the vehicle gives it
+            self._gps_locked = asyncio.Event()
             self.link.state_changed.connect(self._ask_declination)
             self.estimation.gps_locked.connect(self._gps_locked.set)
             self.vehicle.rebooted.connect(self._request_declination)
