@@ -164,12 +164,13 @@ class ReplaySource:
     def replay(
         self,
         pipeline: EstimationPipeline,
-        on_points: Callable[[list[AttitudePoint]], None],
+        on_points: Callable[[list[AttitudePoint]], None] | None = None,
         progress: Callable[[int, int], None] | None = None,
     ) -> EstimationPipeline:
         """`outputs`, handing each input's points to `on_points`; returns the pipeline."""
         for _, points in self.outputs(pipeline, progress):
-            on_points(points)
+            if on_points is not None:
+                on_points(points)
         return pipeline
 
 
