@@ -4,6 +4,8 @@ pyulog's own readers (counts per type, time span); damage is reported with its b
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from collections import Counter
 
 import pytest
@@ -14,7 +16,7 @@ from gcs.commands.cli import main
 from gcs.logs.dataflash import TYPES
 from gcs.logs.readers import InputError
 from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
-from gcs.runtime.replay import ReplaySession
+from gcs.runtime.replay import ReplaySession, steady_clock
 from gcs.sessions.sources import open_source
 from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter
 
@@ -235,3 +237,25 @@ def test_a_gain_for_an_estimator_not_replayed_is_refused(logs_dir, argv, expecte
     the table printed as if the gain had been tried (found by auditing `gcs replay -g nosuch.kp_rp=0.3`)."""
     assert main(["replay", str(logs_dir / "ardupilot-fragment.bin"), "--fast", *argv]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f"gcs replay: error: {expected}"]
+
+
+def _replay_cli(*argv: str) -> tuple[list[str], float]:
+    """`gcs replay ARGV` in its own process: its error table's rows and the "x real time" it printed."""
+    done = subprocess.run([sys.executable, "-m", "gcs", "replay", *argv], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    speed = re.search(r"\(([0-9.]+)x real time, end to end", done.stdout)
+    assert speed, done.stdout
+    return [line for line in lines if line.startswith(("dcm", "kf", "ekf"))], float(speed[1])
+
+
+def test_fast_and_paced_replays_print_one_table_where_the_clock_steps_back(logs_dir):
+    """The VTOL tlog's IMU clock steps back 1 s near its start: the pipeline (paced replays,
+    reports, gcs batch) starts its comparison afresh there, as at a reboot, while `--fast`'s
+    whole runs scored every reference against one run taken for time-ordered (an `onboard` row of
+    n = 1 the others have not, truth n 887 against 883, other RMS)."""
+    path = str(logs_dir / "arduplane-sitl-vtol.tlog")
+    assert not steady_clock(open_source(path))
+    fast, _ = _replay_cli(path, "--fast", "-e", "ekf")
+    paced, _ = _replay_cli(path, "--speed", "1000", "-e", "ekf")
+    assert len(fast) >= 3 and fast == paced
