@@ -259,3 +259,10 @@ def test_fast_and_paced_replays_print_one_table_where_the_clock_steps_back(logs_
     fast, _ = _replay_cli(path, "--fast", "-e", "ekf")
     paced, _ = _replay_cli(path, "--speed", "1000", "-e", "ekf")
     assert len(fast) >= 3 and fast == paced
+
+
+def test_a_paced_replay_ends_when_the_log_does(logs_dir):
+    """`--speed 100` over the VTOL tlog's 207.6 s is 2.1 s: the end was seen by a once-a-second
+    sleep, at 3 s, and the printed speed said 69x real time."""
+    _, speed = _replay_cli(str(logs_dir / "arduplane-sitl-vtol.tlog"), "--speed", "100", "-e", "dcm")
+    assert 85 <= speed <= 101, speed
