@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -461,3 +462,27 @@ def test_a_packet_received_before_a_send_is_stamped_after_it_link_bits_and_all()
     received = clock.stamp(1.7e9 + 0.000050, RECEIVED)
     assert sent & 3 == SENT and received & 3 == RECEIVED
     assert received > sent and received - sent <= 4
+
+
+@pytest.mark.parametrize(
+    ("command", "written"),
+    [
+        (["report", "--out", "r.html"], ["r.html"]),
+        (["export", "--format", "mat", "--out", "x.mat"], ["x.mat"]),
+        (["export", "--format", "mcap", "--out", "x.mcap"], ["x.mcap"]),
+        (["batch", "--out", "fleet", "-e", "dcm", "--workers", "1"], ["fleet/flights"]),
+    ],
+)
+def test_a_log_whose_name_is_not_utf8_is_read_and_written_about(command, written, tmp_path):
+    """A name made elsewhere (a Latin-1 machine, a FAT stick): Python keeps its byte 0xE9 as a lone
+    surrogate, which the report's page, the .mat's info, the MCAP's metadata, Dask's task key and
+    Parquet all refused in a traceback (found by auditing). The name is written with U+FFFD there."""
+    log = tmp_path / os.fsdecode(b"vol-caf\xe9.bin")
+    log.write_bytes((LOGS / "ardupilot-fragment.bin").read_bytes())
+    done = subprocess.run(
+        GCS + [command[0], str(log), *command[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert all((tmp_path / name).exists() for name in written)
+    if command[0] == "report":
+        assert "vol-caf\ufffd.bin" in (tmp_path / "r.html").read_text(encoding="utf-8")

@@ -72,8 +72,7 @@ FAILURE_SCHEMA = pa.schema([("path", pa.string()), ("reason", pa.string())])
 def flight_id(path: str | os.PathLike) -> str:
     """A stable, folder-safe name for a flight: its file or folder name and a hash of its
     resolved path (two flights called telemetry.tlog in different folders stay apart)."""
-    resolved = str(Path(path).resolve())
-    digest = hashlib.sha1(resolved.encode()).hexdigest()[:8]
+    digest = hashlib.sha1(os.fsencode(Path(path).resolve())).hexdigest()[:8]  # any name's bytes
     return f"{layout.safe_label(Path(path).name)}-{digest}"
 
 

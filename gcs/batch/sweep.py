@@ -32,6 +32,7 @@ from gcs.batch.objective import OBJECTIVES, GainRange, score
 from gcs.core.estimators import registry
 from gcs.core.gains import PresetFile
 from gcs.logs.logfile import InputError
+from gcs.sessions import layout
 from gcs.sessions.whatif import run_estimator
 from gcs.sessions.workbench import workbench
 
@@ -210,7 +211,13 @@ def write_sweep(result: SweepResult, runner: Trials) -> None:
     )
     flights = pa.Table.from_pylist(
         [
-            {"path": f.path, "vehicle": f.vehicle, "holdout": f.holdout, "current": f.current, "best": f.best}
+            {
+                "path": layout.utf8_text(f.path),
+                "vehicle": f.vehicle,
+                "holdout": f.holdout,
+                "current": f.current,
+                "best": f.best,
+            }
             for f in result.flights
         ]
     )
