@@ -266,3 +266,25 @@ def test_a_paced_replay_ends_when_the_log_does(logs_dir):
     sleep, at 3 s, and the printed speed said 69x real time."""
     _, speed = _replay_cli(str(logs_dir / "arduplane-sitl-vtol.tlog"), "--speed", "100", "-e", "dcm")
     assert 85 <= speed <= 101, speed
+
+
+def test_a_ulog_cut_in_its_definitions_says_where_it_ends(logs_dir, tmp_path):
+    """A download cut inside the formats and subscriptions: the one line said only "offset 0: no
+    sensor_combined instance 0 (none)", as for a log that never had the topic (found by the audit);
+    it names where the file ends first, as a DataFlash log's does."""
+    data = (logs_dir / "px4-flight-sample.ulg").read_bytes()
+    at = ulog_message_starts(data)[3]  # the fourth message: still a definition
+    size = 3 + int.from_bytes(data[at : at + 2], "little")
+    path = tmp_path / "cut.ulg"
+    path.write_bytes(data[: at + 5])
+    cut = f"offset {at}: log ends inside a message (5 of its {size} bytes); samples up to there are used"
+    for command in (["replay", "--fast"], ["estimate", "-e", "dcm", "--out", str(tmp_path / "o.csv")]):
+        done = subprocess.run(
+            [sys.executable, "-m", "gcs", command[0], str(path), *command[1:]],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 2
+        expected = f"gcs {command[0]}: error: {path}: {cut}; no sensor_combined instance 0 (none)"
+        assert done.stderr.strip().splitlines() == [expected], done.stderr
