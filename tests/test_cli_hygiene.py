@@ -486,3 +486,32 @@ def test_a_log_whose_name_is_not_utf8_is_read_and_written_about(command, written
     assert all((tmp_path / name).exists() for name in written)
     if command[0] == "report":
         assert "vol-caf\ufffd.bin" in (tmp_path / "r.html").read_text(encoding="utf-8")
+
+
+def _session_of_the_hop(folder: Path) -> Path:
+    """A session folder made of the hop's tlog: its telemetry, a meta.json and an events.jsonl
+    with a note (the attitude tables absent: export and report replay the tlog)."""
+    folder.mkdir()
+    (folder / layout.TLOG).write_bytes((LOGS / "arducopter-sitl-hop.tlog").read_bytes())
+    (folder / layout.META).write_text(json.dumps({"start": 1.7e9, "end": 1.7e9 + 88, "vehicle": {"label": "hop"}}))
+    (folder / layout.EVENTS).write_text('{"kind": "note", "text": "gusty", "wall_time": 1700000010.0}\n')
+    return folder
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["replay", "--fast"], ["report", "--out", "r.html"], ["export", "--format", "mat", "--out", "x.mat"]],
+)
+def test_a_flipped_byte_in_events_jsonl_costs_its_line_only(command, tmp_path):
+    """read_events skips a damaged line, but a byte that is not UTF-8 (0xE9 for the note's "s")
+    made the whole file unreadable: a UnicodeDecodeError traceback from report and the .mat and
+    .mcap exports, and from replay one line naming no file (found by the audit)."""
+    session = _session_of_the_hop(tmp_path / "session")
+    events = session / layout.EVENTS
+    events.write_bytes(events.read_bytes().replace(b"gusty", b"gu\xe9ty") + b'{"kind": "note", "te\xff\n')
+    done = subprocess.run(
+        GCS + [command[0], str(session), *command[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
+    if command[0] == "report":
+        assert "gu\ufffdty" in (tmp_path / "r.html").read_text(encoding="utf-8")  # the note, its byte marked

@@ -298,12 +298,12 @@ def _note_firmware(msg: MAVLinkMessage, firmwares: dict[int, str]) -> None:
 
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     """Gain changes recorded in a session's events.jsonl with the input index they were applied at.
-    An incomplete last line (a crash mid-write) is ignored."""
+    An incomplete last line (a crash mid-write) is ignored, and a damaged one as read_events reads it."""
     events: list[tuple[int, GainChange]] = []
     path = layout.session_file(folder, layout.EVENTS)
     if not path.exists():
         return events
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
         try:
             event = json.loads(line)
         except ValueError:
