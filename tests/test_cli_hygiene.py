@@ -515,3 +515,14 @@ def test_a_flipped_byte_in_events_jsonl_costs_its_line_only(command, tmp_path):
     assert done.returncode == 0 and "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
     if command[0] == "report":
         assert "gu\ufffdty" in (tmp_path / "r.html").read_text(encoding="utf-8")  # the note, its byte marked
+
+
+def test_a_session_file_that_cannot_be_read_is_one_line_from_replay(tmp_path):
+    """A folder where events.jsonl should be (any OSError reading the session) was a traceback
+    from gcs replay (found by the audit), where report and export said it in one line."""
+    session = _session_of_the_hop(tmp_path / "session")
+    (session / layout.EVENTS).unlink()
+    (session / layout.EVENTS).mkdir()
+    done = subprocess.run(GCS + ["replay", str(session), "--fast"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"gcs replay: error: {session / layout.EVENTS}: Is a directory"]

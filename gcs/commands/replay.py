@@ -10,7 +10,7 @@ import sys
 import time
 from typing import Any
 
-from gcs.commands.common import progress_bar
+from gcs.commands.common import os_error_line, progress_bar
 from gcs.commands.options import check_speed
 from gcs.core.comparison import MIN_IMU_RATE, imu_rate_of, reliability
 from gcs.core.estimators import jit, whole
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         source = open_source(args.path)
         session = ReplaySession(source, 0 if args.fast else args.speed, names, gains)
-    except (InputError, KeyError, GainError, ValueError) as exc:
+    except (InputError, KeyError, GainError, ValueError, OSError) as exc:  # OSError: a session's file unreadable
         return _error(exc)
     print(
         f"{source.kind} {source.path}: {len(source.frames)} frames, {source.duration:.1f} s, "
@@ -120,7 +120,8 @@ def _start_up(whole_runs: bool) -> None:
 
 
 def _error(exc: Exception) -> int:
-    print(f"gcs replay: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+    text = exc.args[0] if isinstance(exc, KeyError) else os_error_line(exc) if isinstance(exc, OSError) else exc
+    print(f"gcs replay: error: {text}", file=sys.stderr)
     return 2
 
 
