@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import resource
+import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, free_port
+from conftest import LOGS, ROOT, free_port
 from live import running_sim
 
 from gcs.commands.cli import main
@@ -147,3 +148,30 @@ def test_a_save_that_fails_keeps_the_file_it_would_replace(tmp_path):
         f"gcs params save: error: {snapshot}: File too large (an earlier file is kept as it was)"
     ], err
     assert snapshot.read_text() == earlier and sorted(p.name for p in tmp_path.iterdir()) == ["before.param"]
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (b"ATC_RAT_RLL_P,nan\n", "bad.param:1: ATC_RAT_RLL_P: 'nan' is not a finite number"),
+        (b"ATC_RAT_RLL_P 1e999\n", "bad.param:1: ATC_RAT_RLL_P: '1e999' is not a finite number"),
+        (None, "bad.param:1: expected NAME,VALUE or NAME VALUE, got "),  # the hop's .BIN, renamed
+    ],
+)
+def test_a_damaged_param_file_is_refused_in_one_short_line(content, expected, tmp_path):
+    """Found by the audit: "nan", "inf" or 1e999 were read as values (diff showed nan, and a load
+    wrote every other parameter before the vehicle refused that one), and a file that is no .param
+    file at all was quoted whole: a .bin's first "line" is 639 characters of binary."""
+    good, bad = tmp_path / "good.param", tmp_path / "bad.param"
+    good.write_text("ATC_RAT_RLL_P,0.135\n")
+    bad.write_bytes(content if content is not None else (LOGS / "arducopter-sitl-hop.BIN").read_bytes()[:4096])
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs", "params", "diff", "good.param", "bad.param"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"gcs params diff: error: {expected}") and len(line) < 200, line
