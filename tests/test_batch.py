@@ -239,6 +239,39 @@ def _writer(path: Path, kind: str = "folder") -> subprocess.Popen:
     return proc
 
 
+#: A batch writing one flight over and over in its own process (as two `gcs batch --force` into
+#: one dataset write the flights they share), printing how many of its writes raised and why.
+REWRITER = """
+import sys
+from pathlib import Path
+import pyarrow as pa
+from gcs.batch.dataset import write_flight
+tables = {name: pa.table({"x": [1, 2, 3]}) for name in ("attitude", "summary")}
+errors = []
+for _ in range(int(sys.argv[2])):
+    try:
+        write_flight(Path(sys.argv[1]), "shared-1234abcd", tables)
+    except OSError as exc:
+        errors.append(repr(exc))
+print(len(errors), errors[:1])
+"""
+
+
+def test_two_runs_writing_one_flight_at_once_each_write_it_whole(tmp_path):
+    """Found by the audit: the partition was moved aside and the new one renamed in as two steps,
+    so a run between them found it gone (FileNotFoundError) or back in place (ENOTEMPTY), and
+    recorded a flight that was in the dataset as failed: 1 to 17 of 600 writes each, every try."""
+    runs = [
+        subprocess.Popen([sys.executable, "-c", REWRITER, str(tmp_path), "500"], stdout=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    printed = [run.communicate(timeout=300)[0].strip() for run in runs]
+    assert printed == ["0 []", "0 []"]
+    flight = dataset.flight_dir(tmp_path, "shared-1234abcd")
+    assert sorted(p.name for p in flight.iterdir()) == ["attitude.parquet", "summary.parquet"]
+    assert [p.name for p in flight.parent.iterdir()] == [flight.name]  # no temporary left
+
+
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
     """A writer killed with SIGKILL mid-flight (as a killed worker or scheduler leaves it) left its
     temporary folder and the partition it was replacing: the next batch removes both and says so

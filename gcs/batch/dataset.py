@@ -142,26 +142,43 @@ def write_locked(target: Path, write: Callable[[Path], object], folder: bool) ->
 def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Path:
     """Write the flight's tables into a temporary folder beside its partition, locked while it is
     written, then rename it in; an existing partition (--force) is moved aside only once the new
-    one is complete."""
+    one is complete. Moving aside and renaming in are one step for every writer (`swapping`):
+    two runs writing one flight at once (two `gcs batch` into one dataset) each replace the other's
+    partition whole, where the second found it gone or back in place midway (FileNotFoundError,
+    ENOTEMPTY) and recorded the flight as failed."""
     target = flight_dir(dataset, flight)
     target.parent.mkdir(parents=True, exist_ok=True)
     token = new_token()
     tmp, old = scratch(target, token, WRITING), scratch(target, token, REPLACED)
 
-    def write(folder: Path) -> None:
-        for name, table in tables.items():
-            pq.write_table(table, folder / f"{name}.parquet")
-        if target.exists():
-            target.rename(old)
+    with contextlib.ExitStack() as swap:
 
-    try:
-        with writing(tmp):
-            write_beside(target, write, tmp)
-    finally:
-        shutil.rmtree(old, ignore_errors=True)
+        def write(folder: Path) -> None:
+            for name, table in tables.items():
+                pq.write_table(table, folder / f"{name}.parquet")
+            swap.enter_context(swapping(target.parent))  # held until write_beside has renamed it in
+            if target.exists():
+                target.rename(old)
+
+        try:
+            with writing(tmp):
+                write_beside(target, write, tmp)
+        finally:
+            shutil.rmtree(old, ignore_errors=True)
     with contextlib.suppress(FileNotFoundError):
         failure_file(dataset, flight).unlink()  # it can be read now
     return target
+
+
+@contextlib.contextmanager
+def swapping(folder: Path) -> Iterator[None]:
+    """An exclusive lock on `folder` (flock, as `writing`) while a partition in it is swapped."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 def remove_leftovers(dataset: Path) -> list[str]:
