@@ -526,3 +526,23 @@ def test_a_session_file_that_cannot_be_read_is_one_line_from_replay(tmp_path):
     done = subprocess.run(GCS + ["replay", str(session), "--fast"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [f"gcs replay: error: {session / layout.EVENTS}: Is a directory"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["batch", "--workers", "-1"],
+        ["batch", "--workers", "0"],
+        ["sweep", "-e", "dcm", "--gain", "kp_rp=0.1:0.5", "--workers", "-1"],
+    ],
+)
+def test_a_batch_or_sweep_on_no_local_workers_is_refused_at_once(argv, tmp_path):
+    """Found by the audit: `gcs batch LOGS --out D --workers -1` started a LocalCluster with no
+    worker and waited for its tasks forever, without a word (`--workers 0` quietly meant the default)."""
+    out = tmp_path / "fleet"
+    command = GCS + [argv[0], str(LOGS / "ardupilot-fragment.bin"), *argv[1:], "--out", str(out)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)
+    assert done.returncode == 2 and not out.exists()
+    workers = argv[-1]
+    expected = f"gcs {argv[0]}: error: --workers {workers}: give 1 or more local workers (default: cores, at most 4)"
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
