@@ -15,6 +15,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import pyarrow.parquet as pq
 import pytest
@@ -22,6 +23,7 @@ from distributed import Client
 from fastapi.testclient import TestClient
 
 from gcs.batch import dataset
+from gcs.batch.sweep import FlightOutcome, SweepResult, write_sweep
 from gcs.commands.cli import build_parser, main
 from gcs.commands.serve import presets_or_report
 from gcs.core.estimators import registry
@@ -270,6 +272,23 @@ def test_two_runs_writing_one_flight_at_once_each_write_it_whole(tmp_path):
     flight = dataset.flight_dir(tmp_path, "shared-1234abcd")
     assert sorted(p.name for p in flight.iterdir()) == ["attitude.parquet", "summary.parquet"]
     assert [p.name for p in flight.parent.iterdir()] == [flight.name]  # no temporary left
+
+
+def test_two_sweeps_started_in_one_second_each_keep_their_result(tmp_path):
+    """A sweep's folder is named after its start second: of two sweeps of one estimator started
+    together (a script tuning two gain sets at once), the one finishing second failed on
+    "Directory not empty" and lost its result (found by the audit). It is written as `-2`."""
+    folder = tmp_path / dataset.SWEEPS / "dcm-20261206-033840"
+    flight = FlightOutcome("a.bin", "ArduPilot-QUADROTOR-1", False, 1.5, 1.2)
+    runner = SimpleNamespace(ranges=[SimpleNamespace(name="kp_rp")], gain_sets=[{"kp_rp": 0.3}], scores=[[1.2]])
+    written = []
+    for best in (0.3, 0.4):
+        result = SweepResult("dcm", "rms_vs_onboard", {"kp_rp": best}, 1.2, {}, [flight], 1, folder)
+        written.append(write_sweep(result, runner))  # a stand-in with the Trials fields it reads
+    assert written == [folder, folder.with_name(f"{folder.name}-2")]
+    for path, best in zip(written, (0.3, 0.4), strict=True):
+        assert PresetFile.from_toml((path / "preset.toml").read_text(), str(path)).gains == {"kp_rp": best}
+        assert pq.read_table(path / "flights.parquet").num_rows == 1
 
 
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
