@@ -546,3 +546,36 @@ def test_a_batch_or_sweep_on_no_local_workers_is_refused_at_once(argv, tmp_path)
     workers = argv[-1]
     expected = f"gcs {argv[0]}: error: --workers {workers}: give 1 or more local workers (default: cores, at most 4)"
     assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
+def test_a_fleet_report_of_a_damaged_dataset_is_one_line_naming_the_file(tmp_path):
+    """A dataset copied off a full card or cut in an interrupted copy: a flight's summary.parquet
+    cut to 0 bytes or a failure's file overwritten was a pyarrow ArrowInvalid traceback from
+    `gcs fleet report` (found by the audit); flipped bytes gave a line that ran onto a second."""
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(b"not a log")
+    fleet = tmp_path / "fleet"
+    built = subprocess.run(
+        GCS + ["batch", str(LOGS / "ardupilot-fragment.bin"), str(junk), "--out", str(fleet), "-e", "dcm"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert built.returncode == 0, built.stderr
+    (summary,) = fleet.glob("flights/*/summary.parquet")
+    (failure,) = fleet.glob("failures/*.parquet")
+    data = summary.read_bytes()
+    flipped = bytes(b ^ 0x55 if 50 < k < len(data) - 50 else b for k, b in enumerate(data))
+    for damaged, content, named in (
+        (summary, b"", fleet),
+        (summary, flipped, fleet),
+        (failure, b"junk\n", failure),
+    ):
+        kept = damaged.read_bytes()
+        damaged.write_bytes(content)
+        page = tmp_path / "fleet.html"
+        done = subprocess.run(GCS + ["fleet", "report", str(fleet), "--out", str(page)], capture_output=True, text=True)
+        damaged.write_bytes(kept)
+        assert done.returncode == 2 and not page.exists(), done.stderr
+        (line,) = done.stderr.strip().splitlines()
+        assert line.startswith(f"gcs fleet report: error: {named}: unreadable "), line

@@ -35,7 +35,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from gcs.sessions import layout
+from gcs.logs.logfile import InputError
+from gcs.sessions import columnar, layout
 from gcs.sessions.export import write_beside
 
 FLIGHTS = "flights"
@@ -238,13 +239,17 @@ def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:
         why = "no such dataset folder (gcs batch --out makes one)" if missing else "no flights in the dataset"
         raise FileNotFoundError(f"{dataset}: {why}")
     parts = ds.partitioning(pa.schema([("flight", pa.string())]), flavor="hive")
-    return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
+    try:
+        return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
+    except (pa.ArrowInvalid, OSError) as exc:  # a flight's file cut or damaged (its message names it)
+        raise InputError(f"{dataset}: unreadable {table} table ({' '.join(str(exc).split())})") from None
 
 
 def read_failures(dataset: str | os.PathLike) -> pa.Table:
     """Every failure row, with its `flight`."""
     files = sorted((Path(dataset) / FAILURES).glob("flight=*.parquet"))
     tables = [
-        pq.read_table(f).append_column("flight", pa.array([f.stem.removeprefix("flight=")], pa.string())) for f in files
+        columnar.read_parquet(f).append_column("flight", pa.array([f.stem.removeprefix("flight=")], pa.string()))
+        for f in files
     ]
     return pa.concat_tables(tables) if tables else FAILURE_SCHEMA.append(pa.field("flight", pa.string())).empty_table()
