@@ -579,3 +579,23 @@ def test_a_fleet_report_of_a_damaged_dataset_is_one_line_naming_the_file(tmp_pat
         assert done.returncode == 2 and not page.exists(), done.stderr
         (line,) = done.stderr.strip().splitlines()
         assert line.startswith(f"gcs fleet report: error: {named}: unreadable "), line
+
+
+def test_an_estimate_whose_out_is_its_input_is_refused(tmp_path):
+    """`gcs estimate flight.csv -e dcm --out flight.csv` (a CSV in, a CSV out) replaced the
+    engineer's IMU samples with the estimates made from them, exit 0 (found by the audit)."""
+    samples = tmp_path / "flight.csv"
+    text = "t,gx,gy,gz,ax,ay,az,mx,my,mz\n" + "".join(f"{k / 100},0,0,0,0,0,-9.8,0.2,0,0.4\n" for k in range(50))
+    samples.write_text(text)
+    done = subprocess.run(
+        GCS + ["estimate", "flight.csv", "-e", "dcm", "--out", "flight.csv"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "gcs estimate: error: --out flight.csv is INPUT itself; give another file"
+    ]
+    assert samples.read_text() == text and [p.name for p in tmp_path.iterdir()] == ["flight.csv"]
