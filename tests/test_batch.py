@@ -7,6 +7,7 @@ import contextlib
 import io
 import math
 import os
+import resource
 import select
 import shutil
 import socket
@@ -289,6 +290,38 @@ def test_two_sweeps_started_in_one_second_each_keep_their_result(tmp_path):
     for path, best in zip(written, (0.3, 0.4), strict=True):
         assert PresetFile.from_toml((path / "preset.toml").read_text(), str(path)).gains == {"kp_rp": best}
         assert pq.read_table(path / "flights.parquet").num_rows == 1
+
+
+def _files_up_to_1_kib() -> None:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (1024, 1024))  # EFBIG past it, as ENOSPC on a full disk
+
+
+def test_a_dataset_that_cannot_be_written_is_one_line_naming_it(tmp_path, logs_dir):
+    """A dataset on a full disk (a file size limit here, the workers' too): a flight's partition
+    cannot be written, nor then its failure row, and the task raised. Dask's worker logged its
+    "Compute Failed" and traceback, and the command said "lost the Dask scheduler" (found by the
+    audit): the task's OSError was taken for the cluster's. One line names the dataset now."""
+    out = tmp_path / "fleet"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "gcs",
+            "batch",
+            str(logs_dir / "ardupilot-fragment.bin"),
+            "--out",
+            str(out),
+            "-e",
+            "dcm",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=_files_up_to_1_kib,
+    )
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"gcs batch: error: {out}: ") and "File too large" in line, line
 
 
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
