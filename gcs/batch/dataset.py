@@ -6,7 +6,7 @@
                           events.parquet      the session's events (contents.EVENTS_SCHEMA)
                           summary.parquet     the flight's facts and errors (SUMMARY_SCHEMA)
       failures/flight=<id>.parquet            one row: a log that could not be read, and why
-      sweeps/<estimator>-<stamp>/             gain sweeps (gcs.batch.sweep)
+      sweeps/<estimator>-<stamp>[-N]/         gain sweeps (gcs.batch.sweep)
 
 A flight's folder is written under a temporary name and renamed whole, so a crash never leaves a
 half-written partition; its presence is what "already in the dataset" means. A failure's file
