@@ -3,7 +3,9 @@ pyulog's own readers (counts per type, time span); damage is reported with its b
 
 from __future__ import annotations
 
+import math
 import re
+import struct
 import subprocess
 import sys
 from collections import Counter
@@ -288,3 +290,22 @@ def test_a_ulog_cut_in_its_definitions_says_where_it_ends(logs_dir, tmp_path):
         assert done.returncode == 2
         expected = f"gcs {command[0]}: error: {path}: {cut}; no sensor_combined instance 0 (none)"
         assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
+def test_a_reference_that_is_no_number_is_left_out_of_the_fast_table_too(logs_dir, tmp_path):
+    """Three ATT records of the hop's .BIN with a NaN roll (a damaged log): the pipeline refuses
+    them (gcs.core.plausibility) and scores the rest, but `--fast`'s whole runs scored them and
+    printed nan for the onboard roll RMS and max (found by the audit)."""
+    data = bytearray((logs_dir / "arducopter-sitl-hop.BIN").read_bytes())
+    fmt = data.index(b"ATT\0", data.index(b"\xa3\x95\x80")) - 5  # the FMT record: header, type, length, name
+    kind, columns = data[fmt + 3], bytes(data[fmt + 25 : fmt + 89]).rstrip(b"\0").decode().split(",")
+    assert bytes(data[fmt + 9 : fmt + 17]).rstrip(b"\0") == b"QffffffB" and columns[2] == "Roll"
+    at = len(data) // 2
+    for _ in range(3):
+        at = data.index(bytes([0xA3, 0x95, kind]), at + 1)
+        data[at + 3 + 8 + 4 : at + 3 + 8 + 8] = struct.pack("<f", math.nan)  # after TimeUS and DesRoll
+    path = tmp_path / "nan-roll.bin"
+    path.write_bytes(bytes(data))
+    fast, _ = _replay_cli(str(path), "--fast", "-e", "dcm")
+    paced, _ = _replay_cli(str(path), "--speed", "1000", "-e", "dcm")
+    assert fast == paced and not any("nan" in row for row in fast), fast

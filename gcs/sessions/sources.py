@@ -28,6 +28,7 @@ import numpy.typing as npt
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
 from gcs.core.estimators import registry
 from gcs.core.estimators.whole import InputKind as Kind
+from gcs.core.plausibility import attitude_rows_accepted
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
@@ -119,8 +120,9 @@ class ReplaySource:
 
     @cached_property
     def references(self) -> dict[str, npt.NDArray[np.float64]]:
-        """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if scores against them."""
-        return self.table.references()
+        """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if and `gcs replay
+        --fast` score against them; those the pipeline refuses (non-finite, beyond ±2π) left out."""
+        return {name: rows[attitude_rows_accepted(rows)] for name, rows in self.table.references().items()}
 
     def open_packets(self) -> PacketReader | None:
         """A reader of the frames' MAVLink packets, or None when the source has none (logs)."""
