@@ -5,6 +5,7 @@ so a figure can be traced to the code that produced it."""
 from __future__ import annotations
 
 import json
+import os
 import platform
 import subprocess
 from dataclasses import asdict, dataclass
@@ -34,11 +35,21 @@ class Provenance:
         return f"gcs {self.version}" + (f" ({self.commit})" if self.commit else "")
 
 
+#: git's own switch for background queries: `git status` then leaves the index as it is, where it
+#: takes index.lock to refresh it. Every gcs command run from a checkout asks; a git killed in
+#: the middle (the 5 s timeout, a file size limit's SIGXFSZ) left a stale lock, and the engineer's
+#: own `git commit` meanwhile failed with "Another git process seems to be running".
+NO_OPTIONAL_LOCKS = {"GIT_OPTIONAL_LOCKS": "0"}
+
+
 def git_commit(folder: Path) -> str | None:
     """HEAD of the git checkout holding folder, with "+dirty" for uncommitted changes; None when
-    folder is not in a checkout or git is missing."""
+    folder is not in a checkout or git is missing. Read only: no lock taken in the checkout."""
+    env = {**os.environ, **NO_OPTIONAL_LOCKS}
     try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=folder, capture_output=True, text=True, timeout=5)
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=folder, capture_output=True, text=True, timeout=5, env=env
+        )
         if head.returncode != 0:
             return None
         dirty = subprocess.run(
@@ -47,6 +58,7 @@ def git_commit(folder: Path) -> str | None:
             capture_output=True,
             text=True,
             timeout=5,
+            env=env,
         ).stdout.strip()
     except (OSError, subprocess.TimeoutExpired):
         return None

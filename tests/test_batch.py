@@ -7,6 +7,7 @@ import contextlib
 import io
 import math
 import os
+import resource
 import select
 import shutil
 import socket
@@ -15,6 +16,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import pyarrow.parquet as pq
 import pytest
@@ -22,6 +24,7 @@ from distributed import Client
 from fastapi.testclient import TestClient
 
 from gcs.batch import dataset
+from gcs.batch.sweep import FlightOutcome, SweepResult, write_sweep
 from gcs.commands.cli import build_parser, main
 from gcs.commands.serve import presets_or_report
 from gcs.core.estimators import registry
@@ -237,6 +240,88 @@ def _writer(path: Path, kind: str = "folder") -> subprocess.Popen:
     ready, _, _ = select.select([proc.stdout], [], [], 120)
     assert ready and proc.stdout.readline() == "writing\n", f"the writer of {path} did not start"
     return proc
+
+
+#: A batch writing one flight over and over in its own process (as two `gcs batch --force` into
+#: one dataset write the flights they share), printing how many of its writes raised and why.
+REWRITER = """
+import sys
+from pathlib import Path
+import pyarrow as pa
+from gcs.batch.dataset import write_flight
+tables = {name: pa.table({"x": [1, 2, 3]}) for name in ("attitude", "summary")}
+errors = []
+for _ in range(int(sys.argv[2])):
+    try:
+        write_flight(Path(sys.argv[1]), "shared-1234abcd", tables)
+    except OSError as exc:
+        errors.append(repr(exc))
+print(len(errors), errors[:1])
+"""
+
+
+def test_two_runs_writing_one_flight_at_once_each_write_it_whole(tmp_path):
+    """Found by the audit: the partition was moved aside and the new one renamed in as two steps,
+    so a run between them found it gone (FileNotFoundError) or back in place (ENOTEMPTY), and
+    recorded a flight that was in the dataset as failed: 1 to 17 of 600 writes each, every try."""
+    runs = [
+        subprocess.Popen([sys.executable, "-c", REWRITER, str(tmp_path), "500"], stdout=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    printed = [run.communicate(timeout=300)[0].strip() for run in runs]
+    assert printed == ["0 []", "0 []"]
+    flight = dataset.flight_dir(tmp_path, "shared-1234abcd")
+    assert sorted(p.name for p in flight.iterdir()) == ["attitude.parquet", "summary.parquet"]
+    assert [p.name for p in flight.parent.iterdir()] == [flight.name]  # no temporary left
+
+
+def test_two_sweeps_started_in_one_second_each_keep_their_result(tmp_path):
+    """A sweep's folder is named after its start second: of two sweeps of one estimator started
+    together (a script tuning two gain sets at once), the one finishing second failed on
+    "Directory not empty" and lost its result (found by the audit). It is written as `-2`."""
+    folder = tmp_path / dataset.SWEEPS / "dcm-20261206-033840"
+    flight = FlightOutcome("a.bin", "ArduPilot-QUADROTOR-1", False, 1.5, 1.2)
+    runner = SimpleNamespace(ranges=[SimpleNamespace(name="kp_rp")], gain_sets=[{"kp_rp": 0.3}], scores=[[1.2]])
+    written = []
+    for best in (0.3, 0.4):
+        result = SweepResult("dcm", "rms_vs_onboard", {"kp_rp": best}, 1.2, {}, [flight], 1, folder)
+        written.append(write_sweep(result, runner))  # a stand-in with the Trials fields it reads
+    assert written == [folder, folder.with_name(f"{folder.name}-2")]
+    for path, best in zip(written, (0.3, 0.4), strict=True):
+        assert PresetFile.from_toml((path / "preset.toml").read_text(), str(path)).gains == {"kp_rp": best}
+        assert pq.read_table(path / "flights.parquet").num_rows == 1
+
+
+def _files_up_to_1_kib() -> None:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (1024, 1024))  # EFBIG past it, as ENOSPC on a full disk
+
+
+def test_a_dataset_that_cannot_be_written_is_one_line_naming_it(tmp_path, logs_dir):
+    """A dataset on a full disk (a file size limit here, the workers' too): a flight's partition
+    cannot be written, nor then its failure row, and the task raised. Dask's worker logged its
+    "Compute Failed" and traceback, and the command said "lost the Dask scheduler" (found by the
+    audit): the task's OSError was taken for the cluster's. One line names the dataset now."""
+    out = tmp_path / "fleet"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "gcs",
+            "batch",
+            str(logs_dir / "ardupilot-fragment.bin"),
+            "--out",
+            str(out),
+            "-e",
+            "dcm",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=_files_up_to_1_kib,
+    )
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"gcs batch: error: {out}: ") and "File too large" in line, line
 
 
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):

@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -461,3 +462,140 @@ def test_a_packet_received_before_a_send_is_stamped_after_it_link_bits_and_all()
     received = clock.stamp(1.7e9 + 0.000050, RECEIVED)
     assert sent & 3 == SENT and received & 3 == RECEIVED
     assert received > sent and received - sent <= 4
+
+
+@pytest.mark.parametrize(
+    ("command", "written"),
+    [
+        (["report", "--out", "r.html"], ["r.html"]),
+        (["export", "--format", "mat", "--out", "x.mat"], ["x.mat"]),
+        (["export", "--format", "mcap", "--out", "x.mcap"], ["x.mcap"]),
+        (["batch", "--out", "fleet", "-e", "dcm", "--workers", "1"], ["fleet/flights"]),
+    ],
+)
+def test_a_log_whose_name_is_not_utf8_is_read_and_written_about(command, written, tmp_path):
+    """A name made elsewhere (a Latin-1 machine, a FAT stick): Python keeps its byte 0xE9 as a lone
+    surrogate, which the report's page, the .mat's info, the MCAP's metadata, Dask's task key and
+    Parquet all refused in a traceback (found by auditing). The name is written with U+FFFD there."""
+    log = tmp_path / os.fsdecode(b"vol-caf\xe9.bin")
+    log.write_bytes((LOGS / "ardupilot-fragment.bin").read_bytes())
+    done = subprocess.run(
+        GCS + [command[0], str(log), *command[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert all((tmp_path / name).exists() for name in written)
+    if command[0] == "report":
+        assert "vol-caf\ufffd.bin" in (tmp_path / "r.html").read_text(encoding="utf-8")
+
+
+def _session_of_the_hop(folder: Path) -> Path:
+    """A session folder made of the hop's tlog: its telemetry, a meta.json and an events.jsonl
+    with a note (the attitude tables absent: export and report replay the tlog)."""
+    folder.mkdir()
+    (folder / layout.TLOG).write_bytes((LOGS / "arducopter-sitl-hop.tlog").read_bytes())
+    (folder / layout.META).write_text(json.dumps({"start": 1.7e9, "end": 1.7e9 + 88, "vehicle": {"label": "hop"}}))
+    (folder / layout.EVENTS).write_text('{"kind": "note", "text": "gusty", "wall_time": 1700000010.0}\n')
+    return folder
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["replay", "--fast"], ["report", "--out", "r.html"], ["export", "--format", "mat", "--out", "x.mat"]],
+)
+def test_a_flipped_byte_in_events_jsonl_costs_its_line_only(command, tmp_path):
+    """read_events skips a damaged line, but a byte that is not UTF-8 (0xE9 for the note's "s")
+    made the whole file unreadable: a UnicodeDecodeError traceback from report and the .mat and
+    .mcap exports, and from replay one line naming no file (found by the audit)."""
+    session = _session_of_the_hop(tmp_path / "session")
+    events = session / layout.EVENTS
+    events.write_bytes(events.read_bytes().replace(b"gusty", b"gu\xe9ty") + b'{"kind": "note", "te\xff\n')
+    done = subprocess.run(
+        GCS + [command[0], str(session), *command[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr and "error:" not in done.stderr, done.stderr
+    if command[0] == "report":
+        assert "gu\ufffdty" in (tmp_path / "r.html").read_text(encoding="utf-8")  # the note, its byte marked
+
+
+def test_a_session_file_that_cannot_be_read_is_one_line_from_replay(tmp_path):
+    """A folder where events.jsonl should be (any OSError reading the session) was a traceback
+    from gcs replay (found by the audit), where report and export said it in one line."""
+    session = _session_of_the_hop(tmp_path / "session")
+    (session / layout.EVENTS).unlink()
+    (session / layout.EVENTS).mkdir()
+    done = subprocess.run(GCS + ["replay", str(session), "--fast"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [f"gcs replay: error: {session / layout.EVENTS}: Is a directory"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["batch", "--workers", "-1"],
+        ["batch", "--workers", "0"],
+        ["sweep", "-e", "dcm", "--gain", "kp_rp=0.1:0.5", "--workers", "-1"],
+    ],
+)
+def test_a_batch_or_sweep_on_no_local_workers_is_refused_at_once(argv, tmp_path):
+    """Found by the audit: `gcs batch LOGS --out D --workers -1` started a LocalCluster with no
+    worker and waited for its tasks forever, without a word (`--workers 0` quietly meant the default)."""
+    out = tmp_path / "fleet"
+    command = GCS + [argv[0], str(LOGS / "ardupilot-fragment.bin"), *argv[1:], "--out", str(out)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)
+    assert done.returncode == 2 and not out.exists()
+    workers = argv[-1]
+    expected = f"gcs {argv[0]}: error: --workers {workers}: give 1 or more local workers (default: cores, at most 4)"
+    assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
+def test_a_fleet_report_of_a_damaged_dataset_is_one_line_naming_the_file(tmp_path):
+    """A dataset copied off a full card or cut in an interrupted copy: a flight's summary.parquet
+    cut to 0 bytes or a failure's file overwritten was a pyarrow ArrowInvalid traceback from
+    `gcs fleet report` (found by the audit); flipped bytes gave a line that ran onto a second."""
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(b"not a log")
+    fleet = tmp_path / "fleet"
+    built = subprocess.run(
+        GCS + ["batch", str(LOGS / "ardupilot-fragment.bin"), str(junk), "--out", str(fleet), "-e", "dcm"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert built.returncode == 0, built.stderr
+    (summary,) = fleet.glob("flights/*/summary.parquet")
+    (failure,) = fleet.glob("failures/*.parquet")
+    data = summary.read_bytes()
+    flipped = bytes(b ^ 0x55 if 50 < k < len(data) - 50 else b for k, b in enumerate(data))
+    for damaged, content, named in (
+        (summary, b"", fleet),
+        (summary, flipped, fleet),
+        (failure, b"junk\n", failure),
+    ):
+        kept = damaged.read_bytes()
+        damaged.write_bytes(content)
+        page = tmp_path / "fleet.html"
+        done = subprocess.run(GCS + ["fleet", "report", str(fleet), "--out", str(page)], capture_output=True, text=True)
+        damaged.write_bytes(kept)
+        assert done.returncode == 2 and not page.exists(), done.stderr
+        (line,) = done.stderr.strip().splitlines()
+        assert line.startswith(f"gcs fleet report: error: {named}: unreadable "), line
+
+
+def test_an_estimate_whose_out_is_its_input_is_refused(tmp_path):
+    """`gcs estimate flight.csv -e dcm --out flight.csv` (a CSV in, a CSV out) replaced the
+    engineer's IMU samples with the estimates made from them, exit 0 (found by the audit)."""
+    samples = tmp_path / "flight.csv"
+    text = "t,gx,gy,gz,ax,ay,az,mx,my,mz\n" + "".join(f"{k / 100},0,0,0,0,0,-9.8,0.2,0,0.4\n" for k in range(50))
+    samples.write_text(text)
+    done = subprocess.run(
+        GCS + ["estimate", "flight.csv", "-e", "dcm", "--out", "flight.csv"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "gcs estimate: error: --out flight.csv is INPUT itself; give another file"
+    ]
+    assert samples.read_text() == text and [p.name for p in tmp_path.iterdir()] == ["flight.csv"]

@@ -151,6 +151,8 @@ def test_bad_csv_is_a_clear_error(tmp_path, capsys, content, expected):
     "argv, expected",
     [
         (["missing.csv", "-e", "dcm", "-o", "OUT"], "missing.csv: no such file"),
+        # a session folder: "no such file" (found by the audit) of a folder that is there
+        (["FOLDER", "-e", "dcm", "-o", "OUT"], "FOLDER: a folder, not a log file; give a .csv, .tlog, .bin, .ulg file"),
         (["IN", "-e", "nope", "-o", "OUT"], "unknown estimator 'nope'"),
         (["IN", "-e", "dcm", "-p", "nope", "-o", "OUT"], "unknown preset 'nope'"),
         (["IN", "-e", "dcm", "-g", "kp_rp=99", "-o", "OUT"], "gain kp_rp: 99 1/s is outside [0, 50]"),
@@ -163,7 +165,8 @@ def test_bad_csv_is_a_clear_error(tmp_path, capsys, content, expected):
 def test_bad_arguments_exit_2(tmp_path, capsys, argv, expected):
     (tmp_path / "IN").write_text("t,gx,gy,gz,ax,ay,az,mx,my,mz\n0,0,0,0,0,0,-9.8,,,\n")
     (tmp_path / "IN.txt").write_text("x")
-    argv = [str(tmp_path / a) if a in ("IN", "IN.txt", "OUT") else a for a in argv]
+    (tmp_path / "FOLDER").mkdir()
+    argv = [str(tmp_path / a) if a in ("IN", "IN.txt", "OUT", "FOLDER") else a for a in argv]
     assert estimate(*argv) == 2
     assert expected in capsys.readouterr().err
 

@@ -4,10 +4,12 @@ the simulator over UDP."""
 from __future__ import annotations
 
 import asyncio
+import resource
+import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, free_port
+from conftest import LOGS, ROOT, free_port
 from live import running_sim
 
 from gcs.commands.cli import main
@@ -67,7 +69,13 @@ def test_diff_compares_as_the_vehicle_stores_values():
     assert param_files.format_diff(differences).split("\n")[2].split() == ["C", "2", "(missing)"]
 
 
-async def _gcs(*args: str) -> tuple[int, str, str]:
+async def _gcs(*args: str, file_size_limit: int | None = None) -> tuple[int, str, str]:
+    """`gcs params ARGS` in its own process; with `file_size_limit`, no file it writes may grow past
+    that many bytes (RLIMIT_FSIZE: the write fails with EFBIG, as on a full disk)."""
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (file_size_limit, file_size_limit))
+
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
@@ -77,6 +85,7 @@ async def _gcs(*args: str) -> tuple[int, str, str]:
         cwd=ROOT,
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
+        preexec_fn=None if file_size_limit is None else limited,
     )
     out, err = await asyncio.wait_for(proc.communicate(), 60)
     return proc.returncode, out.decode(), err.decode()
@@ -119,3 +128,50 @@ def test_cli_save_set_diff_load_against_the_vehicle(tmp_path):
     asyncio.run(asyncio.wait_for(scenario(), 120))
     rc, out, _ = asyncio.run(_gcs("diff", str(saved), str(edited)))
     assert rc == 0 and out.split("\n")[1].split() == ["AHRS_RP_P", "0.2", "0.9"]
+
+
+def test_a_save_that_fails_keeps_the_file_it_would_replace(tmp_path):
+    """`gcs params save before.param` on a full disk (a file size limit here) wrote the file in
+    place: it cut the engineer's earlier snapshot short at the limit and ended in a traceback
+    (found by the audit). Now one line names the file, which keeps its old text."""
+    snapshot = tmp_path / "before.param"
+    earlier = "# yesterday's pre-flight values\n" + "".join(f"RATE_RLL_P{k},0.15\n" for k in range(200))
+    snapshot.write_text(earlier)
+
+    async def scenario():
+        port = free_port()
+        async with running_sim(f"udpout:127.0.0.1:{port}", profile="apm25"):
+            return await _gcs("save", str(snapshot), "--connect", f"udpin:127.0.0.1:{port}", file_size_limit=1024)
+
+    rc, out, err = asyncio.run(asyncio.wait_for(scenario(), 120))
+    assert rc == 1 and err.strip().splitlines() == [
+        f"gcs params save: error: {snapshot}: File too large (an earlier file is kept as it was)"
+    ], err
+    assert snapshot.read_text() == earlier and sorted(p.name for p in tmp_path.iterdir()) == ["before.param"]
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (b"ATC_RAT_RLL_P,nan\n", "bad.param:1: ATC_RAT_RLL_P: 'nan' is not a finite number"),
+        (b"ATC_RAT_RLL_P 1e999\n", "bad.param:1: ATC_RAT_RLL_P: '1e999' is not a finite number"),
+        (None, "bad.param:1: expected NAME,VALUE or NAME VALUE, got "),  # the hop's .BIN, renamed
+    ],
+)
+def test_a_damaged_param_file_is_refused_in_one_short_line(content, expected, tmp_path):
+    """Found by the audit: "nan", "inf" or 1e999 were read as values (diff showed nan, and a load
+    wrote every other parameter before the vehicle refused that one), and a file that is no .param
+    file at all was quoted whole: a .bin's first "line" is 639 characters of binary."""
+    good, bad = tmp_path / "good.param", tmp_path / "bad.param"
+    good.write_text("ATC_RAT_RLL_P,0.135\n")
+    bad.write_bytes(content if content is not None else (LOGS / "arducopter-sitl-hop.BIN").read_bytes()[:4096])
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs", "params", "diff", "good.param", "bad.param"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"gcs params diff: error: {expected}") and len(line) < 200, line

@@ -3,7 +3,11 @@ pyulog's own readers (counts per type, time span); damage is reported with its b
 
 from __future__ import annotations
 
+import math
 import re
+import struct
+import subprocess
+import sys
 from collections import Counter
 
 import pytest
@@ -14,7 +18,7 @@ from gcs.commands.cli import main
 from gcs.logs.dataflash import TYPES
 from gcs.logs.readers import InputError
 from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
-from gcs.runtime.replay import ReplaySession
+from gcs.runtime.replay import ReplaySession, steady_clock
 from gcs.sessions.sources import open_source
 from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter
 
@@ -235,3 +239,73 @@ def test_a_gain_for_an_estimator_not_replayed_is_refused(logs_dir, argv, expecte
     the table printed as if the gain had been tried (found by auditing `gcs replay -g nosuch.kp_rp=0.3`)."""
     assert main(["replay", str(logs_dir / "ardupilot-fragment.bin"), "--fast", *argv]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f"gcs replay: error: {expected}"]
+
+
+def _replay_cli(*argv: str) -> tuple[list[str], float]:
+    """`gcs replay ARGV` in its own process: its error table's rows and the "x real time" it printed."""
+    done = subprocess.run([sys.executable, "-m", "gcs", "replay", *argv], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    speed = re.search(r"\(([0-9.]+)x real time, end to end", done.stdout)
+    assert speed, done.stdout
+    return [line for line in lines if line.startswith(("dcm", "kf", "ekf"))], float(speed[1])
+
+
+def test_fast_and_paced_replays_print_one_table_where_the_clock_steps_back(logs_dir):
+    """The VTOL tlog's IMU clock steps back 1 s near its start: the pipeline (paced replays,
+    reports, gcs batch) starts its comparison afresh there, as at a reboot, while `--fast`'s
+    whole runs scored every reference against one run taken for time-ordered (an `onboard` row of
+    n = 1 the others have not, truth n 887 against 883, other RMS)."""
+    path = str(logs_dir / "arduplane-sitl-vtol.tlog")
+    assert not steady_clock(open_source(path))
+    fast, _ = _replay_cli(path, "--fast", "-e", "ekf")
+    paced, _ = _replay_cli(path, "--speed", "1000", "-e", "ekf")
+    assert len(fast) >= 3 and fast == paced
+
+
+def test_a_paced_replay_ends_when_the_log_does(logs_dir):
+    """`--speed 100` over the VTOL tlog's 207.6 s is 2.1 s: the end was seen by a once-a-second
+    sleep, at 3 s, and the printed speed said 69x real time."""
+    _, speed = _replay_cli(str(logs_dir / "arduplane-sitl-vtol.tlog"), "--speed", "100", "-e", "dcm")
+    assert 85 <= speed <= 101, speed
+
+
+def test_a_ulog_cut_in_its_definitions_says_where_it_ends(logs_dir, tmp_path):
+    """A download cut inside the formats and subscriptions: the one line said only "offset 0: no
+    sensor_combined instance 0 (none)", as for a log that never had the topic (found by the audit);
+    it names where the file ends first, as a DataFlash log's does."""
+    data = (logs_dir / "px4-flight-sample.ulg").read_bytes()
+    at = ulog_message_starts(data)[3]  # the fourth message: still a definition
+    size = 3 + int.from_bytes(data[at : at + 2], "little")
+    path = tmp_path / "cut.ulg"
+    path.write_bytes(data[: at + 5])
+    cut = f"offset {at}: log ends inside a message (5 of its {size} bytes); samples up to there are used"
+    for command in (["replay", "--fast"], ["estimate", "-e", "dcm", "--out", str(tmp_path / "o.csv")]):
+        done = subprocess.run(
+            [sys.executable, "-m", "gcs", command[0], str(path), *command[1:]],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 2
+        expected = f"gcs {command[0]}: error: {path}: {cut}; no sensor_combined instance 0 (none)"
+        assert done.stderr.strip().splitlines() == [expected], done.stderr
+
+
+def test_a_reference_that_is_no_number_is_left_out_of_the_fast_table_too(logs_dir, tmp_path):
+    """Three ATT records of the hop's .BIN with a NaN roll (a damaged log): the pipeline refuses
+    them (gcs.core.plausibility) and scores the rest, but `--fast`'s whole runs scored them and
+    printed nan for the onboard roll RMS and max (found by the audit)."""
+    data = bytearray((logs_dir / "arducopter-sitl-hop.BIN").read_bytes())
+    fmt = data.index(b"ATT\0", data.index(b"\xa3\x95\x80")) - 5  # the FMT record: header, type, length, name
+    kind, columns = data[fmt + 3], bytes(data[fmt + 25 : fmt + 89]).rstrip(b"\0").decode().split(",")
+    assert bytes(data[fmt + 9 : fmt + 17]).rstrip(b"\0") == b"QffffffB" and columns[2] == "Roll"
+    at = len(data) // 2
+    for _ in range(3):
+        at = data.index(bytes([0xA3, 0x95, kind]), at + 1)
+        data[at + 3 + 8 + 4 : at + 3 + 8 + 8] = struct.pack("<f", math.nan)  # after TimeUS and DesRoll
+    path = tmp_path / "nan-roll.bin"
+    path.write_bytes(bytes(data))
+    fast, _ = _replay_cli(str(path), "--fast", "-e", "dcm")
+    paced, _ = _replay_cli(str(path), "--speed", "1000", "-e", "dcm")
+    assert fast == paced and not any("nan" in row for row in fast), fast

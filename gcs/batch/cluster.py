@@ -37,7 +37,9 @@ def connect(scheduler: str | None = None, workers: int | None = None, dashboard:
             threads_per_worker=1,
             processes=True,
             dashboard_address=":0",  # the scheduler's HTTP server: a free port, never a clash on 8787
-            silence_logs=logging.ERROR,  # not the nanny's "still alive after 4 s, killing" at close
+            # not the nanny's "still alive after 4 s, killing" at close, nor a worker's "Compute
+            # Failed" with the task's traceback: the command says a task's error in one line
+            silence_logs=logging.CRITICAL,
         ) as cluster,
         Client(cluster) as client,
     ):
@@ -68,12 +70,17 @@ class ClusterLost(OSError):
 
 def completed(futures: Sequence[Future]) -> Iterator[Any]:
     """The futures' results as they finish (each future released: nothing stays on the cluster),
-    with Dask's progress bar on a terminal; ClusterLost when the scheduler is lost on the way."""
+    with Dask's progress bar on a terminal; ClusterLost when the scheduler is lost on the way. A
+    task that raised (its output's disk full: a flight's own errors are its failure row) raises
+    its own error here, which was taken for a lost scheduler when it was an OSError."""
     if futures and sys.stderr.isatty():
         TextProgressBar(list(futures), interval="0.5s", start=True)
-    done = 0
+    done, failed = 0, None
     try:
         for future in as_completed(futures):
+            if future.status == "error":
+                failed = future
+                break
             result = future.result()
             future.release()
             done += 1
@@ -81,3 +88,5 @@ def completed(futures: Sequence[Future]) -> Iterator[Any]:
     except (CancelledError, OSError) as exc:  # FutureCancelledError, CommClosedError
         reason = getattr(exc, "reason", None) or str(exc) or type(exc).__name__  # "scheduler-connection-lost"
         raise ClusterLost(f"lost the Dask scheduler after {done} of {len(futures)} tasks ({reason})") from None
+    if failed is not None:
+        raise failed.exception()

@@ -6,7 +6,7 @@
                           events.parquet      the session's events (contents.EVENTS_SCHEMA)
                           summary.parquet     the flight's facts and errors (SUMMARY_SCHEMA)
       failures/flight=<id>.parquet            one row: a log that could not be read, and why
-      sweeps/<estimator>-<stamp>/             gain sweeps (gcs.batch.sweep)
+      sweeps/<estimator>-<stamp>[-N]/         gain sweeps (gcs.batch.sweep)
 
 A flight's folder is written under a temporary name and renamed whole, so a crash never leaves a
 half-written partition; its presence is what "already in the dataset" means. A failure's file
@@ -35,7 +35,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from gcs.sessions import layout
+from gcs.logs.logfile import InputError
+from gcs.sessions import columnar, layout
 from gcs.sessions.export import write_beside
 
 FLIGHTS = "flights"
@@ -72,8 +73,7 @@ FAILURE_SCHEMA = pa.schema([("path", pa.string()), ("reason", pa.string())])
 def flight_id(path: str | os.PathLike) -> str:
     """A stable, folder-safe name for a flight: its file or folder name and a hash of its
     resolved path (two flights called telemetry.tlog in different folders stay apart)."""
-    resolved = str(Path(path).resolve())
-    digest = hashlib.sha1(resolved.encode()).hexdigest()[:8]
+    digest = hashlib.sha1(os.fsencode(Path(path).resolve())).hexdigest()[:8]  # any name's bytes
     return f"{layout.safe_label(Path(path).name)}-{digest}"
 
 
@@ -143,26 +143,43 @@ def write_locked(target: Path, write: Callable[[Path], object], folder: bool) ->
 def write_flight(dataset: Path, flight: str, tables: dict[str, pa.Table]) -> Path:
     """Write the flight's tables into a temporary folder beside its partition, locked while it is
     written, then rename it in; an existing partition (--force) is moved aside only once the new
-    one is complete."""
+    one is complete. Moving aside and renaming in are one step for every writer (`swapping`):
+    two runs writing one flight at once (two `gcs batch` into one dataset) each replace the other's
+    partition whole, where the second found it gone or back in place midway (FileNotFoundError,
+    ENOTEMPTY) and recorded the flight as failed."""
     target = flight_dir(dataset, flight)
     target.parent.mkdir(parents=True, exist_ok=True)
     token = new_token()
     tmp, old = scratch(target, token, WRITING), scratch(target, token, REPLACED)
 
-    def write(folder: Path) -> None:
-        for name, table in tables.items():
-            pq.write_table(table, folder / f"{name}.parquet")
-        if target.exists():
-            target.rename(old)
+    with contextlib.ExitStack() as swap:
 
-    try:
-        with writing(tmp):
-            write_beside(target, write, tmp)
-    finally:
-        shutil.rmtree(old, ignore_errors=True)
+        def write(folder: Path) -> None:
+            for name, table in tables.items():
+                pq.write_table(table, folder / f"{name}.parquet")
+            swap.enter_context(swapping(target.parent))  # held until write_beside has renamed it in
+            if target.exists():
+                target.rename(old)
+
+        try:
+            with writing(tmp):
+                write_beside(target, write, tmp)
+        finally:
+            shutil.rmtree(old, ignore_errors=True)
     with contextlib.suppress(FileNotFoundError):
         failure_file(dataset, flight).unlink()  # it can be read now
     return target
+
+
+@contextlib.contextmanager
+def swapping(folder: Path) -> Iterator[None]:
+    """An exclusive lock on `folder` (flock, as `writing`) while a partition in it is swapped."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 def remove_leftovers(dataset: Path) -> list[str]:
@@ -222,13 +239,17 @@ def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:
         why = "no such dataset folder (gcs batch --out makes one)" if missing else "no flights in the dataset"
         raise FileNotFoundError(f"{dataset}: {why}")
     parts = ds.partitioning(pa.schema([("flight", pa.string())]), flavor="hive")
-    return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
+    try:
+        return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
+    except (pa.ArrowInvalid, OSError) as exc:  # a flight's file cut or damaged (its message names it)
+        raise InputError(f"{dataset}: unreadable {table} table ({' '.join(str(exc).split())})") from None
 
 
 def read_failures(dataset: str | os.PathLike) -> pa.Table:
     """Every failure row, with its `flight`."""
     files = sorted((Path(dataset) / FAILURES).glob("flight=*.parquet"))
     tables = [
-        pq.read_table(f).append_column("flight", pa.array([f.stem.removeprefix("flight=")], pa.string())) for f in files
+        columnar.read_parquet(f).append_column("flight", pa.array([f.stem.removeprefix("flight=")], pa.string()))
+        for f in files
     ]
     return pa.concat_tables(tables) if tables else FAILURE_SCHEMA.append(pa.field("flight", pa.string())).empty_table()

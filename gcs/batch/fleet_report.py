@@ -15,10 +15,9 @@ from collections import defaultdict
 from datetime import datetime
 from pathlib import Path
 
-import pyarrow.parquet as pq
-
 from gcs.batch import dataset
 from gcs.logs.logfile import InputError
+from gcs.sessions import columnar
 from gcs.sessions.export import write_beside
 from gcs.sessions.report import ERROR_REFERENCES, html_table, page, png, write_report
 
@@ -111,8 +110,8 @@ def latest_sweep(root: Path) -> Path | None:
 
 
 def sweep_section(folder: Path) -> str:
-    flights = pq.read_table(folder / "flights.parquet").to_pylist()
-    trials = pq.read_table(folder / "trials.parquet").to_pylist()
+    flights = columnar.read_parquet(folder / "flights.parquet").to_pylist()
+    trials = columnar.read_parquet(folder / "trials.parquet").to_pylist()
     preset = (folder / "preset.toml").read_text()
     rows = [
         [f["path"], f["vehicle"], "holdout" if f["holdout"] else "train", f"{f['current']:.3f}", f"{f['best']:.3f}"]

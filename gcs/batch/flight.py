@@ -90,7 +90,7 @@ def summary_table(
 ) -> pa.Table:
     reliable = {name: c.reliability()[0] for name, c in pipeline.comparisons.items()}
     flight = {
-        "path": source.path,
+        "path": layout.utf8_text(source.path),
         "kind": source.kind,
         "vehicle": about.vehicle,
         "firmware": about.firmware,
@@ -98,7 +98,7 @@ def summary_table(
         "duration_s": source.duration,
         "imu_samples": pipeline.imu_samples,
         "imu_rate_hz": about.imu_rate_hz,
-        "damage": source.damage,
+        "damage": None if source.damage is None else layout.utf8_text(source.damage),
     }
     keep = [c for c in comparison.column_names if c not in ("wall_time", "imu_rate_hz")]  # the flight's rate instead
     rows = [{**flight, **row, "reliable": reliable[row["estimator"]]} for row in comparison.select(keep).to_pylist()]
@@ -154,12 +154,12 @@ def process_flight(
         del points
         dataset.write_flight(root, flight, tables)
     except InputError as exc:
-        dataset.write_failure(root, flight, path, str(exc))
+        dataset.write_failure(root, flight, layout.utf8_text(path), layout.utf8_text(str(exc)))
         return FlightResult(flight, path, False, str(exc))
     except Exception as exc:  # one broken flight must not stop the fleet: record it with where it broke
         where = traceback.extract_tb(exc.__traceback__)[-1]
         reason = f"{path}: {type(exc).__name__}: {exc} ({os.path.basename(where.filename)}:{where.lineno})"
-        dataset.write_failure(root, flight, path, reason)
+        dataset.write_failure(root, flight, layout.utf8_text(path), layout.utf8_text(reason))
         return FlightResult(flight, path, False, reason)
     rms = {
         (row["estimator"], row["reference"]): (row["rms_roll"], row["rms_pitch"], row["rms_yaw"])

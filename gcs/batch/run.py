@@ -67,7 +67,13 @@ def run_batch(
     skipped = [f for f in flights if dataset.flight_id(f) in done]
     futures = [
         client.submit(
-            process_flight, str(Path(f).resolve()), str(root), estimators, gains, key=f"flight-{k}-{f}", pure=False
+            process_flight,
+            str(Path(f).resolve()),
+            str(root),
+            estimators,
+            gains,
+            key=f"flight-{k}-{layout.utf8_text(f)}",
+            pure=False,
         )
         for k, f in enumerate(todo)
     ]

@@ -12,11 +12,12 @@ it was recorded with (a session's meta.json), else the estimator's default prese
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ from gcs.batch.objective import OBJECTIVES, GainRange, score
 from gcs.core.estimators import registry
 from gcs.core.gains import PresetFile
 from gcs.logs.logfile import InputError
+from gcs.sessions import layout
 from gcs.sessions.whatif import run_estimator
 from gcs.sessions.workbench import workbench
 
@@ -180,8 +182,7 @@ def sweep(
         len(runner.gain_sets),
         folder,
     )
-    write_sweep(result, runner)
-    return result
+    return replace(result, folder=write_sweep(result, runner))
 
 
 def _scored_by_trials(x: Sequence[float]) -> float:
@@ -197,9 +198,12 @@ def preset_of(result: SweepResult) -> PresetFile:
     return PresetFile(result.estimator, base, result.best, note)
 
 
-def write_sweep(result: SweepResult, runner: Trials) -> None:
+def write_sweep(result: SweepResult, runner: Trials) -> Path:
     """trials.parquet (one row per gain set: its gains and mean score), flights.parquet (current
-    vs best per flight) and preset.toml, in one folder renamed into place when complete."""
+    vs best per flight) and preset.toml, in one folder renamed into place when complete; returns
+    it. The folder is named after the sweep's start second: one another sweep of the estimator
+    took first (two started in one second) makes it `<name>-2`, `-3`..., where the sweep that
+    finished second failed on "Directory not empty" and lost its result."""
     names = [r.name for r in runner.ranges]
     trials = pa.table(
         {
@@ -210,7 +214,13 @@ def write_sweep(result: SweepResult, runner: Trials) -> None:
     )
     flights = pa.Table.from_pylist(
         [
-            {"path": f.path, "vehicle": f.vehicle, "holdout": f.holdout, "current": f.current, "best": f.best}
+            {
+                "path": layout.utf8_text(f.path),
+                "vehicle": f.vehicle,
+                "holdout": f.holdout,
+                "current": f.current,
+                "best": f.best,
+            }
             for f in result.flights
         ]
     )
@@ -222,4 +232,13 @@ def write_sweep(result: SweepResult, runner: Trials) -> None:
         (tmp / "preset.toml").write_text(preset)
 
     result.folder.parent.mkdir(parents=True, exist_ok=True)
-    dataset.write_locked(result.folder, write, folder=True)
+    folder, n = result.folder, 1
+    while True:
+        try:
+            dataset.write_locked(folder, write, folder=True)
+            return folder
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        n += 1
+        folder = result.folder.with_name(f"{result.folder.name}-{n}")

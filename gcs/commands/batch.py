@@ -21,6 +21,14 @@ def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dashboard", action="store_true", help="serve the local cluster's Dask dashboard (free port)")
 
 
+def workers_error(args: argparse.Namespace) -> str | None:
+    """Why --workers cannot be used, or None: a LocalCluster of no workers (or -1) runs no task
+    and waited forever without a word; 0 quietly meant the default."""
+    if args.workers is not None and args.workers < 1:
+        return f"--workers {args.workers}: give 1 or more local workers (default: cores, at most 4)"
+    return None
+
+
 def cluster_error(exc: OSError, args: argparse.Namespace) -> str:
     """An OSError of a run on Dask as "what: why": the file it names, else the scheduler it lost or
     could not reach (the local cluster without --scheduler), else the output (the sweep's error
@@ -68,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
         names, gains = selection(args.estimator, args.gain)
     except (KeyError, ValueError) as exc:
         print(f"gcs batch: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    if workers := workers_error(args):
+        print(f"gcs batch: error: {workers}", file=sys.stderr)
         return 2
     flights = find_flights(args.logs)
     if not flights:

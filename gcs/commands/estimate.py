@@ -186,6 +186,9 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("INPUT", args.input), ("--estimator", name), ("--out", args.out)):
         if not value:
             return _fail(f"{flag} is required (or use --list)")
+    if os.path.isfile(args.input) and os.path.isfile(args.out) and os.path.samefile(args.input, args.out):
+        # a CSV in, a CSV out: the estimates replaced the samples they were made from
+        return _fail(f"--out {args.out} is INPUT itself; give another file")
     try:
         gains = {**(preset.gains if preset else {}), **_parse_gains(args.gain)}
         estimator = registry.create(name, args.preset or (preset.preset if preset else None), **gains)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from pathlib import Path
 
 from gcs.commands.common import os_error_line, progress_bar
 from gcs.commands.options import add_link_arguments, station_config
@@ -21,6 +22,7 @@ from gcs.mavlink import param_files
 from gcs.mavlink.params import ParamError, format_value, type_name
 from gcs.runtime.params import Param, ParamClient
 from gcs.runtime.tuning import GLOBAL_PER_SECOND, ProfileError, TuningSession, available_profiles, load_profile
+from gcs.sessions.export import write_beside
 
 CLIENT = "cli"
 
@@ -113,8 +115,12 @@ async def _set(params, args, profile) -> int:
 
 async def _save(params, args, profile) -> int:
     table = await downloaded(params, args.timeout)
-    path = param_files.save(args.file, params.values(), comment=f"{len(table)} parameters from {params.link.address}")
-    print(f"saved {len(table)} parameters to {path}")
+    comment = f"{len(table)} parameters from {params.link.address}"
+    try:  # written beside FILE and renamed: a full disk keeps the snapshot FILE held (it cut it short)
+        write_beside(Path(args.file), lambda tmp: param_files.save(tmp, params.values(), comment=comment))
+    except OSError as exc:
+        raise ParamError(f"{os_error_line(exc, args.file)} (an earlier file is kept as it was)") from None
+    print(f"saved {len(table)} parameters to {args.file}")
     return 0
 
 

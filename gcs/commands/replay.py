@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import sys
 import time
 from typing import Any
 
-from gcs.commands.common import progress_bar
+from gcs.commands.common import os_error_line, progress_bar
 from gcs.commands.options import check_speed
 from gcs.core.comparison import MIN_IMU_RATE, imu_rate_of, reliability
 from gcs.core.estimators import jit, whole
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         source = open_source(args.path)
         session = ReplaySession(source, 0 if args.fast else args.speed, names, gains)
-    except (InputError, KeyError, GainError, ValueError) as exc:
+    except (InputError, KeyError, GainError, ValueError, OSError) as exc:  # OSError: a session's file unreadable
         return _error(exc)
     print(
         f"{source.kind} {source.path}: {len(source.frames)} frames, {source.duration:.1f} s, "
@@ -119,7 +120,8 @@ def _start_up(whole_runs: bool) -> None:
 
 
 def _error(exc: Exception) -> int:
-    print(f"gcs replay: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+    text = exc.args[0] if isinstance(exc, KeyError) else os_error_line(exc) if isinstance(exc, OSError) else exc
+    print(f"gcs replay: error: {text}", file=sys.stderr)
     return 2
 
 
@@ -128,7 +130,10 @@ async def _paced(session: ReplaySession) -> None:
     show = progress_bar("replay")
     try:
         while not session.finished.is_set():
-            await asyncio.sleep(1.0)
+            # the bar moves once a second; the end is seen at once (a sleep of 1 s saw it up to a
+            # second late, and that second went into the time and the "x real time" printed)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(session.finished.wait(), 1.0)
             show(session.position, len(session.source.frames))
         show(len(session.source.frames), len(session.source.frames))
     finally:

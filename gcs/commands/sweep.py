@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from gcs.batch.objective import OBJECTIVES, parse_range
-from gcs.commands.batch import add_cluster_arguments, cluster_error
+from gcs.commands.batch import add_cluster_arguments, cluster_error, workers_error
 from gcs.core.gains import GainError
 
 if TYPE_CHECKING:
@@ -67,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
         ranges = [parse_range(text, args.estimator) for text in args.gain]
     except (KeyError, GainError) as exc:
         print(f"gcs sweep: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    if workers := workers_error(args):
+        print(f"gcs sweep: error: {workers}", file=sys.stderr)
         return 2
     holdout = find_flights(args.holdout)
     flights = [f for f in find_flights(args.logs) if f not in holdout]

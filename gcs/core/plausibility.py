@@ -83,3 +83,12 @@ def imu_rows_accepted(rows: npt.NDArray[np.float64], has_mag: npt.NDArray[np.boo
     for i in range(rows.shape[0]):
         out[i] = imu_row_accepted(rows[i], has_mag[i])
     return out
+
+
+def attitude_rows_accepted(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+    """`refusal(...) is None` for reference rows (t, roll, pitch, yaw): what whole runs score
+    against, as the pipeline's comparison is given them (a NaN roll from a damaged log's ATT
+    made `gcs replay --fast` print nan for the whole run)."""
+    t, angles = rows[:, 0], rows[:, 1:4]
+    accepted: npt.NDArray[np.bool_] = np.isfinite(t) & (t >= 0) & np.all(np.abs(angles) <= 2 * math.pi, axis=1)
+    return accepted

@@ -33,6 +33,8 @@ READERS: dict[str, Callable[[str, int], Iterable[Sample]]] = {
 def read_samples(path: str, imu: int = 0) -> Iterable[Sample]:
     """The sample stream of a log file, by suffix, with IMU instance `imu`; InputError for a
     missing file or unknown format. A `LogFile` reader reports damage and notes afterwards."""
+    if os.path.isdir(path):  # a session folder, say: "no such file" sent the engineer looking for it
+        raise InputError(f"{path}: a folder, not a log file; give a {', '.join(READERS)} file")
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file")
     suffix = os.path.splitext(path)[1].lower()

@@ -168,7 +168,11 @@ class UlogFile(LogFile):
         imus = sorted(m for name, m in contents.topics if name == IMU_TOPIC)
         if self.imu not in imus:
             found = f"instances in the log: {', '.join(map(str, imus))}" if imus else "none"
-            raise InputError(f"{self.path}: offset 0: no {IMU_TOPIC} instance {self.imu} ({found})")
+            # with no instance at all, where the file is cut or damaged comes first (a download cut
+            # in the definitions has no topics), as a DataFlash log's error says it
+            where = contents.damage[0] if contents.damage and not imus else None
+            at = "offset 0:" if where is None else f"offset {where.offset}: {where.cause};"
+            raise InputError(f"{self.path}: {at} no {IMU_TOPIC} instance {self.imu} ({found})")
         streams: dict[int, tuple[str, Columns]] = {IMU: (IMU_TOPIC, columns_of(contents.topics[IMU_TOPIC, self.imu]))}
         if ATTITUDE_TOPIC in topics:
             streams[ATTITUDE] = (ATTITUDE_TOPIC, topics[ATTITUDE_TOPIC])

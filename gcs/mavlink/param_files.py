@@ -16,6 +16,7 @@ to another leaves each its own system id (two on one id mix their data on the li
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,9 @@ from pathlib import Path
 from gcs.mavlink.params import ParamError, check_name, format_value, same_value
 
 _SPLIT = re.compile(r"\s*,\s*|\s+")
+#: Characters of a bad line quoted in its error: a file that is no .param file (a .bin given by
+#: mistake) has "lines" of kilobytes.
+QUOTED = 40
 
 #: (names, why a load leaves them alone), first match wins.
 _NOT_LOADABLE = (
@@ -62,7 +66,8 @@ def parse(text: str, source: str = "<text>") -> dict[str, float]:
         parts = _SPLIT.split(line)
         where = f"{source}:{number}"
         if len(parts) != 2:
-            raise ParamFileError(f"{where}: expected NAME,VALUE or NAME VALUE, got {line!r}")
+            shown = repr(line[:QUOTED]) + (f" ... ({len(line)} characters)" if len(line) > QUOTED else "")
+            raise ParamFileError(f"{where}: expected NAME,VALUE or NAME VALUE, got {shown}")
         name, text_value = parts
         try:
             check_name(name)
@@ -71,6 +76,8 @@ def parse(text: str, source: str = "<text>") -> dict[str, float]:
             raise ParamFileError(f"{where}: {exc}") from None
         except ValueError:
             raise ParamFileError(f"{where}: {name}: {text_value!r} is not a number") from None
+        if not math.isfinite(value):  # "nan", "inf", 1e999: no vehicle stores one; a load sent it
+            raise ParamFileError(f"{where}: {name}: {text_value!r} is not a finite number")
         if name in values:
             raise ParamFileError(f"{where}: {name} already set on line {lines[name]}")
         values[name], lines[name] = value, number

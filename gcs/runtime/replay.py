@@ -286,7 +286,11 @@ def whole_table(
     The estimators are independent and their kernels release the GIL, so each runs in its own
     thread: the replay takes about the slowest one's time on a machine with as many cores.
     Also returns the IMU samples fed (the pipeline's `imu_samples`); progress(done, total) counts
-    estimators."""
+    estimators. A source whose IMU clock does not only go forward runs through the pipeline
+    instead (`steady_clock`), so the table is the pipeline's whatever the log."""
+    if not steady_clock(source):
+        pipeline = source.replay(source.new_pipeline(estimators, gains), progress=progress)
+        return session_table(pipeline), pipeline.imu_samples
     workers = max(1, min(len(estimators), os.cpu_count() or 1))
     with ThreadPoolExecutor(workers, thread_name_prefix="whole-run") as pool:
         runs = [pool.submit(_whole_rows, source, name, gains.get(name, {})) for name in estimators]
@@ -295,6 +299,15 @@ def whole_table(
                 progress(done, len(estimators))
         results = [run.result() for run in runs]
     return [row for rows, _ in results for row in rows], results[-1][1] if results else 0
+
+
+def steady_clock(source: ReplaySource) -> bool:
+    """Whether the source's IMU times only increase. Whole runs score every reference against
+    one time-ordered run of outputs; the pipeline's Comparison starts afresh where the clock goes
+    back (a reboot, a log's time glitch: ArduPlane SITL's vtol.tlog steps back 1 s) and skips a
+    repeated time, so only on a steady clock do the two give the same table."""
+    t = source.table.imu[:, 0]
+    return bool(np.all(np.diff(t) > 0))
 
 
 def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tuple[list[dict[str, object]], int]:

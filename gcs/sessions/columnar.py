@@ -144,12 +144,18 @@ def has_table(folder: Path, table: str) -> bool:
     return layout.parquet_path(folder, table).exists() or layout.stream_path(folder, table).exists()
 
 
+def read_parquet(path: Path) -> pa.Table:
+    """A Parquet file (a session's table, a fleet dataset's), or InputError naming it when it is
+    cut or overwritten (a copy off a full card, an interrupted copy of a dataset)."""
+    try:
+        return pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise InputError(f"{path}: unreadable Parquet ({' '.join(str(exc).split())})") from None
+
+
 def read_table(folder: Path, table: str) -> pa.Table:
     """A session's table, from Parquet if the session is closed, else from the live stream."""
     parquet = layout.parquet_path(folder, table)
     if parquet.exists():
-        try:
-            return pq.read_table(parquet)
-        except (pa.ArrowInvalid, OSError) as exc:  # cut or overwritten (a copy off a full card): InputError
-            raise InputError(f"{parquet}: unreadable Parquet ({exc})") from None
+        return read_parquet(parquet)
     return read_stream(layout.stream_path(folder, table), SCHEMAS[table])[0]

@@ -73,12 +73,13 @@ Decode = Callable[[str | os.PathLike], ReplaySource]
 
 def read_events(folder: Path) -> list[dict]:
     """A session's events.jsonl, one dict per line; an incomplete last line (a crash mid-write)
-    or a damaged one is skipped."""
+    or a damaged one is skipped. A byte that is not UTF-8 (a flipped bit) is U+FFFD: one damaged
+    line, not a file that cannot be read."""
     path = layout.session_file(folder, layout.EVENTS)
     if not path.exists():
         return []
     events = []
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
         try:
             event = json.loads(line)
         except ValueError:

@@ -32,6 +32,13 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 _UNLABELLED = re.compile(r"(.*_)unknown(-\d+)?")
 
 
+def utf8_text(text: str) -> str:
+    """text as a UTF-8 file takes it (an HTML page, a .mat, an MCAP's metadata, Parquet): a file
+    name's bytes that are not UTF-8, which Python keeps as lone surrogates ("caf\\udce9.tlog") and
+    every UTF-8 encoder refuses, become U+FFFD."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def folder_name(start_wall: float, vehicle: str) -> str:
     """`YYYY-MM-DD_HH-MM-SS_<vehicle>` in local time, as people read dates at the field."""
     stamp = time.strftime("%Y-%m-%d_%H-%M-%S", time.localtime(start_wall))

@@ -27,6 +27,7 @@ import re
 import numpy as np
 import scipy.io
 
+from gcs.sessions import layout
 from gcs.sessions.contents import Contents
 from gcs.sessions.protocol import mat_struct, session_tables
 
@@ -111,7 +112,7 @@ def mat_variables(contents: Contents) -> dict[str, object]:
     for k, (source, var) in enumerate(names.items()):
         pairs[k] = (source, var)
     variables["info"] = {
-        "name": contents.path.name,
+        "name": layout.utf8_text(contents.path.name),
         "kind": contents.kind,
         "sources": pairs,
         "units": "t: vehicle s since boot; wall_time: UNIX s; angles and errors: degrees, Z-Y-X (yaw, pitch, roll)",

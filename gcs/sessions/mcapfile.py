@@ -33,6 +33,7 @@ import numpy as np
 import pyarrow.compute as pc
 from mcap.writer import Writer
 
+from gcs.sessions import layout
 from gcs.sessions.contents import Contents
 
 NUMBER = {"type": "number"}
@@ -218,7 +219,7 @@ class McapExport:
             writer.add_metadata(
                 "gcs",
                 {
-                    "session": contents.path.name,
+                    "session": layout.utf8_text(contents.path.name),
                     "kind": contents.kind,
                     "log_time": "vehicle clock, ns since boot; wall-clock-only records (comparison, events) "
                     "are placed on it with clock_offset_s",

@@ -359,5 +359,5 @@ def write_report(path: str, out: str, progress=None, estimators: list[str] | Non
     if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
         tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
         events = read_events(Path(path))
-    text = render(source, series, pipeline, tables, events)
+    text = layout.utf8_text(render(source, series, pipeline, tables, events))
     write_beside(Path(out), lambda tmp: tmp.write_text(text, encoding="utf-8"))  # an earlier report stays if it fails

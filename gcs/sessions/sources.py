@@ -28,6 +28,7 @@ import numpy.typing as npt
 from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeline, GainChange
 from gcs.core.estimators import registry
 from gcs.core.estimators.whole import InputKind as Kind
+from gcs.core.plausibility import attitude_rows_accepted
 from gcs.logs.dataflash import DataflashLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
@@ -119,8 +120,9 @@ class ReplaySource:
 
     @cached_property
     def references(self) -> dict[str, npt.NDArray[np.float64]]:
-        """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if scores against them."""
-        return self.table.references()
+        """Reference attitudes {name: N×4 array t, roll, pitch, yaw}: what-if and `gcs replay
+        --fast` score against them; those the pipeline refuses (non-finite, beyond ±2π) left out."""
+        return {name: rows[attitude_rows_accepted(rows)] for name, rows in self.table.references().items()}
 
     def open_packets(self) -> PacketReader | None:
         """A reader of the frames' MAVLink packets, or None when the source has none (logs)."""
@@ -307,12 +309,12 @@ def _note_firmware(msg: MAVLinkMessage, firmwares: dict[int, str]) -> None:
 
 def _gain_events(folder: Path) -> list[tuple[int, GainChange]]:
     """Gain changes recorded in a session's events.jsonl with the input index they were applied at.
-    An incomplete last line (a crash mid-write) is ignored."""
+    An incomplete last line (a crash mid-write) is ignored, and a damaged one as read_events reads it."""
     events: list[tuple[int, GainChange]] = []
     path = layout.session_file(folder, layout.EVENTS)
     if not path.exists():
         return events
-    for line in path.read_text().splitlines():
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
         try:
             event = json.loads(line)
         except ValueError:
