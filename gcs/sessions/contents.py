@@ -206,9 +206,7 @@ class Contents:
         each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
         (a serial port that came back with the vehicle restarted) scored one boot's estimates
         against the other's references, as the live comparison never does."""
-        estimates, references = boots(self.series(estimator)[:, :4]), boots(self.series(reference)[:, :4])
-        parts = [errors_against(e, r) for e, r in zip(estimates, references, strict=False)]
-        return np.concatenate(parts) if parts else np.empty((0, 4))
+        return errors_by_boot(self.series(estimator)[:, :4], self.series(reference)[:, :4])
 
     def errors(self) -> pa.Table:
         """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
@@ -250,6 +248,14 @@ def boots(series: npt.NDArray[np.float64]) -> list[npt.NDArray[np.float64]]:
     """A `series` (boots in order, each in time order) cut into its boots."""
     cuts = np.flatnonzero(np.diff(series[:, 0]) < -REBOOT_CLOCK_JUMP) + 1
     return np.split(series, cuts) if len(series) else []
+
+
+def errors_by_boot(estimates: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """`errors_against` of each boot of the vehicle against the same boot (`boots`; both N×4 t,
+    roll, pitch, yaw rad, boots in the order recorded): its clock starts again at 0 at a reboot, so
+    one search across boots matches one boot's estimates with the other's references."""
+    parts = [errors_against(e, r) for e, r in zip(boots(estimates), boots(reference), strict=False)]
+    return np.concatenate(parts) if parts else np.empty((0, 4))
 
 
 def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:

@@ -1,0 +1,93 @@
+"""The real ArduPlane SITL (../shared/sitl) rebooted by MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN in the
+middle of a recorded session, as an engineer reboots after a parameter change: the station redials
+its TCP port and the one session holds two boots, the vehicle's clock from 0 again in the second.
+Afterwards the what-if (its "old" row: the recorded gains) and `gcs report` (its error plot, and
+its attitude and error lines) must score and draw each boot against itself, as the live comparison
+and the session's whole-run errors (`gcs.open_session(...).errors()`) do. Before, both searched
+one estimator's outputs across the two boots: the what-if's old ekf-truth yaw RMS read 2.97° for a
+session whose live and whole-run figure was 4.56°, and the report drew lines from the end of the
+first boot back to the start of the second."""
+
+from __future__ import annotations
+
+import asyncio
+
+import matplotlib.axes
+import numpy as np
+import pytest
+from live import running_station, wait_for
+from test_sitl_copter import _command
+from test_sitl_plane_streams import plane  # noqa: F401 (the fixture)
+
+from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.sessions import report
+from gcs.sessions.contents import open_contents
+from gcs.sessions.sources import open_source
+from gcs.sessions.whatif import what_if
+
+pytestmark = pytest.mark.slow
+
+#: Vehicle seconds of each boot recorded: past the EKF's alignment (yaw converging) in both.
+BOOT_S = 20.0
+
+
+@pytest.fixture
+def rebooted_session(plane, tmp_path):  # noqa: F811
+    """A session folder of ArduPlane SITL over TCP, rebooted once after BOOT_S s."""
+
+    async def scenario():
+        async with running_station(f"tcp:127.0.0.1:{plane}", record_dir=str(tmp_path / "sessions")) as station:
+            clock = station.vehicle.clock
+            await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the first boot's clock")
+            _command(station, mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+            await wait_for(lambda: clock.reboots == 1, 120, "the second boot (its clock from 0)")
+            await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the second boot's clock")
+            return station.recorder.session.folder
+
+    return asyncio.run(scenario())
+
+
+@pytest.mark.timeout(360)
+def test_what_if_and_report_score_each_boot_of_a_rebooted_plane_against_itself(rebooted_session, monkeypatch):
+    contents = open_contents(rebooted_session)
+    onboard = contents.series("onboard")[:, 0]
+    assert (np.diff(onboard) < -REBOOT_CLOCK_JUMP).sum() == 1  # one session, two boots
+    whole_run = {(r["estimator"], r["reference"]): r for r in contents.errors().to_pylist()}
+
+    # the what-if with nothing changed: its "old" row is the session's whole-run errors
+    result = what_if(open_source(rebooted_session), "ekf", {"gyro_noise": 0.02})
+    rows = {row.reference: row for row in result.table()}
+    assert {"onboard", "truth"} <= set(rows)
+    for ref, row in rows.items():
+        expected = whole_run["ekf", ref]
+        rms = [expected[f"rms_{a}"] for a in ("roll", "pitch", "yaw")]
+        assert row.old_rms == pytest.approx(rms, rel=1e-6, abs=1e-9), ref
+
+    # the report: its error lines are the session's errors, each boot against itself, and no line
+    # runs back in time from one boot into the next
+    lines: list[tuple[str, np.ndarray, np.ndarray]] = []
+    plot = matplotlib.axes.Axes.plot
+
+    def recording_plot(self, *args, **kwargs):
+        lines.append((kwargs.get("label", ""), np.asarray(args[0], float), np.asarray(args[1], float)))
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", recording_plot)
+    out = rebooted_session.parent / "report.html"
+    report.write_report(str(rebooted_session), str(out))
+    for label, t, _ in lines:
+        for segment in np.split(t, np.flatnonzero(np.isnan(t))):
+            assert np.all(np.diff(segment[np.isfinite(segment)]) >= -REBOOT_CLOCK_JUMP), label
+    # what the onboard rows leave out, at each boot's start: both intervals, not one across them
+    assert "after a reboot" in out.read_text()
+    # the error figure draws each estimator against truth after the attitude figure's lines
+    errors = [(label, t, y) for label, t, y in lines if label in ("dcm", "kf", "ekf")]
+    for estimator in ("dcm", "kf", "ekf"):
+        expected = contents.errors_of(estimator, "truth")
+        drawn = [(t, y) for label, t, y in errors if label == estimator][-3:]  # roll, pitch, yaw errors
+        assert len(drawn) == 3, estimator
+        for k, (t, y) in enumerate(drawn):
+            keep = np.isfinite(t)
+            np.testing.assert_allclose(t[keep], expected[:, 0], err_msg=estimator)
+            np.testing.assert_allclose(y[keep], expected[:, 1 + k], atol=1e-6, err_msg=f"{estimator} axis {k}")
