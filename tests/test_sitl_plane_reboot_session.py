@@ -1,12 +1,13 @@
 """The real ArduPlane SITL (../shared/sitl) rebooted by MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN in the
 middle of a recorded session, as an engineer reboots after a parameter change: the station redials
 its TCP port and the one session holds two boots, the vehicle's clock from 0 again in the second.
-Afterwards the what-if (its "old" row: the recorded gains) and `gcs report` (its error plot, and
-its attitude and error lines) must score and draw each boot against itself, as the live comparison
-and the session's whole-run errors (`gcs.open_session(...).errors()`) do. Before, both searched
-one estimator's outputs across the two boots: the what-if's old ekf-truth yaw RMS read 2.97° for a
-session whose live and whole-run figure was 4.56°, and the report drew lines from the end of the
-first boot back to the start of the second."""
+Afterwards the what-if (its "old" row: the recorded gains), `gcs replay --fast` (whole-run arrays)
+and `gcs report` (its error plot, and its attitude and error lines) must score and draw each boot
+against itself, as the live comparison and the session's whole-run errors
+(`gcs.open_session(...).errors()`) do. Before, they searched one estimator's outputs across the two
+boots: the what-if's old row and `gcs replay --fast` read ekf-truth yaw RMS 2.95-2.97° for a session
+whose live and whole-run figure was 4.56°, and the report drew lines from the end of the first boot
+back to the start of the second."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from test_sitl_plane_streams import plane  # noqa: F401 (the fixture)
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions import report
 from gcs.sessions.contents import open_contents
 from gcs.sessions.sources import open_source
@@ -49,7 +51,7 @@ def rebooted_session(plane, tmp_path):  # noqa: F811
 
 
 @pytest.mark.timeout(360)
-def test_what_if_and_report_score_each_boot_of_a_rebooted_plane_against_itself(rebooted_session, monkeypatch):
+def test_what_if_replay_fast_and_report_score_each_boot_of_a_rebooted_plane_alone(rebooted_session, monkeypatch):
     contents = open_contents(rebooted_session)
     onboard = contents.series("onboard")[:, 0]
     assert (np.diff(onboard) < -REBOOT_CLOCK_JUMP).sum() == 1  # one session, two boots
@@ -63,6 +65,24 @@ def test_what_if_and_report_score_each_boot_of_a_rebooted_plane_against_itself(r
         expected = whole_run["ekf", ref]
         rms = [expected[f"rms_{a}"] for a in ("roll", "pitch", "yaw")]
         assert row.old_rms == pytest.approx(rms, rel=1e-6, abs=1e-9), ref
+
+    # `gcs replay --fast` (whole-run arrays): the table of `gcs replay` (the per-sample pipeline)
+    names = ["dcm", "kf", "ekf"]
+    replay = ReplaySession(open_source(rebooted_session), 0, names, {})
+    replay.run_to_end()
+    per_sample = {(r["estimator"], r["reference"]): r for r in session_table(replay.pipeline)}
+    rows, _ = whole_table(open_source(rebooted_session), names, {})
+    assert len(rows) == len(per_sample) >= 6
+    exact = 0
+    for row in rows:
+        expected = per_sample[row["estimator"], row["reference"]]
+        # the per-sample comparison may score the new boot's first ATTITUDE, which comes before the
+        # new boot's first estimate, against the old boot's estimates: one reference more (report)
+        assert 0 <= expected["n"] - row["n"] <= 1, (row, expected)
+        if row["n"] == expected["n"]:
+            assert row["rms_deg"] == pytest.approx(expected["rms_deg"], rel=1e-6, abs=1e-9), row
+            exact += 1
+    assert exact >= 6  # truth and ahrs2 at least, for dcm, kf and ekf
 
     # the report: its error lines are the session's errors, each boot against itself, and no line
     # runs back in time from one boot into the next

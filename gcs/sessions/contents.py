@@ -30,6 +30,7 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
+from gcs.core.estimators.whole import errors_at
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
@@ -255,6 +256,18 @@ def errors_by_boot(estimates: npt.NDArray[np.float64], reference: npt.NDArray[np
     roll, pitch, yaw rad, boots in the order recorded): its clock starts again at 0 at a reboot, so
     one search across boots matches one boot's estimates with the other's references."""
     parts = [errors_against(e, r) for e, r in zip(boots(estimates), boots(reference), strict=False)]
+    return np.concatenate(parts) if parts else np.empty((0, 4))
+
+
+def boot_errors_at(
+    t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """`errors_by_boot` for an estimator's run as t (N) and quaternions (N×4), with the compiled
+    `errors_at` (what-if, `gcs replay --fast`): one search across the boots of a vehicle that
+    rebooted scored one boot's estimates against the other's references, and their tables
+    disagreed with the live comparison and the per-sample replay."""
+    estimates = boots(np.column_stack([t, q]))
+    parts = [errors_at(e[:, 0], e[:, 1:], r) for e, r in zip(estimates, boots(reference), strict=False)]
     return np.concatenate(parts) if parts else np.empty((0, 4))
 
 

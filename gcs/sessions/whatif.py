@@ -18,9 +18,9 @@ import numpy as np
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import errors_at, euler_of, run_whole
+from gcs.core.estimators.whole import euler_of, run_whole
 from gcs.core.samples import ImuSample
-from gcs.sessions.contents import boots
+from gcs.sessions.contents import boot_errors_at
 from gcs.sessions.sources import ReplaySource
 
 
@@ -61,17 +61,6 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
                 "max": np.max(np.abs(err), axis=0).tolist(),
             }
     return EstimatorRun(dict(estimator.gains.values), t, euler_of(q), errors)
-
-
-def boot_errors_at(t: np.ndarray, q: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """`errors_at` of each boot of the vehicle against the same boot (gcs.sessions.contents.boots;
-    the source's inputs hold the boots in the order recorded): a vehicle that rebooted during the
-    session starts its clock again at 0, and one search across both boots scored one boot's
-    estimates against the other's references, so the what-if's "old" row disagreed with the
-    session it re-ran."""
-    estimates = boots(np.column_stack([t, q]))
-    parts = [errors_at(e[:, 0], e[:, 1:], r) for e, r in zip(estimates, boots(reference), strict=False)]
-    return np.concatenate(parts) if parts else np.empty((0, 4))
 
 
 @dataclass
