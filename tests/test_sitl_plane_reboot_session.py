@@ -7,7 +7,9 @@ against itself, as the live comparison and the session's whole-run errors
 (`gcs.open_session(...).errors()`) do. Before, they searched one estimator's outputs across the two
 boots: the what-if's old row and `gcs replay --fast` read ekf-truth yaw RMS 2.95-2.97° for a session
 whose live and whole-run figure was 4.56°, and the report drew lines from the end of the first boot
-back to the start of the second."""
+back to the start of the second. The replay view (replay.html) must play the boots one after the
+other: played to the end it showed only one source (every other one cleared by the plots' restart
+at the reboot), as it handed each source's samples of both boots to the plots at once."""
 
 from __future__ import annotations
 
@@ -16,15 +18,15 @@ import asyncio
 import matplotlib.axes
 import numpy as np
 import pytest
-from live import running_station, wait_for
-from test_sitl_copter import _command
-from test_sitl_plane_streams import plane  # noqa: F401 (the fixture)
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, wait_for
+from playwright.async_api import async_playwright
+from test_sitl_copter import _command, sitl_process
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions import report
-from gcs.sessions.contents import open_contents
+from gcs.sessions.contents import boots, open_contents
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
 
@@ -34,12 +36,13 @@ pytestmark = pytest.mark.slow
 BOOT_S = 20.0
 
 
-@pytest.fixture
-def rebooted_session(plane, tmp_path):  # noqa: F811
-    """A session folder of ArduPlane SITL over TCP, rebooted once after BOOT_S s."""
+@pytest.fixture(scope="module")
+def rebooted_session(tmp_path_factory):
+    """A session folder of ArduPlane SITL at real time over TCP, rebooted once after BOOT_S s."""
+    folder = tmp_path_factory.mktemp("rebooted")
 
-    async def scenario():
-        async with running_station(f"tcp:127.0.0.1:{plane}", record_dir=str(tmp_path / "sessions")) as station:
+    async def scenario(port: int):
+        async with running_station(f"tcp:127.0.0.1:{port}", record_dir=str(folder / "sessions")) as station:
             clock = station.vehicle.clock
             await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the first boot's clock")
             _command(station, mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
@@ -47,7 +50,8 @@ def rebooted_session(plane, tmp_path):  # noqa: F811
             await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the second boot's clock")
             return station.recorder.session.folder
 
-    return asyncio.run(scenario())
+    with sitl_process(folder / "sitl", "arduplane", "plane", "plane.parm", 1) as port:
+        return asyncio.run(scenario(port))
 
 
 @pytest.mark.timeout(360)
@@ -111,3 +115,36 @@ def test_what_if_replay_fast_and_report_score_each_boot_of_a_rebooted_plane_alon
             keep = np.isfinite(t)
             np.testing.assert_allclose(t[keep], expected[:, 0], err_msg=estimator)
             np.testing.assert_allclose(y[keep], expected[:, 1 + k], atol=1e-6, err_msg=f"{estimator} axis {k}")
+
+
+@pytest.mark.timeout(360)
+def test_the_replay_view_plays_a_rebooted_plane_boot_after_boot(rebooted_session, udp_port):
+    """Played to the end, the replay view holds every source's second boot, as the live page holds
+    the new boot after a reboot (plots.js restarts on a clock that went back)."""
+    contents = open_contents(rebooted_session)
+    last_boot = {
+        s: boots(contents.series(s)[:, :4])[-1][:, 0] for s in ("onboard", "truth", "ahrs2", "dcm", "kf", "ekf")
+    }
+    errors: list[str] = []
+
+    async def scenario():
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(rebooted_session.parent)) as station,
+            dashboard(station, viser=False) as server,
+            async_playwright() as pw,
+        ):
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            await page.goto(f"http://127.0.0.1:{server.port}/replay.html?source={rebooted_session.name}")
+            playing = "['playing', 'error'].includes(gcsReplay.state)"
+            await page.wait_for_function(playing, polling=POLL_MS, timeout=240_000)
+            assert await page.evaluate("gcsReplay.state") == "playing", await page.evaluate("gcsReplay.error")
+            await page.select_option("#replay-speed", "0")  # to the end
+            await page.wait_for_function("gcsReplay.state === 'finished'", polling=POLL_MS, timeout=60_000)
+            held = "Object.fromEntries(Object.entries(gcsPlayer.plots.sources).map(([s, x]) => [s, x.t.slice()]))"
+            return await page.evaluate(held)
+
+    held = asyncio.run(scenario())
+    assert not errors, errors
+    for source, t in last_boot.items():
+        np.testing.assert_allclose(held[source], t, atol=1e-4, err_msg=source)  # the replay's: rounded to 0.1 ms
