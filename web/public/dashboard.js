@@ -92,6 +92,9 @@ function showStatus(s) {
   }
   const warn = [...unreliable].map(([reason, names]) => `${names.join(", ")}: ${reason}`);
   if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
+  for (const other of s.vehicle.others || []) {
+    warn.unshift(`another vehicle sends as system ${s.vehicle.sysid} on ${other}: not served; give each its own system id (MAV_SYSID or SYSID_THISMAV)`);
+  }
   if (s.vehicle.two_senders) {
     warn.unshift(`two vehicles are sending as system ${s.vehicle.sysid}: their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV), or hear a vehicle through one route only`);
   }
