@@ -9,7 +9,8 @@ boots: the what-if's old row and `gcs replay --fast` read ekf-truth yaw RMS 2.95
 whose live and whole-run figure was 4.56°, and the report drew lines from the end of the first boot
 back to the start of the second. The replay view (replay.html) must play the boots one after the
 other: played to the end it showed only one source (every other one cleared by the plots' restart
-at the reboot), as it handed each source's samples of both boots to the plots at once."""
+at the reboot), as it handed each source's samples of both boots to the plots at once. So must the
+what-if's chart, whose x must ascend."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import asyncio
 import matplotlib.axes
 import numpy as np
 import pytest
-from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, wait_for
+from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, served_api, wait_for
 from playwright.async_api import async_playwright
 from test_sitl_copter import _command, sitl_process
 
@@ -32,6 +33,7 @@ from gcs.sessions.whatif import what_if
 
 pytestmark = pytest.mark.slow
 
+AXES = ("roll", "pitch", "yaw")
 #: Vehicle seconds of each boot recorded: past the EKF's alignment (yaw converging) in both.
 BOOT_S = 20.0
 
@@ -148,3 +150,30 @@ def test_the_replay_view_plays_a_rebooted_plane_boot_after_boot(rebooted_session
     assert not errors, errors
     for source, t in last_boot.items():
         np.testing.assert_allclose(held[source], t, atol=1e-4, err_msg=source)  # the replay's: rounded to 0.1 ms
+
+
+@pytest.mark.timeout(360)
+def test_the_what_if_chart_lays_a_rebooted_plane_boot_after_boot(rebooted_session, udp_port):
+    """The what-if's chart (uPlot, which wants its x ascending) drew the second boot over the first
+    with a line back from the end of one to the start of the other; it now lays the boots one after
+    the other on its time axis, its lines broken between them."""
+
+    async def scenario():
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(rebooted_session.parent)) as station,
+            served_api(station) as api,
+        ):
+            body = {"source": rebooted_session.name, "estimator": "dcm", "gains": {"kp_rp": 0.5}}
+            answer = await api.post("/api/whatif", json=body, timeout=240)
+            assert answer.status_code == 200, answer.text
+            return answer.json()
+
+    view = asyncio.run(scenario())
+    t = np.array(view["t"], dtype=float)
+    assert np.all(np.diff(t) > 0), t[np.flatnonzero(np.diff(t) <= 0)[:3]]
+    gaps = {
+        (run, axis): [k for k, v in enumerate(view[run][axis]) if v is None] for run in ("old", "new") for axis in AXES
+    }
+    (gap,) = gaps["old", "roll"]  # one reboot: the lines break once, in every series at the same place
+    assert all(found == [gap] for found in gaps.values()), gaps
+    assert t[gap + 1] - t[gap - 1] == pytest.approx(1.0, abs=0.1)  # BOOT_GAP_S from one boot to the next
