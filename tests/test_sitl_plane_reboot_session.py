@@ -19,10 +19,13 @@ import asyncio
 import matplotlib.axes
 import numpy as np
 import pytest
+import scipy.io
 from live import POLL_MS, dashboard, launch_chromium, open_page, running_station, served_api, wait_for
+from mcap.reader import make_reader
 from playwright.async_api import async_playwright
 from test_sitl_copter import _command, sitl_process
 
+from gcs.commands.cli import main
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
@@ -34,6 +37,8 @@ from gcs.sessions.whatif import what_if
 pytestmark = pytest.mark.slow
 
 AXES = ("roll", "pitch", "yaw")
+#: The vehicle time of the session's gain change in each boot (the fixture's).
+CHANGED: list[float] = []
 #: Vehicle seconds of each boot recorded: past the EKF's alignment (yaw converging) in both.
 BOOT_S = 20.0
 
@@ -47,13 +52,20 @@ def rebooted_session(tmp_path_factory):
         async with running_station(f"tcp:127.0.0.1:{port}", record_dir=str(folder / "sessions")) as station:
             clock = station.vehicle.clock
             await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the first boot's clock")
+            changed = [clock.last]  # a gain change in each boot, at this vehicle time
+            station.set_gain("dcm", "kp_rp", 0.25, "test")
             _command(station, mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
             await wait_for(lambda: clock.reboots == 1, 120, "the second boot (its clock from 0)")
             await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the second boot's clock")
-            return station.recorder.session.folder
+            changed.append(clock.last)
+            station.set_gain("dcm", "kp_rp", 0.3, "test")
+            await wait_for(lambda: (clock.last or 0.0) > BOOT_S + 2, 30, "the second boot after its change")
+            return station.recorder.session.folder, changed
 
     with sitl_process(folder / "sitl", "arduplane", "plane", "plane.parm", 1) as port:
-        return asyncio.run(scenario(port))
+        session, changed = asyncio.run(scenario(port))
+    CHANGED.extend(changed)
+    return session
 
 
 @pytest.mark.timeout(360)
@@ -177,3 +189,25 @@ def test_the_what_if_chart_lays_a_rebooted_plane_boot_after_boot(rebooted_sessio
     (gap,) = gaps["old", "roll"]  # one reboot: the lines break once, in every series at the same place
     assert all(found == [gap] for found in gaps.values()), gaps
     assert t[gap + 1] - t[gap - 1] == pytest.approx(1.0, abs=0.1)  # BOOT_GAP_S from one boot to the next
+
+
+@pytest.mark.timeout(360)
+def test_the_mat_and_mcap_exports_place_each_boots_gain_change_on_its_own_clock(rebooted_session, tmp_path):
+    """Gain changes (and every event and comparison row, which have only the host clock) are put on
+    the vehicle clock by its offset from the host's: one median offset over the whole session put
+    the changes of one of the two boots a boot's length (over 20 s) off."""
+    out = tmp_path / "session.mat"
+    assert main(["export", str(rebooted_session), "--format", "mat", "--out", str(out)]) == 0
+    changes = scipy.io.loadmat(out, simplify_cells=True)["gain_changes"]
+    assert list(changes["new"]) == [0.25, 0.3]
+    np.testing.assert_allclose(changes["t"], CHANGED, atol=0.5)
+
+    out = tmp_path / "session.mcap"
+    assert main(["export", str(rebooted_session), "--format", "mcap", "--out", str(out)]) == 0
+    with open(out, "rb") as f:
+        logged = [
+            message.log_time / 1e9
+            for _, channel, message in make_reader(f).iter_messages(topics=["/events"])
+            if b'"gain"' in message.data and b"kp_rp" in message.data
+        ]
+    np.testing.assert_allclose(logged, CHANGED, atol=0.5)

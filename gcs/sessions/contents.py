@@ -17,6 +17,7 @@ median wall_time − t of the attitude rows, which places them on the vehicle cl
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -235,6 +236,30 @@ class Contents:
         diff = pc.subtract(self.attitude["wall_time"], self.attitude["t"]).to_numpy(zero_copy_only=False)
         diff = diff[np.isfinite(diff)]
         return float(np.median(diff)) if len(diff) else None
+
+    @cached_property
+    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row
+        and its clock offset (median wall_time − t), in the order recorded; empty for logs."""
+        t = self.attitude["t"].to_numpy(zero_copy_only=False)
+        wall = self.attitude["wall_time"].to_numpy(zero_copy_only=False)
+        boot = boot_numbers(t)  # the rows in the order recorded: every source's clock together
+        starts, offsets = [], []
+        for number in np.unique(boot).tolist():
+            rows = (boot == number) & np.isfinite(wall)
+            if rows.any():
+                starts.append(float(wall[rows].min()))
+                offsets.append(float(np.median(wall[rows] - t[rows])))
+        return np.array(starts), np.array(offsets)
+
+    def vehicle_time(self, wall: float) -> float:
+        """A host UNIX time (s; an event's, a comparison row's) on the vehicle clock, by the offset
+        of the boot running then (before the first boot: the first boot's): one offset for a whole
+        session whose vehicle rebooted placed one boot's events a boot's length off. NaN for a log."""
+        starts, offsets = self.boot_clocks
+        if not len(starts):
+            return math.nan
+        return wall - float(offsets[max(0, int(np.searchsorted(starts, wall, side="right")) - 1)])
 
 
 def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
