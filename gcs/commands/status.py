@@ -88,6 +88,10 @@ def format_report(snap: StationSnapshot) -> str:
         f"MAVLink {vehicle.mavlink_version}  {'ARMED' if vehicle.armed else 'disarmed'}  "
         f"firmware {vehicle.firmware or '?'}"
         + ("  TWO VEHICLES SEND AS THIS SYSTEM: give each its own system id" if vehicle.two_senders else "")
+        + "".join(
+            f"\n           ANOTHER VEHICLE SENDS AS THIS SYSTEM on {other}: not served; give each its own system id"
+            for other in vehicle.others
+        )
         if vehicle.sysid is not None
         else "vehicle    none heard",
         f"traffic    {stats.packets} packets  {stats.bytes_per_s:.0f} B/s  CRC errors {stats.crc_errors}  "

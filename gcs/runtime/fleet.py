@@ -188,6 +188,7 @@ class Fleet:
         if served is not None:
             self._ignored.add((index, item.sysid))
             served.events.record("vehicle", "fleet", event="also heard", sysid=item.sysid, link=str(link.address))
+            served.vehicle.heard_elsewhere(str(link.address), item.msg.type)
             return
         if takes_first:
             assert self._unbound is not None  # (takes_first)

@@ -20,7 +20,7 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from itertools import islice
 
@@ -30,10 +30,12 @@ from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import errors_at, run_whole
+from gcs.core.estimators.whole import run_whole
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
+from gcs.sessions.contents import boot_errors_at
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
 from gcs.sessions.workbench import workbench
 
@@ -319,7 +321,7 @@ def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tup
     t = table.imu[run.fed, 0]
     rows: list[dict[str, object]] = []
     for ref, data in sorted(source.references.items()):
-        err = errors_at(t, run.q[run.fed], data)[:, 1:]
+        err = boot_errors_at(t, run.q[run.fed], data)[:, 1:]  # each boot of a rebooted vehicle against itself
         if len(err):
             rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
             rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
@@ -328,12 +330,38 @@ def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tup
 
 #: Replays kept encoded in the worker (a 10-minute session at 50 Hz is a few MB).
 SERIES_CACHED = 4
+#: s of the replay page's play time between the last moment of one boot and the first of the next.
+BOOT_GAP_S = 1.0
+
+
+@dataclass
+class PlayClock:
+    """The replay page's play time of attitude points taken in the order recorded: their vehicle
+    time, except that after a reboot (the clock back by more than REBOOT_CLOCK_JUMP below the
+    newest point of any source) the new boot carries on BOOT_GAP_S after the old one, where its
+    clock from 0 would have laid it under it: the page plays the boots one after the other, as
+    they happened, instead of all at once. `starts`: the play time at which each boot begins."""
+
+    newest: float = -math.inf
+    offset: float = 0.0
+    starts: list[float] = field(default_factory=list)
+
+    def of(self, t: float) -> float:
+        if not self.starts:
+            self.starts.append(round(t, 4))
+        elif t < self.newest - REBOOT_CLOCK_JUMP:
+            self.offset += self.newest - t + BOOT_GAP_S
+            self.newest = t
+            self.starts.append(round(t + self.offset, 4))
+        self.newest = max(self.newest, t)
+        return round(t + self.offset, 4)
 
 
 def replay_series(path: str | os.PathLike, estimators: list[str], gains: dict[str, dict[str, float]]) -> bytes:
     """A whole replay of the source at path as the replay page's JSON: every source's attitude
-    (`{SOURCE: [[t...], [roll...], [pitch...], [yaw...]]}`, vehicle s and degrees, the live
-    frames' columns) and the session error table. Runs in the station's worker process (the
+    (`{SOURCE: [[t...], [roll...], [pitch...], [yaw...], [play...]]}`, vehicle s and degrees, the
+    live frames' columns, then each point's `PlayClock` time), the play time at which each boot of
+    the vehicle begins (`boots`) and the session error table. Runs in the station's worker process (the
     source decoded once through its workbench), never on the live loop; InputError, KeyError or
     GainError as the source and the request say."""
     source = workbench().source(path)
@@ -356,16 +384,18 @@ def _encoded_series(
     session = ReplaySession(source, 0, list(estimators), {est: dict(g) for est, g in gains})
     columns: dict[str, list[list[float]]] = {}
     deg = 180.0 / math.pi
+    play = PlayClock()
 
     def collect(points: list[AttitudePoint]) -> None:
         for p in points:
             cols = columns.get(p.source)
             if cols is None:
-                cols = columns[p.source] = [[], [], [], []]
+                cols = columns[p.source] = [[], [], [], [], []]
             cols[0].append(round(p.t, 4))
             cols[1].append(round(p.roll * deg, 3))
             cols[2].append(round(p.pitch * deg, 3))
             cols[3].append(round(p.yaw * deg, 3))
+            cols[4].append(play.of(p.t))
 
     session.points.connect(collect)
     session.run_to_end()
@@ -380,6 +410,7 @@ def _encoded_series(
             "estimators": list(session.pipeline.estimators),
             "table": session_table(session.pipeline),
             "points": columns,
+            "boots": play.starts,
         },
         separators=(",", ":"),
     ).encode()

@@ -115,6 +115,9 @@ class VehicleSnapshot:
     #: two vehicles send as this one system id: their clocks or their packets' sequence numbers
     #: interleave (gcs.runtime.boot_clock, gcs.runtime.sequence_watch)
     two_senders: bool = False
+    #: links where another vehicle (a heartbeat of another MAV_TYPE) sends as this system id: not
+    #: served, "tcp:127.0.0.1:5770 (MAV_TYPE_QUADROTOR)" (VehicleState.others)
+    others: list[str] = field(default_factory=list)
     #: flight mode by name (ArduPilot per vehicle type, PX4 main/sub mode; the number when unknown)
     mode: str | None = None
     battery_v: float | None = None

@@ -311,6 +311,7 @@ class Station:
         preset = preset or est.DEFAULT_PRESET
         target = GainSet(est.gains.declarations.values(), est.gains.presets)
         target.apply_preset(preset)  # GainError names the known presets
+        est.preset = preset  # before the gains' events: what shows them names the new preset
         changes = {}
         for name, value in target.values.items():
             if name == "declination" and self._pipeline().declination is not None:
@@ -318,7 +319,7 @@ class Station:
             old, new = self.set_gain(estimator, name, value, client)
             if new != old:
                 changes[name] = (old, new)
-        est.preset = preset
+        self.events.record("preset", client, estimator=estimator, preset=preset)  # pages show the name
         return changes
 
     # ---- commands: recording -------------------------------------------------------------

@@ -100,6 +100,9 @@ class VehicleState:
     _last_track: float = -math.inf
     #: the vehicle's clock went back (a reboot): emitted from the loop, soon after it is seen.
     rebooted: Signal[[]] = field(default_factory=Signal)
+    #: other links this system id is heard on, and the MAV_TYPE its heartbeat there names
+    #: (`heard_elsewhere`): not served there
+    elsewhere: dict[str, str] = field(default_factory=dict)
 
     async def run(self) -> None:
         sub = self.link.bus.subscribe("vehicle-state", types=OBSERVED_TYPES, maxlen=2000)
@@ -204,6 +207,19 @@ class VehicleState:
         if self.events is not None:
             self.events.record("vehicle", "vehicle", event="two senders", text=text)
 
+    def heard_elsewhere(self, link: str, mav_type: int) -> None:
+        """This system id's heartbeat on another link (the fleet serves a system id on the first
+        link it is heard on only): the same vehicle through a second route, or, when it names
+        another MAV_TYPE, a second vehicle left at the same id, which is shown nowhere else."""
+        self.elsewhere[link] = enum_name("MAV_TYPE", mav_type)
+
+    def others(self) -> list[str]:
+        """The links where another vehicle (a heartbeat of another MAV_TYPE) sends as this system:
+        "tcp:127.0.0.1:5770 (MAV_TYPE_QUADROTOR)"."""
+        if self.vehicle_type is None:
+            return []
+        return [f"{link} ({kind})" for link, kind in self.elsewhere.items() if kind != self.vehicle_type]
+
     def _track(self, lat: float, lon: float) -> None:
         """Metres north and east of the first 3D fix (equirectangular: exact to well under a
         metre over the few kilometres of a test field), at most one point a second."""
@@ -241,6 +257,7 @@ class VehicleState:
             firmware=self.firmware,
             reboots=self.clock.reboots,
             two_senders=self.clock.two_senders,
+            others=self.others(),
             heartbeats=self.heartbeats,
             mode=self.mode,
             battery_v=self.battery_v,

@@ -127,6 +127,6 @@ def follow(station: StationFacade, hub: LiveHub) -> None:
 
 
 def forward_gain_event(hub: LiveHub, event: Event) -> None:
-    """Every page learns of a gain change, whichever UI made it."""
-    if event.kind == "gain":
-        hub.broadcast({"type": "gain", **event.as_dict()})
+    """Every page learns of a gain change or a reset to a preset, whichever UI made it."""
+    if event.kind in ("gain", "preset"):
+        hub.broadcast({"type": event.kind, **event.as_dict()})

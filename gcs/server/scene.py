@@ -170,7 +170,8 @@ class GainTable:
         return "\n".join([f"**{estimator}** ({est.preset})", "", "| gain | value |", "|---|---|", *rows])
 
     def reflect(self, event: Event) -> None:
-        """Show a gain changed on the page or by a script (event-log listener, event loop)."""
+        """Show a gain changed, or a reset to a preset, on the page or by a script (event-log
+        listener, event loop)."""
         estimator = event.data.get("estimator")
-        if event.kind == "gain" and estimator in self.tables:
+        if event.kind in ("gain", "preset") and estimator in self.tables:
             self.tables[estimator].content = self.table(estimator)

@@ -17,6 +17,7 @@ median wall_time − t of the attitude rows, which places them on the vehicle cl
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
+from gcs.core.estimators.whole import errors_at
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
@@ -204,9 +206,7 @@ class Contents:
         each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
         (a serial port that came back with the vehicle restarted) scored one boot's estimates
         against the other's references, as the live comparison never does."""
-        estimates, references = boots(self.series(estimator)[:, :4]), boots(self.series(reference)[:, :4])
-        parts = [errors_against(e, r) for e, r in zip(estimates, references, strict=False)]
-        return np.concatenate(parts) if parts else np.empty((0, 4))
+        return errors_by_boot(self.series(estimator)[:, :4], self.series(reference)[:, :4])
 
     def errors(self) -> pa.Table:
         """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
@@ -235,6 +235,30 @@ class Contents:
         diff = diff[np.isfinite(diff)]
         return float(np.median(diff)) if len(diff) else None
 
+    @cached_property
+    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row
+        and its clock offset (median wall_time − t), in the order recorded; empty for logs."""
+        t = self.attitude["t"].to_numpy(zero_copy_only=False)
+        wall = self.attitude["wall_time"].to_numpy(zero_copy_only=False)
+        boot = boot_numbers(t)  # the rows in the order recorded: every source's clock together
+        starts, offsets = [], []
+        for number in np.unique(boot).tolist():
+            rows = (boot == number) & np.isfinite(wall)
+            if rows.any():
+                starts.append(float(wall[rows].min()))
+                offsets.append(float(np.median(wall[rows] - t[rows])))
+        return np.array(starts), np.array(offsets)
+
+    def vehicle_time(self, wall: float) -> float:
+        """A host UNIX time (s; an event's, a comparison row's) on the vehicle clock, by the offset
+        of the boot running then (before the first boot: the first boot's): one offset for a whole
+        session whose vehicle rebooted placed one boot's events a boot's length off. NaN for a log."""
+        starts, offsets = self.boot_clocks
+        if not len(starts):
+            return math.nan
+        return wall - float(offsets[max(0, int(np.searchsorted(starts, wall, side="right")) - 1)])
+
 
 def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
     """Per row of a source in the order recorded, which boot of the vehicle it belongs to: its clock
@@ -248,6 +272,26 @@ def boots(series: npt.NDArray[np.float64]) -> list[npt.NDArray[np.float64]]:
     """A `series` (boots in order, each in time order) cut into its boots."""
     cuts = np.flatnonzero(np.diff(series[:, 0]) < -REBOOT_CLOCK_JUMP) + 1
     return np.split(series, cuts) if len(series) else []
+
+
+def errors_by_boot(estimates: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """`errors_against` of each boot of the vehicle against the same boot (`boots`; both N×4 t,
+    roll, pitch, yaw rad, boots in the order recorded): its clock starts again at 0 at a reboot, so
+    one search across boots matches one boot's estimates with the other's references."""
+    parts = [errors_against(e, r) for e, r in zip(boots(estimates), boots(reference), strict=False)]
+    return np.concatenate(parts) if parts else np.empty((0, 4))
+
+
+def boot_errors_at(
+    t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """`errors_by_boot` for an estimator's run as t (N) and quaternions (N×4), with the compiled
+    `errors_at` (what-if, `gcs replay --fast`): one search across the boots of a vehicle that
+    rebooted scored one boot's estimates against the other's references, and their tables
+    disagreed with the live comparison and the per-sample replay."""
+    estimates = boots(np.column_stack([t, q]))
+    parts = [errors_at(e[:, 0], e[:, 1:], r) for e, r in zip(estimates, boots(reference), strict=False)]
+    return np.concatenate(parts) if parts else np.empty((0, 4))
 
 
 def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:

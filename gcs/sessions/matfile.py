@@ -96,12 +96,11 @@ def mat_variables(contents: Contents) -> dict[str, object]:
                 }
             struct["errors"] = errors
         variables[var] = struct
-    offset = contents.clock_offset()
     gains = [e for e in contents.event_list if e.get("kind") == "gain"]
     wall = [_float(e.get("wall_time")) for e in gains]
     variables["gain_changes"] = {
         "wall_time": _column(wall),
-        "t": _column([w - offset if offset is not None else math.nan for w in wall]),
+        "t": _column([contents.vehicle_time(w) for w in wall]),  # the clock of the boot running then
         "estimator": _cell([e.get("estimator") for e in gains]),
         "gain": _cell([e.get("gain") for e in gains]),
         "client": _cell([e.get("client") for e in gains]),

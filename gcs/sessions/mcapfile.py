@@ -132,7 +132,8 @@ class McapExport:
         self.offset = contents.clock_offset()
 
     def _on_vehicle_clock(self, wall: float) -> float:
-        return wall if self.offset is None else wall - self.offset
+        """By the clock offset of the boot running then (Contents.vehicle_time)."""
+        return wall if self.offset is None else self.contents.vehicle_time(wall)
 
     def attitude(self, channel: int, source: str) -> Iterator[Message]:
         for t, roll, pitch, yaw, wall in self.contents.series(source).tolist():
@@ -222,7 +223,7 @@ class McapExport:
                     "session": layout.utf8_text(contents.path.name),
                     "kind": contents.kind,
                     "log_time": "vehicle clock, ns since boot; wall-clock-only records (comparison, events) "
-                    "are placed on it with clock_offset_s",
+                    "are placed on it with clock_offset_s (after a reboot, with that boot's own offset)",
                     "publish_time": "host UNIX time, ns, where known; else log_time",
                     "clock_offset_s": "" if self.offset is None else repr(self.offset),
                     "angles": "degrees, Z-Y-X; IMU in SI (rad/s, m/s²) and gauss, body FRD",

@@ -21,13 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from gcs.core.colors import hex_color
-from gcs.core.comparison import errors_against
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
-from gcs.mavlink.sampling import UNREADY
+from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP, UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
-from gcs.sessions.contents import Contents, read_events
+from gcs.sessions.contents import Contents, errors_by_boot, read_events
 from gcs.sessions.export import write_beside
 from gcs.sessions.protocol import formatted, session_tables
 from gcs.sessions.sources import open_source
@@ -62,9 +61,11 @@ def png(fig) -> str:
 
 def broken_at_wraps(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(t, deg) with a NaN between two samples more than 180° apart: an angle crossing ±180°
-    (yaw, or roll upside down), where a line would otherwise cross the whole plot. matplotlib
-    breaks a line at a NaN, as the dashboard's plots break theirs."""
-    jumps = np.flatnonzero(np.abs(np.diff(deg)) > 180.0) + 1
+    (yaw, or roll upside down), where a line would otherwise cross the whole plot; and between the
+    two boots of a vehicle that rebooted (its clock going back, REBOOT_CLOCK_JUMP), where a line
+    would run back from the end of one boot to the start of the next. matplotlib breaks a line at
+    a NaN, as the dashboard's plots break theirs."""
+    jumps = np.flatnonzero((np.abs(np.diff(deg)) > 180.0) | (np.diff(t) < -REBOOT_CLOCK_JUMP)) + 1
     return np.insert(t, jumps, np.nan), np.insert(deg, jumps, np.nan)
 
 
@@ -99,9 +100,9 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
     for name in estimators:
         if name not in series or len(series[name]) < 2:
             continue
-        err = errors_against(series[name], ref)
+        err = errors_by_boot(series[name], ref)  # series: in replay order, each boot after the last
         for k, ax in enumerate(axes):
-            ax.plot(err[:, 0], err[:, 1 + k], lw=0.8, label=name, color=hex_color(name))
+            ax.plot(*broken_at_wraps(err[:, 0], err[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
     for k, ax in enumerate(axes):
         ax.set_ylabel(f"{AXES[k]} error (deg)")
         ax.grid(alpha=0.3)
@@ -205,9 +206,13 @@ def unready_note(series: dict[str, np.ndarray]) -> str:
     if UNREADY not in series:
         return ""
     t = series[UNREADY][:, 0]
-    breaks = np.flatnonzero(np.diff(t) > INTERVAL_GAP)
+    steps = np.diff(t)
+    breaks = np.flatnonzero((steps > INTERVAL_GAP) | (steps < -REBOOT_CLOCK_JUMP))  # a reboot: its clock from 0
     starts, ends = t[np.r_[0, breaks + 1]], t[np.r_[breaks, len(t) - 1]]
-    spans = ", ".join(f"{a:.1f}–{b:.1f} s" for a, b in zip(starts, ends, strict=True))
+    rebooted = np.r_[False, steps[breaks] < -REBOOT_CLOCK_JUMP]
+    spans = ", ".join(
+        f"{'after a reboot ' if r else ''}{a:.1f}–{b:.1f} s" for a, b, r in zip(starts, ends, rebooted, strict=True)
+    )
     return (
         f"<p class='note'>{UNREADY}: the vehicle's ATTITUDE while its EKF_STATUS_REPORT said its EKF was not "
         f"initialised or its attitude not good ({len(t)} references, vehicle time {spans}). It is scored apart: "

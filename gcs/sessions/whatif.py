@@ -18,8 +18,10 @@ import numpy as np
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import errors_at, euler_of, run_whole
+from gcs.core.estimators.whole import euler_of, run_whole
 from gcs.core.samples import ImuSample
+from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.sessions.contents import boot_errors_at
 from gcs.sessions.sources import ReplaySource
 
 
@@ -53,7 +55,7 @@ def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> 
         t, q = np.array(times), np.array(quats).reshape(-1, 4)
     errors = {}
     for ref, data in source.references.items():
-        err = errors_at(t, q, data)[:, 1:]
+        err = boot_errors_at(t, q, data)[:, 1:]
         if len(err):
             errors[ref] = {
                 "rms": np.sqrt(np.mean(err**2, axis=0)).tolist(),
@@ -80,22 +82,52 @@ class WhatIf:
         ]
 
     def view(self, max_points: int = 4000) -> WhatIfView:
-        """What the dashboard draws: series decimated to max_points, in degrees, and the table."""
+        """What the dashboard draws: series decimated to max_points, in degrees, and the table;
+        a vehicle that rebooted during the source has its boots laid one after the other
+        (`boots_in_line`)."""
         step = max(1, math.ceil(len(self.old.t) / max_points))
+        t, cuts = boots_in_line(self.old.t[::step])
 
         def series(run: EstimatorRun) -> AxisSeries:
-            roll, pitch, yaw = (np.degrees(run.euler[::step, k]).tolist() for k in range(3))
+            roll, pitch, yaw = (with_gaps(np.degrees(run.euler[::step, k]), cuts) for k in range(3))
             return AxisSeries(roll, pitch, yaw)
 
         return WhatIfView(
             self.estimator,
             self.gains,
-            self.old.t[::step].tolist(),
+            with_gaps(t, cuts, at_gap=lambda before: before + BOOT_GAP_S / 2),
             series(self.old),
             series(self.new),
             self.table(),
             self.elapsed_s,
         )
+
+
+#: s between one boot's last point and the next boot's first on the what-if chart's time axis.
+BOOT_GAP_S = 1.0
+
+
+def boots_in_line(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The chart's time axis for outputs at vehicle times `t` (s), and where each boot after the
+    first starts: a vehicle that rebooted starts its clock from 0 again, and the chart (uPlot)
+    wants its x ascending; it drew the boots over each other, joined by a line back from the end
+    of one to the start of the next. Each later boot now follows the one before, BOOT_GAP_S on."""
+    x = np.array(t, dtype=float)
+    cuts = np.flatnonzero(np.diff(x) < -REBOOT_CLOCK_JUMP) + 1
+    for cut in cuts:
+        x[cut:] += x[cut - 1] + BOOT_GAP_S - x[cut]
+    return x, cuts
+
+
+def with_gaps(
+    values: np.ndarray, cuts: np.ndarray, at_gap: Callable[[float], float | None] = lambda _: None
+) -> list[float | None]:
+    """`values` as a list with a point between two boots (before each of `cuts`): None in a
+    series, where the chart breaks its line; `at_gap(the value before)` on the time axis."""
+    out: list[float | None] = values.tolist()
+    for cut in reversed(cuts.tolist()):
+        out.insert(cut, at_gap(out[cut - 1]))  # reversed: the point before is still a number
+    return out
 
 
 @dataclass(frozen=True)
@@ -111,11 +143,11 @@ class ErrorRow:
 
 @dataclass(frozen=True)
 class AxisSeries:
-    """Z-Y-X angles in degrees, one per time of the view."""
+    """Z-Y-X angles in degrees, one per time of the view (None: the gap between two boots)."""
 
-    roll: list[float]
-    pitch: list[float]
-    yaw: list[float]
+    roll: list[float | None]
+    pitch: list[float | None]
+    yaw: list[float | None]
 
 
 @dataclass(frozen=True)
@@ -124,7 +156,7 @@ class WhatIfView:
 
     estimator: str
     gains: dict[str, float]
-    t: list[float]
+    t: list[float | None]  # s: vehicle time, each boot after the previous one (`boots_in_line`)
     old: AxisSeries
     new: AxisSeries
     table: list[ErrorRow]

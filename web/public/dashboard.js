@@ -29,6 +29,7 @@ function onMessage(msg) {
   gcsStats.lastFrameAt = performance.now();
   if (msg.type === "points") ingestFrame(msg);
   else if (msg.type === "gain") showGain(msg.estimator, msg.gain, msg.new);
+  else if (msg.type === "preset") showPreset(msg.estimator, msg.preset);
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
 
@@ -92,6 +93,9 @@ function showStatus(s) {
   }
   const warn = [...unreliable].map(([reason, names]) => `${names.join(", ")}: ${reason}`);
   if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
+  for (const other of s.vehicle.others || []) {
+    warn.unshift(`another vehicle sends as system ${s.vehicle.sysid} on ${other}: not served; give each its own system id (MAV_SYSID or SYSID_THISMAV)`);
+  }
   if (s.vehicle.two_senders) {
     warn.unshift(`two vehicles are sending as system ${s.vehicle.sysid}: their data mix; give each its own system id (MAV_SYSID or SYSID_THISMAV), or hear a vehicle through one route only`);
   }
@@ -267,12 +271,18 @@ function showGain(est, name, value) {
   r.accepted = value;
 }
 
+// A reset to a preset (this page's, another page's or a script's): the estimator's heading names it.
+function showPreset(est, preset) {
+  const hint = document.querySelector(`#gains summary[data-estimator="${CSS.escape(est)}"] .hint`);
+  if (hint) hint.textContent = `(preset ${preset})`;
+}
+
 function buildGains(estimators) {
   const box = $("gains");
   const err = document.createElement("p"); err.id = "gain-error"; box.appendChild(err);
   for (const e of estimators) {
     const d = document.createElement("details"); d.open = e === estimators[0];
-    d.innerHTML = `<summary>${e.name} <span class="hint">(preset ${e.preset})</span></summary>`;
+    d.innerHTML = `<summary data-estimator="${escapeHtml(e.name)}">${e.name} <span class="hint">(preset ${escapeHtml(e.preset)})</span></summary>`;
     for (const g of e.gains) d.appendChild(gainRow(e.name, g));
     const reset = document.createElement("div");
     reset.innerHTML = `<select>${e.presets.map((p) => `<option ${p === e.default_preset ? "selected" : ""}>${p}</option>`).join("")}</select> <button type="button">reset to preset</button>`;

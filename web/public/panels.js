@@ -181,6 +181,15 @@ async function revertAll() {
 }
 
 // ---- recording -----------------------------------------------------------------------------
+// Sessions a crash left open, closed at this start (recover_sessions' reports: {session, end, ...},
+// or {session, error} for one that could not be, left as it was): named, and why not.
+function recoveries(reports) {
+  const done = reports.filter((r) => !r.error).map((r) => r.session);
+  const failed = reports.filter((r) => r.error).map((r) => `${r.session} (${r.error})`);
+  return (done.length ? ` · recovered after a crash: ${html(done.join(", "))}` : "")
+    + (failed.length ? ` · <span class="low">not recovered: ${html(failed.join(", "))}</span>` : "");
+}
+
 async function refreshRecording() {
   const r = await call("GET", "/api/recording");
   if (!r.ok) return;
@@ -197,7 +206,7 @@ async function refreshRecording() {
       : `${html(s.folder || `(no session open) in ${s.root}`)} · ${bytes(s.bytes_written)}${flush}`
         + ` · ${s.packets_received} packets received, ${s.packets_sent} sent`
         + (s.dropped ? ` · <span class="low">${s.dropped} dropped</span>` : "")
-        + (s.recovered && s.recovered.length ? ` · recovered after a crash: ${html(s.recovered.join(", "))}` : ""));
+        + recoveries(s.recovered || []));
   const err = $("rec-error");
   err.hidden = !s.error; err.textContent = s.error ? `⚠ recording ${s.state}: ${s.error}` : "";
   $("panel-warnings").innerHTML = s.error ? `<div class="rec-failed">⚠ recording ${html(s.state)}: ${html(s.error)}</div>` : "";

@@ -18,13 +18,20 @@ const chart = {
 };
 
 // ---- playing -------------------------------------------------------------------------------
+// Each sample's play time (column PLAY, the server's PlayClock): its vehicle time, with every boot
+// of a vehicle that rebooted after the one before, not from 0 again under it. Samples are handed to
+// the plots boot by boot (`boots`: the play time each starts at), every source's samples of one boot
+// before any of the next: the plots restart at a clock that went back, clearing every source, so
+// one source's new boot must not come before another's old one (which would clear it).
+const PLAY = 4;
 class Player {
   constructor(replay) {
     this.replay = replay;
     this.series = Object.entries(replay.points).filter(([, cols]) => cols[0].length);
-    this.t0 = Math.min(...this.series.map(([, c]) => c[0][0]));
-    const t1 = Math.max(...this.series.map(([, c]) => c[0][c[0].length - 1]));
+    this.t0 = Math.min(...this.series.map(([, c]) => c[PLAY][0]));
+    const t1 = Math.max(...this.series.map(([, c]) => c[PLAY][c[PLAY].length - 1]));
     this.duration = Number.isFinite(t1 - this.t0) ? t1 - this.t0 : 0;
+    this.boots = replay.boots.length ? replay.boots : [this.t0];
     this.plots = chart.create($("charts"), replay.estimators);
     this.next = {};  // source -> index of the first sample not yet given to the plots
     this.position = 0; this.playing = false; this.speed = 1; this.last = null;
@@ -34,21 +41,26 @@ class Player {
   rewind() {
     chart.clear(this.plots);
     for (const [s] of this.series) { this.next[s] = 0; gcsReplay.added[s] = 0; }
-    this.position = 0;
+    this.position = 0; this.boot = 0;
   }
-  // Hand the plots every sample up to `position` seconds from the start.
+  // Hand the plots every sample up to `position` seconds from the start, boot by boot.
   advanceTo(position) {
     this.position = Math.min(Math.max(0, position), this.duration);
     const tEnd = this.t0 + this.position;
-    for (const [source, cols] of this.series) {
-      const i = this.next[source];
-      let j = i;
-      while (j < cols[0].length && cols[0][j] <= tEnd) j++;
-      if (j > i) {
-        chart.add(this.plots, source, cols.map((c) => c.slice(i, j)));
-        gcsReplay.added[source] += j - i;
-        this.next[source] = j;
+    for (;;) {
+      const next = this.boot + 1 < this.boots.length ? this.boots[this.boot + 1] : Infinity;
+      for (const [source, cols] of this.series) {
+        const play = cols[PLAY], i = this.next[source];
+        let j = i;
+        while (j < play.length && play[j] <= tEnd && play[j] < next) j++;
+        if (j > i) {
+          chart.add(this.plots, source, cols.map((c) => c.slice(i, j)));
+          gcsReplay.added[source] += j - i;
+          this.next[source] = j;
+        }
       }
+      if (next > tEnd) break;
+      this.boot++;
     }
     this.show();
   }
