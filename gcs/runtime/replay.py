@@ -30,12 +30,11 @@ from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import run_whole
+from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
-from gcs.sessions.contents import boot_errors_at
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
 from gcs.sessions.workbench import workbench
 
@@ -321,7 +320,7 @@ def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tup
     t = table.imu[run.fed, 0]
     rows: list[dict[str, object]] = []
     for ref, data in sorted(source.references.items()):
-        err = boot_errors_at(t, run.q[run.fed], data)[:, 1:]  # each boot of a rebooted vehicle against itself
+        err = errors_at(t, run.q[run.fed], data)[:, 1:]  # one boot: a reboot's clock goes back (steady_clock)
         if len(err):
             rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
             rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
