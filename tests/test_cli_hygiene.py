@@ -599,3 +599,18 @@ def test_an_estimate_whose_out_is_its_input_is_refused(tmp_path):
         "gcs estimate: error: --out flight.csv is INPUT itself; give another file"
     ]
     assert samples.read_text() == text and [p.name for p in tmp_path.iterdir()] == ["flight.csv"]
+
+
+def test_a_listing_piped_into_a_reader_that_stops_ends_quietly(tmp_path):
+    """`gcs sessions --json | head -1`: the reader gone, the command stops as a C tool killed by
+    SIGPIPE does (exit 141), without a BrokenPipeError traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the command writes
+    try:
+        done = subprocess.run(
+            [*GCS, "sessions", "--json", "--dir", str(tmp_path)],
+            stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=60,
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert (done.returncode, done.stderr) == (128 + signal.SIGPIPE, "")

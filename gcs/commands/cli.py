@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import select
 import signal
 import sys
 from collections.abc import Collection
@@ -85,9 +87,25 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     terminated = stop_on_sigterm()
     try:
-        return int(importlib.import_module(args._module).run(args) or 0)
+        code = int(importlib.import_module(args._module).run(args) or 0)
+        sys.stdout.flush()  # here, not at exit: a reader gone is then caught below
+        return code
     except KeyboardInterrupt:
         return 143 if terminated else 130
+    except BrokenPipeError:
+        if not stdout_reader_gone():
+            raise  # a socket's or another pipe's: a real error, with its traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing more to flush at exit
+        return 128 + signal.SIGPIPE
+
+
+def stdout_reader_gone() -> bool:
+    """Whether whatever read stdout has closed it (`gcs sessions --json | head`): the pipe's
+    write end then polls as an error. A command piped into `head` stops quietly, as a C tool
+    killed by SIGPIPE does (exit 141), where Python printed a BrokenPipeError traceback."""
+    poll = select.poll()
+    poll.register(sys.stdout.fileno(), select.POLLOUT)
+    return any(events & select.POLLERR for _, events in poll.poll(0))
 
 
 def stop_on_sigterm() -> list[int]:
