@@ -9,11 +9,15 @@ import json
 
 import httpx
 import pyarrow.parquet as pq
-from live import running_station, sim_process, wait_for
+from live import running_station, served_api, sim_process, wait_for
 
+from gcs.commands.cli import build_parser
+from gcs.commands.options import station_config
 from gcs.mavlink.tlog import read_tlog_records
+from gcs.runtime.station import Station, StationConfig
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
+from gcs.transport.address import free_port
 
 ATTITUDE = 30
 
@@ -104,3 +108,24 @@ async def scenario(udp_port: int, root) -> None:
                 assert (await api.get("/api/sessions")).status_code == 200
         finally:
             await server.stop()
+
+
+def test_a_station_that_does_not_record_lists_the_sessions_of_its_record_dir(tmp_path):
+    """`gcs serve --no-record --record-dir DIR`: the sessions (and so the replay and what-if)
+    lists read DIR, where they read ./sessions whatever DIR was."""
+    (tmp_path / "2026-12-01_10-00-00_quad").mkdir()
+    (tmp_path / "2026-12-01_10-00-00_quad" / layout.META).write_text("{}")
+    argv = ["serve", "--connect", f"udpin:127.0.0.1:{free_port()}", "--no-record", "--record-dir", str(tmp_path)]
+    assert asyncio.run(listed(station_config(build_parser(["serve"]).parse_args(argv)))) == ["2026-12-01_10-00-00_quad"]
+
+
+async def listed(config: StationConfig) -> list[str]:
+    """The names GET /api/sessions lists from a station of `config` that records nothing."""
+    station = Station(config)
+    await station.start()
+    try:
+        assert station.recorder is None
+        async with served_api(station) as api:
+            return [s["name"] for s in (await api.get("/api/sessions")).json()]
+    finally:
+        await station.stop()

@@ -89,7 +89,13 @@ def run(args: argparse.Namespace) -> int:
 async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
 
     port = free_port()
-    config = StationConfig(f"udpin:127.0.0.1:{port}", outputs=args.out, record_dir=record_dir(args), presets=presets)
+    config = StationConfig(
+        f"udpin:127.0.0.1:{port}",
+        outputs=args.out,
+        record_dir=record_dir(args),
+        sessions_dir=args.record_dir,
+        presets=presets,
+    )
     fleet = Fleet(config)
     vehicles = args.vehicles or [(args.profile, 1)]
     sims = [SimVehicle(profile=p, script=args.script, seed=args.seed + i, sysid=n) for i, (p, n) in enumerate(vehicles)]

@@ -107,7 +107,8 @@ def add_record_arguments(parser: argparse.ArgumentParser, opt_in: bool = False) 
         "--record-dir",
         default="sessions",
         metavar="DIR",
-        help="record every session to a folder under DIR (default ./sessions)",
+        help="record every session to a folder under DIR (default ./sessions); the dashboard's sessions, replay "
+        "and what-if lists read DIR, with --no-record too",
     )
     parser.add_argument("--no-record", action="store_true", help="do not record this session")
 
@@ -142,6 +143,7 @@ def station_config(args: argparse.Namespace):
         outputs=outputs,
         heartbeat_timeout=args.heartbeat_timeout,
         record_dir=record_dir(args),
+        sessions_dir=getattr(args, "record_dir", "sessions"),
         signing_key=signing_key(args),
         signing_required=args.signing == "required",
     )

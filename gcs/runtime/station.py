@@ -81,6 +81,9 @@ class StationConfig:
     request_streams: bool = True
     estimate: bool = True
     record_dir: str | None = None  # where sessions are recorded; None: no recording
+    #: where the sessions, replay and what-if lists look when the station does not record
+    #: (`--no-record --record-dir DIR`)
+    sessions_dir: str = "sessions"
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
     presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
     signing_key: bytes | None = None  # MAVLink 2 signing key (--signing-key); None: no signing
@@ -326,7 +329,9 @@ class Station:
     @property
     def recording_root(self) -> Path:
         """Where sessions are recorded (and where replay and what-if sources are looked up)."""
-        return self.recorder.root if self.recorder is not None else Path(self.config.record_dir or "sessions")
+        if self.recorder is not None:
+            return self.recorder.root
+        return Path(self.config.record_dir or self.config.sessions_dir)
 
     def recording_snapshot(self) -> RecordingSnapshot:
         """The recorder's state now (not at the last published snapshot)."""
