@@ -614,3 +614,31 @@ def test_a_listing_piped_into_a_reader_that_stops_ends_quietly(tmp_path):
     finally:
         os.close(write_end)
     assert (done.returncode, done.stderr) == (128 + signal.SIGPIPE, "")
+
+
+def test_a_dashboard_on_every_interface_prints_the_urls_other_machines_open():
+    """`gcs serve --host 0.0.0.0` printed http://0.0.0.0:PORT, which no teammate's laptop can open
+    (found by the audit): it prints this machine's URL, then one per interface address, and each
+    of those serves the page."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.connect(("192.0.2.1", 9))  # nothing is sent: the kernel picks the interface it would leave by
+        outgoing = probe.getsockname()[0]
+    port = free_port()
+    link = f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+    argv = ["serve", "--connect", link, "--no-record", "--host", "0.0.0.0", "--port", str(port), "--token", "t0k"]
+    proc = subprocess.Popen(GCS + argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert proc.stdout is not None
+        lines: list[str] = []
+        while not lines or "from other machines" not in lines[-1]:
+            line = proc.stdout.readline()
+            assert line, f"gcs serve ended: {lines}"
+            lines.append(line)
+        assert f"dashboard at http://127.0.0.1:{port}/?token=t0k " in "".join(lines)
+        shared = lines[-1].split("from other machines: ", 1)[1].split()
+        assert f"http://{outgoing}:{port}/?token=t0k" in shared
+        for url in shared:
+            page = httpx.get(url, timeout=10, follow_redirects=True)
+            assert page.status_code == 200 and "uPlot.iife.min.js" in page.text, url
+    finally:
+        stop_process(proc)

@@ -10,7 +10,7 @@ import sys
 
 from gcs.commands.common import os_error_line
 from gcs.commands.options import add_record_arguments, record_dir
-from gcs.commands.serve import add_server_arguments, dashboard, presets_or_report
+from gcs.commands.serve import add_server_arguments, announce, dashboard, presets_or_report
 from gcs.commands.sim import PROFILES
 from gcs.core.gains import PresetFile
 from gcs.runtime import event_loop
@@ -106,7 +106,7 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
     await fleet.start()
     sim_tasks = [asyncio.create_task(sim.run(f"udpout:127.0.0.1:{port}")) for sim in sims]
     await server.start()
-    print(f"gcs demo: dashboard at {server.url}  (3-D view on port {server.viser_port})", flush=True)
+    announce("demo", server)
     loop = asyncio.get_running_loop()
     stop_at = loop.time() + args.duration if args.duration > 0 else math.inf
     try:

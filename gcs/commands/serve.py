@@ -115,6 +115,14 @@ def dashboard(fleet: Fleet, args: argparse.Namespace) -> DashboardServer:
     )
 
 
+def announce(command: str, server: DashboardServer, tail: str = "") -> None:
+    """The start-up lines: the URL on this machine, and bound to every interface (--host 0.0.0.0)
+    the URLs a teammate's laptop opens."""
+    print(f"gcs {command}: dashboard at {server.url}  (3-D view on port {server.viser_port}){tail}", flush=True)
+    if server.shared_urls:
+        print(f"gcs {command}: from other machines: {'  '.join(server.shared_urls)}", flush=True)
+
+
 async def _serve(config, args: argparse.Namespace) -> None:
 
     fleet = Fleet(config, links_of(args))
@@ -122,9 +130,7 @@ async def _serve(config, args: argparse.Namespace) -> None:
     await fleet.start()
     try:
         await server.start()
-        print(
-            f"gcs serve: dashboard at {server.url}  (3-D view on port {server.viser_port}); Ctrl-C to stop", flush=True
-        )
+        announce("serve", server, "; Ctrl-C to stop")
         await asyncio.Event().wait()
     finally:
         await server.stop()

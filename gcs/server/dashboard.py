@@ -14,6 +14,7 @@ import uvicorn
 
 from gcs.runtime import heap
 from gcs.runtime.facade import FleetFacade, StationFacade
+from gcs.server.addresses import local_host, shared_hosts, url_host
 from gcs.server.app import create_app
 from gcs.server.deps import TOKEN_HEADER
 from gcs.server.live import LiveHub
@@ -68,8 +69,16 @@ class DashboardServer:
 
     @property
     def url(self) -> str:
-        """The start-up URL: opening it gives the browser the token (as a cookie)."""
-        return f"http://{self.host}:{self.port}/?token={self.token}"
+        """The start-up URL on this machine: opening it gives the browser the token (as a cookie)."""
+        return self._url(local_host(self.host))
+
+    @property
+    def shared_urls(self) -> list[str]:
+        """Bound to every interface: the start-up URL at each address other machines reach."""
+        return [self._url(host) for host in shared_hosts(self.host)]
+
+    def _url(self, host: str) -> str:
+        return f"http://{url_host(host)}:{self.port}/?token={self.token}"
 
     @property
     def auth_headers(self) -> dict[str, str]:
