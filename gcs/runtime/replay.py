@@ -39,6 +39,11 @@ from gcs.sessions.workbench import workbench
 
 #: Inputs fed between two yields to the loop while seeking or replaying flat out.
 CHUNK = 2000
+#: A frame due further than this (s of replay time) ahead or behind is played now, and the pacing
+#: goes on from it: a recording gap is not waited out, and a damaged timestamp (one flipped bit
+#: put a hop tlog's frame 68e9 s ahead) neither stops the replay for ever nor, once past, lets
+#: the rest run flat out.
+MAX_WAIT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -168,7 +173,10 @@ class ReplaySession:
         now = time.monotonic()
         if self._anchor is None:
             self._anchor = (now, t)
-        return self._anchor[0] + (t - self._anchor[1]) / self.speed - now
+        due = self._anchor[0] + (t - self._anchor[1]) / self.speed - now
+        if abs(due) > MAX_WAIT_S:
+            self._anchor, due = (now, t), 0.0
+        return due
 
     def step(self) -> list[AttitudePoint]:
         """Play one frame now: publish its packet, feed its inputs, tell the listeners."""
