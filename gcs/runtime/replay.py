@@ -32,6 +32,7 @@ from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.tlog import MAX_WAIT_S
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
@@ -39,11 +40,6 @@ from gcs.sessions.workbench import workbench
 
 #: Inputs fed between two yields to the loop while seeking or replaying flat out.
 CHUNK = 2000
-#: A frame due further than this (s of replay time) ahead or behind is played now, and the pacing
-#: goes on from it: a recording gap is not waited out, and a damaged timestamp (one flipped bit
-#: put a hop tlog's frame 68e9 s ahead) neither stops the replay for ever nor, once past, lets
-#: the rest run flat out.
-MAX_WAIT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -174,7 +170,7 @@ class ReplaySession:
         if self._anchor is None:
             self._anchor = (now, t)
         due = self._anchor[0] + (t - self._anchor[1]) / self.speed - now
-        if abs(due) > MAX_WAIT_S:
+        if abs(due) > MAX_WAIT_S:  # a gap or a damaged stamp: played now, paced on from it
             self._anchor, due = (now, t), 0.0
         return due
 
