@@ -324,6 +324,15 @@ def test_a_dataset_that_cannot_be_written_is_one_line_naming_it(tmp_path, logs_d
     assert line.startswith(f"gcs batch: error: {out}: ") and "File too large" in line, line
 
 
+def test_a_failures_file_is_no_executable(tmp_path):
+    """A failure's Parquet file was made by os.open with its default mode 0o777: rwxr-xr-x under
+    the usual umask, an executable data file (found by the audit). It is made as open() makes one."""
+    dataset.write_failure(tmp_path, "junk.tlog-1234abcd", "junk.tlog", "junk.tlog: offset 0: not a log")
+    (failure,) = (tmp_path / dataset.FAILURES).iterdir()
+    assert failure.stat().st_mode & 0o111 == 0, oct(failure.stat().st_mode)
+    assert dataset.read_failures(tmp_path).to_pylist()[0]["reason"] == "junk.tlog: offset 0: not a log"
+
+
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
     """A writer killed with SIGKILL mid-flight (as a killed worker or scheduler leaves it) left its
     temporary folder and the partition it was replacing: the next batch removes both and says so

@@ -12,6 +12,8 @@ import json
 import math
 import shutil
 import socket
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -321,3 +323,35 @@ def test_a_session_without_its_attitude_table_exports_the_replayed_one(recorded,
         struct = mat[names[source]][0, 0]
         np.testing.assert_array_equal(struct["t"].ravel(), series["t"])
         np.testing.assert_array_equal(struct["roll"].ravel(), np.degrees(series["roll"]))
+
+
+def test_mcap_of_a_tlog_with_a_damaged_timestamp(logs_dir, tmp_path):
+    """One flipped bit put an ATTITUDE record's tlog stamp 2285 years ahead: its publish time in
+    ns no longer fits MCAP's uint64 and `gcs export --format mcap` stopped with struct.error's
+    traceback (found by the audit). The message is written, its time clamped into the range."""
+    from gcs.mavlink.framing import MavlinkDecoder
+    from gcs.mavlink.tlog import read_tlog_records
+
+    source = logs_dir / "arducopter-sitl-hop.tlog"
+    data = bytearray(source.read_bytes())
+    decoder = MavlinkDecoder()
+    records = list(read_tlog_records(source).records())
+    offset = next(
+        offset
+        for offset, _, packet in records[len(records) // 2 :]
+        if [kind for _, kind, _, _ in decoder.frames(packet, final=True)] == ["ATTITUDE"]
+    )
+    stamp = offset - 8  # the record's 8-byte big-endian µs before its packet
+    data[stamp : stamp + 8] = (int.from_bytes(data[stamp : stamp + 8], "big") ^ (1 << 56)).to_bytes(8, "big")
+    path, out = tmp_path / "flipped-stamp.tlog", tmp_path / "flipped-stamp.mcap"
+    path.write_bytes(bytes(data))
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs", "export", str(path), "--format", "mcap", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    with out.open("rb") as fh:
+        written = sum(1 for _ in make_reader(fh).iter_messages())
+    assert done.stderr.strip().splitlines() == [f"{out}: {written} messages"]

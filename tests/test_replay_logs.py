@@ -18,6 +18,7 @@ from gcs.commands.cli import main
 from gcs.logs.dataflash import TYPES
 from gcs.logs.readers import InputError
 from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.replay import ReplaySession, steady_clock
 from gcs.sessions.sources import open_source
 from gcs.sim.dataflash import NEW_FORMATS, DataflashWriter
@@ -309,3 +310,17 @@ def test_a_reference_that_is_no_number_is_left_out_of_the_fast_table_too(logs_di
     fast, _ = _replay_cli(str(path), "--fast", "-e", "dcm")
     paced, _ = _replay_cli(str(path), "--speed", "1000", "-e", "dcm")
     assert fast == paced and not any("nan" in row for row in fast), fast
+
+
+def test_a_paced_replay_goes_past_a_damaged_timestamp(logs_dir, tmp_path):
+    """One flipped bit in a tlog record's timestamp put that frame 68e9 s ahead: `gcs replay
+    --speed 50` waited for it, silent, for ever (found by the audit). A frame due more than a
+    minute of replay time away is played at once and the pacing goes on from the next."""
+    data = bytearray((logs_dir / "arducopter-sitl-hop.tlog").read_bytes())
+    offsets = [offset for offset, _, _ in read_tlog_records(logs_dir / "arducopter-sitl-hop.tlog").records()]
+    stamp = offsets[len(offsets) // 2] - 8  # the record's 8-byte big-endian µs before its packet
+    data[stamp : stamp + 8] = (int.from_bytes(data[stamp : stamp + 8], "big") ^ (1 << 56)).to_bytes(8, "big")
+    path = tmp_path / "flipped-stamp.tlog"
+    path.write_bytes(bytes(data))
+    _, speed = _replay_cli(str(path), "--speed", "50", "-e", "dcm")
+    assert 35 <= speed <= 51, speed

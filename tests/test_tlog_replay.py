@@ -77,3 +77,30 @@ def test_gcs_status_on_a_tlog_sends_nothing_to_the_file(logs_dir, capsys):
     assert status["streams"] == {"method": None, "requests_sent": 0, "messages": {}}
     assert main(["status", "--connect", str(path), "--speed", "10", "--duration", "1"]) == 0
     assert "streams    none requested: a replayed file is no vehicle" in capsys.readouterr().out.splitlines()
+
+
+def test_a_damaged_timestamp_does_not_stop_a_tlog_played_as_a_link(logs_dir, tmp_path):
+    """`gcs status --connect flight.tlog --speed N` (or serve): one flipped bit put a record 68e9 s
+    ahead and the link waited for it for ever, half the file unread and the vehicle "lost" (found
+    by the audit). The record is sent at once and the pacing goes on from it."""
+    import time
+
+    from gcs.mavlink.tlog import read_tlog_records
+
+    source = logs_dir / "arducopter-sitl-hop.tlog"
+    data = bytearray(source.read_bytes())
+    offsets = [offset for offset, _, _ in read_tlog_records(source).records()]
+    stamp = offsets[len(offsets) // 2] - 8  # the record's 8-byte big-endian µs before its packet
+    data[stamp : stamp + 8] = (int.from_bytes(data[stamp : stamp + 8], "big") ^ (1 << 56)).to_bytes(8, "big")
+    path = tmp_path / "flipped-stamp.tlog"
+    path.write_bytes(bytes(data))
+
+    async def run() -> tuple[Link, float]:
+        link = Link(str(path), speed=40.0)
+        t0 = time.monotonic()
+        await asyncio.wait_for(link.run(), 60)
+        return link, time.monotonic() - t0
+
+    link, took = asyncio.run(run())
+    assert sum(link.stats.counts.values()) == len(offsets)
+    assert 88 / 40 * 0.9 <= took <= 10  # paced before the bad stamp and after it

@@ -121,8 +121,8 @@ def writing(path: Path, folder: bool = True) -> Iterator[None]:
         if folder:
             path.mkdir()
             fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-        else:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL)
+        else:  # a data file (a failure's row): 0o666 as open() makes one; os.open's 0o777 made it executable
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             if path.exists() and os.stat(path).st_ino == os.fstat(fd).st_ino:

@@ -19,6 +19,11 @@ SIGNED = 0x01
 #: Bytes read at a time, and the longest possible record (timestamp + signed MAVLink 2 packet).
 CHUNK = 1 << 20
 MAX_RECORD = 8 + 12 + 255 + 13
+#: A paced replay (gcs replay --speed, a .tlog as a link) plays a record due further than this
+#: (s of replay time) ahead or behind at once, and paces on from it: a recording gap is not waited
+#: out, and a damaged timestamp (one flipped bit put a hop tlog's record 68e9 s ahead) neither
+#: stops the replay for ever nor, once past, lets the rest run flat out.
+MAX_WAIT_S = 60.0
 
 
 def packet_length(buf: bytes | bytearray, start: int) -> int | None:

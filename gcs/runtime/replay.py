@@ -33,6 +33,7 @@ from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
 from gcs.mavlink.framing import MavlinkDecoder
 from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.mavlink.tlog import MAX_WAIT_S
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
@@ -169,7 +170,10 @@ class ReplaySession:
         now = time.monotonic()
         if self._anchor is None:
             self._anchor = (now, t)
-        return self._anchor[0] + (t - self._anchor[1]) / self.speed - now
+        due = self._anchor[0] + (t - self._anchor[1]) / self.speed - now
+        if abs(due) > MAX_WAIT_S:  # a gap or a damaged stamp: played now, paced on from it
+            self._anchor, due = (now, t), 0.0
+        return due
 
     def step(self) -> list[AttitudePoint]:
         """Play one frame now: publish its packet, feed its inputs, tell the listeners."""

@@ -118,8 +118,15 @@ def _finite(value: Any) -> Any:
     return value if not isinstance(value, float) or math.isfinite(value) else None
 
 
+#: The latest time an MCAP record holds (uint64 ns, the year 2554).
+MAX_NS = 2**64 - 1
+
+
 def _ns(seconds: float) -> int:
-    return max(0, round(seconds * 1e9))
+    """seconds as MCAP's uint64 ns, clamped into its range: a tlog record's damaged timestamp (one
+    flipped bit: 2285 years ahead) stopped the export with struct.error; the message is written,
+    its own wall_time field keeps the value."""
+    return min(MAX_NS, max(0, round(seconds * 1e9)))
 
 
 def _xyz(row: np.ndarray, start: int) -> dict[str, float]:

@@ -28,7 +28,7 @@ from collections.abc import Callable
 
 import serial  # pyserial
 
-from gcs.mavlink.tlog import read_tlog_records
+from gcs.mavlink.tlog import MAX_WAIT_S, read_tlog_records
 from gcs.transport.address import Address, parse_address
 
 DataCallback = Callable[[bytes], None]
@@ -481,6 +481,8 @@ class TlogTransport(Transport):
                 if self.speed > 0:
                     due = start_wall + (usec - first_us) / 1e6 / self.speed
                     delay = due - loop.time()
+                    if abs(delay) > MAX_WAIT_S:  # a gap or a damaged stamp: sent now, paced on from it
+                        start_wall, first_us, delay = loop.time(), usec, 0.0
                     if delay > 0.001:
                         await asyncio.sleep(delay)
                 elif i % 256 == 0:
