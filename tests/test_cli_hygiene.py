@@ -642,3 +642,26 @@ def test_a_dashboard_on_every_interface_prints_the_urls_other_machines_open():
             assert page.status_code == 200 and "uPlot.iife.min.js" in page.text, url
     finally:
         stop_process(proc)
+
+
+@pytest.mark.parametrize(
+    ("command", "recorded"),
+    [
+        (["export", "--format", "parquet", "--out"], "attitude.parquet"),
+        (["report", "--out"], layout.EVENTS),
+        (["export", "--format", "csv", "--out"], layout.TLOG),
+    ],
+)
+def test_an_output_never_replaces_a_file_its_session_recorded(command, recorded, tmp_path):
+    """`gcs export S --format parquet --out S/attitude.parquet` replaced the session's own table,
+    exit 0 (found by the audit): the output is refused in one line and the file kept."""
+    session = _session_of_the_hop(tmp_path / "session")
+    kept = session / recorded
+    before = kept.read_bytes() if kept.exists() else None  # a table it has not written yet is its too
+    done = subprocess.run(
+        GCS + [command[0], str(session), *command[1:], str(session / recorded)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode != 0 and (kept.read_bytes() if kept.exists() else None) == before
+    (line,) = done.stderr.strip().splitlines()
+    assert str(session / recorded) in line and "session recorded" in line, line

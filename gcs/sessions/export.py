@@ -16,6 +16,7 @@ a temporary file beside it and renamed on success, so a failed run never clobber
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import secrets
@@ -30,6 +31,7 @@ import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
 from gcs.core.protocol import ProtocolTables
+from gcs.sessions import layout
 from gcs.sessions.contents import Contents, open_contents
 from gcs.sessions.protocol import csv_table
 from gcs.sessions.sources import ReplaySource, open_source
@@ -104,7 +106,11 @@ def export(
 def write_beside(target: Path, write: Callable[[Path], T], tmp: Path | None = None) -> T:
     """write(tmp) on a temporary path beside target (same file system: the rename is atomic;
     one of its own unless given), then rename it to target; on any error target is untouched and
-    tmp removed. An OSError names target, not the temporary path. tmp may be a file or a folder."""
+    tmp removed. An OSError names target, not the temporary path. tmp may be a file or a folder.
+    A file a session recorded is never the target (`gcs export S --out S/attitude.parquet` replaced
+    the session's own table): PermissionError."""
+    if layout.is_recorded(target):
+        raise PermissionError(errno.EPERM, "a file its session recorded, not replaced: write elsewhere", str(target))
     tmp = tmp or target.with_name(f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     try:
         result = write(tmp)

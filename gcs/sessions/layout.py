@@ -94,6 +94,17 @@ def is_session(path: Path) -> bool:
     return path.is_dir() and (path / META).is_file()
 
 
+#: the files a session records (its tables as streams while open, as Parquet once closed)
+RECORDED = frozenset(
+    {TLOG, EVENTS, META, LOCK, *(f"{t}{suffix}" for t in TABLES for suffix in (STREAM_SUFFIX, PARQUET_SUFFIX))}
+)
+
+
+def is_recorded(path: Path) -> bool:
+    """Whether `path` is one of the files its session folder recorded."""
+    return path.name in RECORDED and is_session(path.parent)
+
+
 def read_meta(folder: Path) -> dict:
     """meta.json of a session; an unreadable one is reported as such, not raised."""
     try:
