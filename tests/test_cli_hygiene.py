@@ -665,3 +665,13 @@ def test_an_output_never_replaces_a_file_its_session_recorded(command, recorded,
     assert done.returncode != 0 and (kept.read_bytes() if kept.exists() else None) == before
     (line,) = done.stderr.strip().splitlines()
     assert str(session / recorded) in line and "session recorded" in line, line
+
+
+def test_sessions_of_a_folder_that_is_not_there_says_so(tmp_path):
+    """`gcs sessions --dir MISTYPED` said "no sessions in MISTYPED", exit 0, as for a folder with
+    none (found by the audit); the default ./sessions, not made until a first recording, still
+    reads as no sessions."""
+    done = subprocess.run(GCS + ["sessions", "--dir", str(tmp_path / "sesions")], capture_output=True, text=True)
+    assert (done.returncode, done.stderr) == (2, f"gcs sessions: error: {tmp_path / 'sesions'}: no such folder\n")
+    fresh = subprocess.run(GCS + ["sessions"], capture_output=True, text=True, cwd=tmp_path)
+    assert (fresh.returncode, fresh.stderr) == (0, "no sessions in sessions\n")

@@ -4,6 +4,7 @@ a crash left open are shown as such (the next `gcs status`/server start recovers
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -38,6 +39,10 @@ def format_table(sessions) -> str:
 
 def run(args: argparse.Namespace) -> int:
 
+    if args.dir != "sessions" and not os.path.isdir(args.dir):  # a typo, not a station that never recorded
+        what = "no such folder" if not os.path.exists(args.dir) else "not a folder"
+        print(f"gcs sessions: error: {args.dir}: {what}", file=sys.stderr)
+        return 2
     sessions = list_sessions(args.dir)
     if args.json:
         print(strict_json.dumps([s.as_dict() for s in sessions], indent=2))
