@@ -675,3 +675,13 @@ def test_sessions_of_a_folder_that_is_not_there_says_so(tmp_path):
     assert (done.returncode, done.stderr) == (2, f"gcs sessions: error: {tmp_path / 'sesions'}: no such folder\n")
     fresh = subprocess.run(GCS + ["sessions"], capture_output=True, text=True, cwd=tmp_path)
     assert (fresh.returncode, fresh.stderr) == (0, "no sessions in sessions\n")
+
+
+def test_a_fleet_report_of_a_negative_number_of_worst_flights_is_refused(tmp_path):
+    """`gcs fleet report D --worst -2` was taken silently as none (found by the audit)."""
+    out = tmp_path / "fleet.html"
+    argv = ["fleet", "report", str(tmp_path), "--out", str(out), "--worst", "-2"]
+    done = subprocess.run(GCS + argv, capture_output=True, text=True, timeout=FAIL_AT_ONCE_S)
+    assert done.returncode == 2 and not out.exists()
+    expected = "gcs fleet report: error: argument --worst: -2: give 0 or more flights"
+    assert done.stderr.strip().splitlines()[-1] == expected

@@ -16,7 +16,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     report.add_argument("dataset", help="a dataset written by gcs batch (and gcs sweep)")
     report.add_argument("--out", required=True, help="the HTML file to write")
-    report.add_argument("--worst", type=int, default=3, metavar="N", help="per-flight reports for the N worst flights")
+    worst = "per-flight reports for the N worst flights (0: none)"
+    report.add_argument("--worst", type=flight_count, default=3, metavar="N", help=worst)
+
+
+def flight_count(text: str) -> int:
+    """--worst's N: a negative one was taken silently (Python's slice then left out the last flights)."""
+    n = int(text)
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"{text}: give 0 or more flights")
+    return n
 
 
 def run(args: argparse.Namespace) -> int:
