@@ -148,12 +148,16 @@ class VehicleLink(Link):
         return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)
 
     def _own_loss(self, stats: LinkCounters) -> LinkCounters:
-        """`stats` with the packets lost by sequence number from this vehicle's system only. The
-        link's framing counts every sender's gaps; shown beside each vehicle on a shared link, the
-        sum read as that vehicle's loss (a copter on a clean route showed the loss of a plane behind
-        a lossy radio). Before a vehicle is bound, the link's own figures stand."""
+        """`stats` with the packets received from this vehicle and those lost by sequence number
+        from its system only. The link's framing counts every sender's packets and gaps; shown
+        beside each vehicle on a shared link, the sums read as that vehicle's (a copter on a clean
+        route showed the loss of a plane behind a lossy radio, and each vehicle the packets of
+        both). Before a vehicle is bound, the link's own figures stand."""
         if self.target_system is None:
             return stats
         lost = sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == self.target_system)
-        total = sum(self.stats.counts.values()) + lost
-        return dataclasses.replace(stats, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0)
+        packets = sum(self.stats.counts.values())
+        total = packets + lost
+        return dataclasses.replace(
+            stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0
+        )
