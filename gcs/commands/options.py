@@ -131,6 +131,8 @@ def station_config(args: argparse.Namespace):
     if args.baud != "auto" and not args.baud.isdigit():
         raise ValueError(f"--baud {args.baud!r}: give a rate such as 57600, or 'auto'")
     baud = args.baud if args.baud == "auto" else int(args.baud)
+    if baud == 0:  # termios' B0 hangs the line up (drops DTR: an APM 2.5 on USB resets), never a rate
+        raise ValueError("--baud 0: give a rate such as 57600, or 'auto' (0 would hang up the serial line)")
     check_numbers(args)
     for address in addresses:
         if address.kind == "serial" and address.path:

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from gcs.mavlink.dialect import mavlink
+from gcs.mavlink.identity import ARDUPILOT_SYSID_PARAMS
 from gcs.mavlink.params import (
     ParamError,
     check_name,
@@ -30,9 +31,11 @@ from gcs.mavlink.params import (
     type_name,
     value_bytes,
 )
+from gcs.runtime.bus import MessageBus, Subscription
 from gcs.runtime.events import EventLog
 from gcs.runtime.link import Link
 from gcs.runtime.vehicle import VehicleState
+from gcs.runtime.vehicle_link import VehicleLink
 
 #: PARAM_VALUE.param_index of a value that is not part of a list (ArduPilot's set echo: -1).
 _NO_INDEX = 65535
@@ -268,11 +271,16 @@ class ParamClient:
             current = self.table.get(name) or await self.read(name)
             wire, asked = encode(name, value, current.type, self.bytewise)
             reply = None
-            for _ in range(self.set_attempts):
-                self._send(mavlink.MAVLink_param_set_message(*self._target(), name.encode(), wire, current.type))
-                reply = await self._expect(lambda p: p.name == name, self.reply_timeout)
-                if reply is not None and same_value(reply.value, asked):
-                    break
+            renamed = self._echo_as_new_system(name, asked)
+            try:
+                for _ in range(self.set_attempts):
+                    self._send(mavlink.MAVLink_param_set_message(*self._target(), name.encode(), wire, current.type))
+                    reply = await self._expect(lambda p: p.name == name, self.reply_timeout)
+                    if reply is not None and same_value(reply.value, asked):
+                        break
+            finally:
+                if renamed is not None:
+                    renamed.cancel()
             verified = reply is not None and same_value(reply.value, asked)
             self.events.record(
                 "param",
@@ -291,6 +299,28 @@ class ParamClient:
             if not verified:
                 raise ParamMismatch(name, asked, reply.value)
             return reply
+
+    def _echo_as_new_system(self, name: str, asked: float) -> asyncio.Task | None:
+        """ArduPilot takes a new MAV_SYSID (SYSID_THISMAV) at once and echoes the write as that
+        system, which this client, following the old id, never hears: a write that worked read
+        "no echo, the value on the vehicle is unknown" (and its event `verified: false`). While
+        such a write runs, the echo is also taken from the asked system on the link itself (every
+        vehicle's messages pass there, a fleet's view gets only its own). PX4's MAV_SYS_ID applies
+        at reboot: its echo comes from the old id, as for any parameter."""
+        if name not in ARDUPILOT_SYSID_PARAMS or asked == self.link.target_system or not 1 <= asked <= 255:
+            return None
+        heard_on = self.link.link if isinstance(self.link, VehicleLink) else self.link
+        bus: MessageBus = heard_on.bus if heard_on is not None else self.link.bus
+        sub = bus.subscribe("params-new-sysid", types=["PARAM_VALUE"], maxlen=100)
+        return asyncio.get_running_loop().create_task(self._take_echoes(sub, int(asked), name))
+
+    async def _take_echoes(self, sub: Subscription, sysid: int, name: str) -> None:
+        try:
+            async for item in sub:
+                if item.sysid == sysid and item.compid == self.link.target_component and param_name(item.msg) == name:
+                    self._on_value(item.msg)
+        finally:
+            sub.close()
 
     async def download(self, timeout: float = 120.0) -> dict[str, Param]:
         """Fetch the whole table; ParamTimeout lists what is missing when it cannot complete."""

@@ -16,7 +16,7 @@ from typing import ClassVar
 from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.link import Link, LinkEvent
-from gcs.runtime.snapshots import LinkSnapshot
+from gcs.runtime.snapshots import LinkCounters, LinkSnapshot
 
 
 class VehicleLink(Link):
@@ -144,5 +144,20 @@ class VehicleLink(Link):
         link = self._shown.snapshot()
         shared = [e for e in link.events if e.kind != "state"]
         events = sorted([*shared, *own.events], key=lambda e: e.wall_time)[-50:]
-        stats = dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops)
+        stats = self._own_loss(dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops))
         return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)
+
+    def _own_loss(self, stats: LinkCounters) -> LinkCounters:
+        """`stats` with the packets received from this vehicle and those lost by sequence number
+        from its system only. The link's framing counts every sender's packets and gaps; shown
+        beside each vehicle on a shared link, the sums read as that vehicle's (a copter on a clean
+        route showed the loss of a plane behind a lossy radio, and each vehicle the packets of
+        both). Before a vehicle is bound, the link's own figures stand."""
+        if self.target_system is None:
+            return stats
+        lost = sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == self.target_system)
+        packets = sum(self.stats.counts.values())
+        total = packets + lost
+        return dataclasses.replace(
+            stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0
+        )
