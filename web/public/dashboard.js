@@ -259,7 +259,8 @@ function gainRow(est, info) {
     moved = true;
     if (!inFlight) sendLatest();
   });
-  number.addEventListener("change", () => send(Number(number.value)));
+  // an emptied box (or one the browser could not read: "1e") is no value, not 0: back to the gain held
+  number.addEventListener("change", () => { if (number.value === "") number.value = shown(r.accepted, 6); else send(Number(number.value)); });
   return row;
 }
 

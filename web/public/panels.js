@@ -130,7 +130,12 @@ function tuningRow(table, row) {
   range.title = `the slider moves at most the largest step (${row.step}) from the current value`;
   range.addEventListener("input", () => { number.value = num(range.value); });
   range.addEventListener("change", () => writeParam(row.name, Number(range.value)));
-  number.addEventListener("change", () => writeParam(row.name, Number(number.value)));
+  // an emptied box (or one the browser could not read: "1e") is no value, not a write of 0
+  number.addEventListener("change", () => {
+    const r = tuningRows[row.name];
+    if (number.value !== "") writeParam(row.name, Number(number.value));
+    else if (r.spec && r.spec.current != null) number.value = num(r.spec.current);
+  });
   if (!canChange()) { range.disabled = number.disabled = true; }
   return { tr, tr2, range, number, current: tr.querySelector(".cur"), preflight: tr.querySelector(".pre"), result: tr2.querySelector(".result") };
 }
