@@ -1,12 +1,26 @@
-"""The dashboard's number boxes in headless Chromium (Debian's /usr/bin/chromium, driven by
-Playwright) against the real server under uvicorn: an emptied box is no value (not a write of 0)."""
+"""The dashboard's number boxes and its word on the server, in headless Chromium (Debian's
+/usr/bin/chromium, driven by Playwright) against the real server under uvicorn: an emptied box is
+no value (not a write of 0), and a server that stops under an open page is said to be gone, in
+red, and the page comes back when it is served again."""
 
 from __future__ import annotations
 
 import asyncio
 
-from live import POLL_MS, dashboard, launch_chromium, open_dashboard, open_page, running_sim, running_station, wait_for
+from live import (
+    POLL_MS,
+    dashboard,
+    launch_chromium,
+    open_dashboard,
+    open_page,
+    running_sim,
+    running_station,
+    sim_process,
+    wait_for,
+)
 from playwright.async_api import async_playwright
+
+from gcs.server.dashboard import DashboardServer
 
 # dcm's dip tolerance, [0 … 3.142] rad: 0 is a value it takes
 GAIN_BOX = "#gains details:has(summary[data-estimator=dcm]) input[type=number][data-gain=mag_dip_tol]"
@@ -72,3 +86,41 @@ async def emptied_boxes_scenario(udp_port: int) -> None:
             assert abs(sim.params["ATC_RAT_RLL_P"] - float(before)) < 1e-4
             await browser.close()
     assert errors == [], errors
+
+
+def test_server_gone_and_back(udp_port):
+    asyncio.run(asyncio.wait_for(server_gone_scenario(udp_port), 240))
+
+
+async def server_gone_scenario(udp_port: int) -> None:
+    errors: list[str] = []
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
+        async_playwright() as pw,
+    ):
+        browser = await launch_chromium(pw)
+        page = await open_page(browser, errors)
+        connected = "document.querySelector('#link-state').className === 'pill connected'"
+        async with dashboard(station, viser=False) as first:
+            await open_dashboard(page, first.url, connected)
+        await page.wait_for_function(
+            "document.querySelector('#link-state').textContent === 'server unreachable'",
+            polling=POLL_MS,
+            timeout=20_000,
+        )
+        # not the green pill of a connected link, and the numbers are not read as live
+        assert await page.get_attribute("#link-state", "class") == "pill lost"
+        assert "no answer from the station's server" in await page.text_content("#warnings")
+
+        # served again on the same port (the same token): the page says so without a reload
+        server = DashboardServer(station, port=first.port, token=first.token, viser=False)
+        await server.start()
+        try:
+            await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)
+            assert "no answer" not in await page.text_content("#warnings")
+        finally:
+            await server.stop()
+        await browser.close()
+    # Chromium's own lines for the requests made while nothing listened
+    assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors

@@ -215,7 +215,11 @@ async function pollStatus() {
     const [status, est] = await Promise.all([api("GET", "/api/status"), api("GET", "/api/estimates")]);
     showStatus(status); showNumbers(est, status); showVehicle(status.vehicle, status.link);
     document.dispatchEvent(new CustomEvent("gcs:status", { detail: status }));  // radio.js, without a poll of its own
-  } catch (e) { $("link-state").textContent = "server unreachable"; console.warn("status:", e.message); }
+  } catch (e) {  // the pill was green and the numbers below read as live: neither is true now
+    $("link-state").textContent = "server unreachable"; $("link-state").className = "pill lost";
+    $("warnings").innerHTML = `<div>⚠ no answer from the station's server (${escapeHtml(e.message)}): what this page shows is from before</div>`;
+    console.warn("status:", e.message);
+  }
   $("fps").textContent = `${plots.fps} fps`;
   gcsStats.fps = plots.fps;
 }
