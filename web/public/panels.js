@@ -329,13 +329,14 @@ async function refreshProtocol() {
 
 function showProtocol(run) {
   panelState.protocol = run;
+  // skip, repeat and stop act on a run in progress: with none they could only be refused
+  for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run?.running || !canChange();
   if (!run) { $("protocol-prompt").textContent = "no protocol run yet"; return; }
   const s = run.state;
   $("protocol-prompt").textContent = run.running ? `Step ${s.step + 1}: ${s.prompt}` : s.finished ? "protocol finished" : "protocol stopped";
   $("protocol-progress").max = s.steps; $("protocol-progress").value = s.completed;
   $("protocol-step").textContent = `${s.protocol}: ${s.completed} of ${s.steps} steps done, ${s.skipped} skipped`
     + `${s.attempt > 1 && run.running ? `, attempt ${s.attempt}` : ""}; holds seen by ${run.detect_source}`;
-  for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run.running || !canChange();
   const sources = [...new Set(run.results.map((m) => m.source))];
   const steps = [...new Set(run.results.map((m) => m.step))];
   const cell = new Map(run.results.map((m) => [`${m.step}/${m.source}`, m]));
