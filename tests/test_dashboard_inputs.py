@@ -124,3 +124,32 @@ async def server_gone_scenario(udp_port: int) -> None:
         await browser.close()
     # Chromium's own lines for the requests made while nothing listened
     assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
+
+
+def test_read_only_page(udp_port):
+    asyncio.run(asyncio.wait_for(read_only_scenario(udp_port), 240))
+
+
+async def read_only_scenario(udp_port: int) -> None:
+    """A page opened without the token: every control whose request needs it is disabled, the
+    gains and the what-if as the tuning, recording and protocol controls."""
+    errors: list[str] = []
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
+        dashboard(station, viser=False) as server,
+        async_playwright() as pw,
+    ):
+        browser = await launch_chromium(pw)
+        page = await open_page(browser, errors)
+        await open_dashboard(
+            page, f"http://127.0.0.1:{server.port}/", "document.querySelector('#gain-note').textContent !== ''"
+        )
+        enabled = await page.evaluate(
+            "[...document.querySelectorAll('#gains input, #gains select, #gains button, #whatif-run')]"
+            ".filter((el) => !el.disabled).map((el) => el.id || el.dataset.gain || el.textContent)"
+        )
+        assert enabled == [], enabled
+        await page.click("#tabs button[data-tab=whatif]")
+        assert await page.locator("#tab-whatif .readonly-note").is_visible()
+        await browser.close()
+    assert errors == [], errors

@@ -119,7 +119,10 @@ function showStatus(s) {
     // viser's own notice of it is hidden (gcs.server.scene): it covered a third of the view
     if (software) $("pose-renderer").textContent = "Drawn without GPU acceleration (software WebGL), at half resolution.";
   }
-  if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+  if (!s.authorised) {  // as the side panels' controls: a gain moved here could only be refused (401)
+    $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+    for (const el of $("gains").querySelectorAll("input, select, button")) el.disabled = true;
+  }
 }
 
 // WebGL drawn on the CPU (no GPU driver: SwiftShader, llvmpipe; the renderer names viser's own
