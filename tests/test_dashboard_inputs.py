@@ -89,10 +89,16 @@ async def emptied_boxes_scenario(udp_port: int) -> None:
 
 
 def test_server_gone_and_back(udp_port):
-    asyncio.run(asyncio.wait_for(server_gone_scenario(udp_port), 240))
+    asyncio.run(asyncio.wait_for(server_gone_scenario(udp_port, same_token=True), 240))
 
 
-async def server_gone_scenario(udp_port: int) -> None:
+def test_server_back_with_another_token(udp_port):
+    """gcs serve restarted without --token makes a new token: the open page's cookie no longer
+    allows changes, and its controls say so (they stayed enabled, each click refused with 401)."""
+    asyncio.run(asyncio.wait_for(server_gone_scenario(udp_port, same_token=False), 240))
+
+
+async def server_gone_scenario(udp_port: int, same_token: bool) -> None:
     errors: list[str] = []
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
@@ -113,12 +119,21 @@ async def server_gone_scenario(udp_port: int) -> None:
         assert await page.get_attribute("#link-state", "class") == "pill lost"
         assert "no answer from the station's server" in await page.text_content("#warnings")
 
-        # served again on the same port (the same token): the page says so without a reload
-        server = DashboardServer(station, port=first.port, token=first.token, viser=False)
+        # served again on the same port: the page says so without a reload
+        server = DashboardServer(station, port=first.port, token=first.token if same_token else None, viser=False)
         await server.start()
         try:
             await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)
             assert "no answer" not in await page.text_content("#warnings")
+            if same_token:
+                assert not await page.is_disabled("#protocol-start")
+            else:
+                await page.wait_for_function(
+                    "document.querySelector('#protocol-start').disabled", polling=POLL_MS, timeout=20_000
+                )
+                assert await page.is_disabled("#gains input[type=range] >> nth=0")
+                await page.click("#tabs button[data-tab=protocol]")
+                assert await page.locator("#tab-protocol .readonly-note").is_visible()
         finally:
             await server.stop()
         await browser.close()

@@ -359,14 +359,20 @@ async function protocolAction(path, body) {
 // ---- start ---------------------------------------------------------------------------------
 function canChange() { return panelState.authorised; }
 
+function readOnly() {
+  for (const el of document.querySelectorAll(".needs-token")) el.disabled = true;
+  for (const el of document.querySelectorAll(".readonly-note")) el.hidden = false;
+}
+
 async function initPanels() {
   for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
   const st = await call("GET", "/api/status");
   panelState.authorised = st.ok && st.data.authorised;
-  if (!canChange()) {
-    for (const el of document.querySelectorAll(".needs-token")) el.disabled = true;
-    for (const el of document.querySelectorAll(".readonly-note")) el.hidden = false;
-  }
+  if (!canChange()) readOnly();
+  // A server restarted under the page with another token (gcs serve without --token makes a new
+  // one): this page's cookie no longer allows changes, so its controls say so instead of each
+  // click being refused.
+  document.addEventListener("gcs:status", (e) => { if (canChange() && !e.detail.authorised) { panelState.authorised = false; readOnly(); } });
   $("param-download-btn").addEventListener("click", startDownload);
   $("tuning-revert").addEventListener("click", revertAll);
   $("tuning-refresh").addEventListener("click", refreshTuning);
