@@ -6,7 +6,13 @@ red, and the page comes back when it is served again."""
 from __future__ import annotations
 
 import asyncio
+import signal
+import socket
+import subprocess
+import sys
+import time
 
+from conftest import free_port
 from live import (
     POLL_MS,
     dashboard,
@@ -16,6 +22,7 @@ from live import (
     running_sim,
     running_station,
     sim_process,
+    stop_process,
     wait_for,
 )
 from playwright.async_api import async_playwright
@@ -168,3 +175,58 @@ async def read_only_scenario(udp_port: int) -> None:
         assert await page.locator("#tab-whatif .readonly-note").is_visible()
         await browser.close()
     assert errors == [], errors
+
+
+def test_hung_server(tcp_port):
+    asyncio.run(asyncio.wait_for(hung_server_scenario(tcp_port), 240))
+
+
+async def hung_server_scenario(port: int) -> None:
+    """A server that stops answering without closing its sockets (gcs demo stopped with SIGSTOP:
+    as a hung process, or a network that drops every packet): the page says it is unreachable
+    within its 5 s status timeout, with one status request waiting at a time, and comes back when
+    the server does. The old page waited for ever, a request more each second, showing its last
+    answer as live."""
+    import httpx
+
+    errors: list[str] = []
+    viser_port = free_port(socket.SOCK_STREAM)
+    command = [sys.executable, "-m", "gcs", "demo", "--no-record", "--port", str(port), "--token", "t0k"]
+    proc = subprocess.Popen(
+        [*command, "--viser-port", str(viser_port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.monotonic() + 120
+        async with httpx.AsyncClient() as client:
+            while True:
+                try:
+                    if (await client.get(f"http://127.0.0.1:{port}/api/status")).status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline and proc.poll() is None, "gcs demo never served"
+                await asyncio.sleep(0.2)
+        async with async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            connected = "document.querySelector('#link-state').className === 'pill connected'"
+            await open_dashboard(page, f"http://127.0.0.1:{port}/?token=t0k", connected)
+            polls: list[str] = []
+            page.on("request", lambda r: "/api/status" in r.url and polls.append(r.url))
+            proc.send_signal(signal.SIGSTOP)
+            try:
+                await page.wait_for_function(
+                    "document.querySelector('#link-state').textContent === 'server unreachable'",
+                    polling=POLL_MS,
+                    timeout=20_000,
+                )
+                assert len(polls) <= 2, len(polls)  # the one waiting (and one before the stop, at most)
+                assert "none in 5 s" in await page.text_content("#warnings")
+            finally:
+                proc.send_signal(signal.SIGCONT)
+            await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)
+            await browser.close()
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        stop_process(proc)
+    assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
