@@ -25,6 +25,7 @@ from live import (
     stop_process,
     wait_for,
 )
+from playwright.async_api import TimeoutError as PlaywrightTimeout
 from playwright.async_api import async_playwright
 
 from gcs.server.dashboard import DashboardServer
@@ -230,3 +231,48 @@ async def hung_server_scenario(port: int) -> None:
         proc.send_signal(signal.SIGCONT)
         stop_process(proc)
     assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
+
+
+def test_onboard_log_download_followed(udp_port, tmp_path):
+    asyncio.run(asyncio.wait_for(onboard_log_scenario(udp_port, tmp_path), 240))
+
+
+async def onboard_log_scenario(udp_port: int, tmp_path) -> None:
+    """A page opened while an onboard log downloads (a reload, or another page) shows its progress
+    from the start, and a read-only one keeps its button disabled when it ends (the old page said
+    nothing of the download, and enabled the button of a read-only page at its end)."""
+    import httpx
+
+    errors: list[str] = []
+    # log 1: an earlier two-minute flight, some seconds to download
+    command = [sys.executable, "-m", "gcs", "sim", "--profile", "pixhawk", "--flight-log", "120"]
+    sim = subprocess.Popen(
+        [*command, "--link", f"udpout:127.0.0.1:{udp_port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        async with (
+            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            dashboard(station, viser=False) as server,
+            async_playwright() as pw,
+        ):
+            await wait_for(lambda: station.link.target_system is not None, 30, "the vehicle's heartbeat")
+            async with httpx.AsyncClient(
+                base_url=f"http://127.0.0.1:{server.port}", headers=server.auth_headers
+            ) as api:
+                assert (await api.post("/api/onboard-logs/download", json={"log": 1})).status_code == 202
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            await open_dashboard(page, f"http://127.0.0.1:{server.port}/")  # without the token: read-only
+            await page.click("#tabs button[data-tab=sessions]")
+            status = page.locator("#onboard-log-status", has_text="log 1")
+            try:
+                await status.wait_for(timeout=30_000)
+            except PlaywrightTimeout:
+                shown = await page.text_content("#onboard-log-status")
+                raise AssertionError(f"page says {shown!r} of {station.onboard_logs.progress}") from None
+            await page.locator("#onboard-log-status", has_text="downloaded").wait_for(timeout=120_000)
+            assert await page.is_disabled("#onboard-log-btn")
+            await browser.close()
+    finally:
+        stop_process(sim)
+    assert errors == [], errors
