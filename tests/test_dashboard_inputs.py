@@ -60,6 +60,8 @@ async def emptied_boxes_scenario(udp_port: int) -> None:
             await open_dashboard(page, server.url, f"document.querySelector('{GAIN_BOX}') !== null")
             held = await page.input_value(GAIN_BOX)
             assert held == "0.174533", held
+            await page.wait_for_function("(gcsStats.received.onboard || 0) > 100", polling=POLL_MS, timeout=60_000)
+            await zoom_says_live(page)
 
             # A gain's box emptied: the gain is kept and the box shows it again (it was set to 0).
             await empty_box(page, GAIN_BOX)
@@ -276,3 +278,19 @@ async def onboard_log_scenario(udp_port: int, tmp_path) -> None:
     finally:
         stop_process(sim)
     assert errors == [], errors
+
+
+async def zoom_says_live(page) -> None:
+    """A drag on a plot holds that stretch: the button beside the window then reads "live" (what a
+    click on it does), as after "pause"; it read "pause" over a view already held."""
+    box = await page.locator(".chart .u-over").first.bounding_box()
+    y = box["y"] + box["height"] / 2
+    await page.mouse.move(box["x"] + 0.3 * box["width"], y)
+    await page.mouse.down()
+    await page.mouse.move(box["x"] + 0.7 * box["width"], y, steps=5)
+    await page.mouse.up()
+    await page.wait_for_function("gcsPlots.view !== null", polling=POLL_MS, timeout=20_000)
+    assert await page.text_content("#pause") == "live"
+    await page.click("#pause")
+    await page.wait_for_function("gcsPlots.view === null", polling=POLL_MS, timeout=20_000)
+    assert await page.text_content("#pause") == "pause"
