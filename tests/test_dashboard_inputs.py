@@ -215,7 +215,16 @@ async def hung_server_scenario(port: int) -> None:
             connected = "document.querySelector('#link-state').className === 'pill connected'"
             await open_dashboard(page, f"http://127.0.0.1:{port}/?token=t0k", connected)
             polls: list[str] = []
-            page.on("request", lambda r: "/api/status" in r.url and polls.append(r.url))
+            others: dict[str, int] = {"/api/recording": 0, "/api/vehicles": 0}
+
+            def count(request) -> None:
+                path = request.url.split("?")[0].removeprefix(f"http://127.0.0.1:{port}")
+                if path == "/api/status":
+                    polls.append(path)
+                elif path in others:
+                    others[path] += 1
+
+            page.on("request", count)
             proc.send_signal(signal.SIGSTOP)
             try:
                 await page.wait_for_function(
@@ -225,6 +234,10 @@ async def hung_server_scenario(port: int) -> None:
                 )
                 assert len(polls) <= 2, len(polls)  # the one waiting (and one before the stop, at most)
                 assert "none in 5 s" in await page.text_content("#warnings")
+                # 10 s and more without an answer: the 2-s polls of the recording and the vehicle
+                # list have one request each waiting, not one more each time (5 each on the old page)
+                await wait_for(lambda: len(polls) >= 3, 30, "a third status poll, 5 s after the second")
+                assert max(others.values()) <= 2, others
             finally:
                 proc.send_signal(signal.SIGCONT)
             await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)

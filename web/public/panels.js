@@ -398,7 +398,9 @@ async function initPanels() {
   $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
   setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
   refreshRecording(); refreshSessions();
-  setInterval(refreshRecording, 2000);
+  // one request waiting at a time: a server that stops answering must not gather one every 2 s
+  let recordingPoll = null;
+  setInterval(() => { recordingPoll ??= refreshRecording().finally(() => { recordingPoll = null; }); }, 2000);
   setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) refreshTuning(); }, 5000);
 }
 
