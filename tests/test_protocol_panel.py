@@ -1,6 +1,6 @@
 """The dashboard's Protocol tab in headless Chromium: start seed 000's bench protocol from the
 page, the simulated vehicle performs the first step, the page shows the next prompt and the
-first step's figures, and stops the run."""
+first step's figures, and stops the run. Before any run its run buttons are disabled."""
 
 from __future__ import annotations
 
@@ -11,6 +11,10 @@ from playwright.async_api import async_playwright
 from test_dashboard_panels import _chromium_installed, open_page  # noqa: F401 - the fixture fails without Chromium
 
 from gcs.server.dashboard import DashboardServer
+
+RUN_BUTTONS_DISABLED = (
+    "['protocol-skip', 'protocol-repeat', 'protocol-stop'].map((id) => document.getElementById(id).disabled)"
+)
 
 
 def test_protocol_panel(udp_port, artifacts_dir):
@@ -27,6 +31,9 @@ async def _scenario(udp_port: int, artifacts_dir) -> None:
                 browser, page = await open_page(pw, server.url, errors)
                 await page.click("#tabs button[data-tab=protocol]")
                 await page.wait_for_function("() => document.querySelector('#protocol-name').options.length >= 2")
+                # no run yet: skip, repeat and stop have nothing to act on (each was a 404 to click)
+                assert await page.text_content("#protocol-prompt") == "no protocol run yet"
+                assert await page.evaluate(RUN_BUTTONS_DISABLED) == [True, True, True]
                 await page.select_option("#protocol-name", "seed000-bench")
                 await page.fill("#protocol-detect", "truth")
                 await page.click("#protocol-start")

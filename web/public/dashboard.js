@@ -7,10 +7,11 @@ const $ = (id) => document.getElementById(id);
 const gcsStats = (window.gcsStats = { received: {}, messages: 0, fps: 0, dropped: 0, client: null, lastFrameAt: 0, historyLoads: 0 });
 let plots = null;
 
-async function api(method, path, body) {
+async function api(method, path, body, timeoutMs) {
   // The token travels as the HttpOnly cookie the start-up URL set: scripts never hold it.
   const headers = { "Content-Type": "application/json" };
-  const res = await fetch(vehicleUrl(path), { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+  const signal = timeoutMs ? AbortSignal.timeout(timeoutMs) : undefined;
+  const res = await fetch(vehicleUrl(path), { method, headers, signal, body: body === undefined ? undefined : JSON.stringify(body) });
   const data = await res.json().catch(() => ({}));
   if (!res.ok) throw new Error(typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail || res.status));
   return data;
@@ -119,7 +120,10 @@ function showStatus(s) {
     // viser's own notice of it is hidden (gcs.server.scene): it covered a third of the view
     if (software) $("pose-renderer").textContent = "Drawn without GPU acceleration (software WebGL), at half resolution.";
   }
-  if (!s.authorised) $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+  if (!s.authorised) {  // as the side panels' controls: a gain moved here could only be refused (401)
+    $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";
+    for (const el of $("gains").querySelectorAll("input, select, button")) el.disabled = true;
+  }
 }
 
 // WebGL drawn on the CPU (no GPU driver: SwiftShader, llvmpipe; the renderer names viser's own
@@ -210,12 +214,24 @@ function drawTrack(canvas, track) {  // north up, east right, equal metres on bo
 
 function escapeHtml(s) { return s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
 
+// A server that stops answering without closing (hung, or a network that drops packets) is
+// unreachable after STATUS_TIMEOUT_MS, and one poll waits at a time: a request a second piled up
+// behind it, and the page went on showing its last answer as live.
+const STATUS_TIMEOUT_MS = 5000;
+let statusPending = false;
 async function pollStatus() {
+  if (statusPending) return;
+  statusPending = true;
   try {
-    const [status, est] = await Promise.all([api("GET", "/api/status"), api("GET", "/api/estimates")]);
+    const [status, est] = await Promise.all([api("GET", "/api/status", undefined, STATUS_TIMEOUT_MS), api("GET", "/api/estimates", undefined, STATUS_TIMEOUT_MS)]);
     showStatus(status); showNumbers(est, status); showVehicle(status.vehicle, status.link);
     document.dispatchEvent(new CustomEvent("gcs:status", { detail: status }));  // radio.js, without a poll of its own
-  } catch (e) { $("link-state").textContent = "server unreachable"; console.warn("status:", e.message); }
+  } catch (e) {  // the pill was green and the numbers below read as live: neither is true now
+    $("link-state").textContent = "server unreachable"; $("link-state").className = "pill lost";
+    const why = e.name === "TimeoutError" ? `none in ${STATUS_TIMEOUT_MS / 1000} s` : e.message;
+    $("warnings").innerHTML = `<div>⚠ no answer from the station's server (${escapeHtml(why)}): what this page shows is from before</div>`;
+    console.warn("status:", why);
+  } finally { statusPending = false; }
   $("fps").textContent = `${plots.fps} fps`;
   gcsStats.fps = plots.fps;
 }
@@ -259,7 +275,8 @@ function gainRow(est, info) {
     moved = true;
     if (!inFlight) sendLatest();
   });
-  number.addEventListener("change", () => send(Number(number.value)));
+  // an emptied box (or one the browser could not read: "1e") is no value, not 0: back to the gain held
+  number.addEventListener("change", () => { if (number.value === "") number.value = shown(r.accepted, 6); else send(Number(number.value)); });
   return row;
 }
 

@@ -29,10 +29,19 @@
     if (!r.ok || !["listing", "downloading"].includes(r.data.progress.state)) {
       clearInterval(timer);
       timer = null;
-      button.disabled = false;
+      button.disabled = !canChange();  // a read-only page follows a download, it never starts one
       $("sessions-refresh").click();  // the new log appears among the replay sources
     }
   }
+
+  // A download already running (started before a reload, or from another page) is followed from
+  // the start: the page said nothing of it, and offered to start it again.
+  call("GET", "/api/onboard-logs").then((r) => {
+    if (!r.ok || !["listing", "downloading"].includes(r.data.progress.state) || timer !== null) return;
+    button.disabled = true;
+    show(r.data.progress);
+    timer = setInterval(poll, 1000);
+  });
 
   button.addEventListener("click", async () => {
     const r = await call("POST", "/api/onboard-logs/download", {});

@@ -130,7 +130,12 @@ function tuningRow(table, row) {
   range.title = `the slider moves at most the largest step (${row.step}) from the current value`;
   range.addEventListener("input", () => { number.value = num(range.value); });
   range.addEventListener("change", () => writeParam(row.name, Number(range.value)));
-  number.addEventListener("change", () => writeParam(row.name, Number(number.value)));
+  // an emptied box (or one the browser could not read: "1e") is no value, not a write of 0
+  number.addEventListener("change", () => {
+    const r = tuningRows[row.name];
+    if (number.value !== "") writeParam(row.name, Number(number.value));
+    else if (r.spec && r.spec.current != null) number.value = num(r.spec.current);
+  });
   if (!canChange()) { range.disabled = number.disabled = true; }
   return { tr, tr2, range, number, current: tr.querySelector(".cur"), preflight: tr.querySelector(".pre"), result: tr2.querySelector(".result") };
 }
@@ -324,13 +329,14 @@ async function refreshProtocol() {
 
 function showProtocol(run) {
   panelState.protocol = run;
+  // skip, repeat and stop act on a run in progress: with none they could only be refused
+  for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run?.running || !canChange();
   if (!run) { $("protocol-prompt").textContent = "no protocol run yet"; return; }
   const s = run.state;
   $("protocol-prompt").textContent = run.running ? `Step ${s.step + 1}: ${s.prompt}` : s.finished ? "protocol finished" : "protocol stopped";
   $("protocol-progress").max = s.steps; $("protocol-progress").value = s.completed;
   $("protocol-step").textContent = `${s.protocol}: ${s.completed} of ${s.steps} steps done, ${s.skipped} skipped`
     + `${s.attempt > 1 && run.running ? `, attempt ${s.attempt}` : ""}; holds seen by ${run.detect_source}`;
-  for (const id of ["protocol-skip", "protocol-repeat", "protocol-stop"]) $(id).disabled = !run.running || !canChange();
   const sources = [...new Set(run.results.map((m) => m.source))];
   const steps = [...new Set(run.results.map((m) => m.step))];
   const cell = new Map(run.results.map((m) => [`${m.step}/${m.source}`, m]));
@@ -353,14 +359,20 @@ async function protocolAction(path, body) {
 // ---- start ---------------------------------------------------------------------------------
 function canChange() { return panelState.authorised; }
 
+function readOnly() {
+  for (const el of document.querySelectorAll(".needs-token")) el.disabled = true;
+  for (const el of document.querySelectorAll(".readonly-note")) el.hidden = false;
+}
+
 async function initPanels() {
   for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
   const st = await call("GET", "/api/status");
   panelState.authorised = st.ok && st.data.authorised;
-  if (!canChange()) {
-    for (const el of document.querySelectorAll(".needs-token")) el.disabled = true;
-    for (const el of document.querySelectorAll(".readonly-note")) el.hidden = false;
-  }
+  if (!canChange()) readOnly();
+  // A server restarted under the page with another token (gcs serve without --token makes a new
+  // one): this page's cookie no longer allows changes, so its controls say so instead of each
+  // click being refused.
+  document.addEventListener("gcs:status", (e) => { if (canChange() && !e.detail.authorised) { panelState.authorised = false; readOnly(); } });
   $("param-download-btn").addEventListener("click", startDownload);
   $("tuning-revert").addEventListener("click", revertAll);
   $("tuning-refresh").addEventListener("click", refreshTuning);
@@ -386,7 +398,9 @@ async function initPanels() {
   $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
   setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
   refreshRecording(); refreshSessions();
-  setInterval(refreshRecording, 2000);
+  // one request waiting at a time: a server that stops answering must not gather one every 2 s
+  let recordingPoll = null;
+  setInterval(() => { recordingPoll ??= refreshRecording().finally(() => { recordingPoll = null; }); }, 2000);
   setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) refreshTuning(); }, 5000);
 }
 

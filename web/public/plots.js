@@ -302,6 +302,7 @@ class Plots {
     const t0 = u.posToVal(u.select.left, "x"), t1 = u.posToVal(u.select.left + u.select.width, "x");
     u.setSelect({ left: 0, width: 0, top: 0, height: 0 }, false);
     this.view = { t0, t1 }; this.dirty = true;
+    document.getElementById("pause").textContent = "live";  // it said "pause" over a view already held
   }
   goLive() { this.view = null; this.paused = false; this.dirty = true; document.getElementById("pause").textContent = "pause"; }
   togglePause() {

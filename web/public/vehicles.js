@@ -40,5 +40,6 @@ document.getElementById("vehicle-select").addEventListener("change", (ev) => {
   query.delete("token");
   location.search = query.toString();
 });
-refreshVehicles();
-setInterval(refreshVehicles, 2000);
+// one request waiting at a time: a server that stops answering must not gather one every 2 s
+let vehiclesPoll = refreshVehicles().finally(() => { vehiclesPoll = null; });
+setInterval(() => { vehiclesPoll ??= refreshVehicles().finally(() => { vehiclesPoll = null; }); }, 2000);
