@@ -24,6 +24,12 @@ MAX_RATE = 70.0  # rad/s
 MAX_ACCEL = 1600.0  # m/s²
 MAX_FIELD = 1e9
 MAX_SPEED = 1000.0  # m/s, GPS
+MAX_ALT, MIN_ALT = 1e6, -1e5  # m, GPS: above the Kármán line, below the deepest mine
+MAX_ANGLE = 2 * math.pi  # rad, a reference's roll, pitch and yaw
+
+# Each rule below exists twice: per sample (`refusal`, the live path) and per row of a whole
+# table (the compiled and numpy forms, what-if and `--fast`). Both read the bounds above, and
+# tests/test_plausibility.py holds every pair to the same verdicts on each bound's edges.
 
 
 def _bounded(values: Iterable[float], limit: float) -> bool:
@@ -48,14 +54,14 @@ def refusal(item: ImuSample | GpsSample | AttitudeSample) -> str | None:
             return "imu:mag"
         return None
     if isinstance(item, GpsSample):
-        if not (-90 <= item.lat <= 90 and -180 <= item.lon <= 180 and -1e5 <= item.alt <= 1e6):
+        if not (-90 <= item.lat <= 90 and -180 <= item.lon <= 180 and MIN_ALT <= item.alt <= MAX_ALT):
             return "gps:position"
         if not (0 <= item.ground_speed <= MAX_SPEED and math.isfinite(item.course)):
             return "gps:speed"
         if item.vel_ned is not None and not _bounded(item.vel_ned.tolist(), MAX_SPEED):
             return "gps:velocity"
         return None
-    if not _bounded((item.roll, item.pitch, item.yaw), 2 * math.pi):
+    if not _bounded((item.roll, item.pitch, item.yaw), MAX_ANGLE):
         return "attitude:angles"
     return None
 
@@ -90,5 +96,17 @@ def attitude_rows_accepted(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.bool
     against, as the pipeline's comparison is given them (a NaN roll from a damaged log's ATT
     made `gcs replay --fast` print nan for the whole run)."""
     t, angles = rows[:, 0], rows[:, 1:4]
-    accepted: npt.NDArray[np.bool_] = np.isfinite(t) & (t >= 0) & np.all(np.abs(angles) <= 2 * math.pi, axis=1)
+    accepted: npt.NDArray[np.bool_] = np.isfinite(t) & (t >= 0) & np.all(np.abs(angles) <= MAX_ANGLE, axis=1)
+    return accepted
+
+
+def gps_rows_accepted(rows: npt.NDArray[np.float64], has_vel: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """`refusal(...) is None` for GPS rows (t, lat, lon, alt, ground_speed, course, vel_ned xyz;
+    has_vel: whether the row has a velocity), on whole columns."""
+    t, lat, lon, alt, speed, course = (rows[:, i] for i in range(6))
+    ok = np.isfinite(t) & (t >= 0)
+    ok &= (lat >= -90) & (lat <= 90) & (lon >= -180) & (lon <= 180) & (alt >= MIN_ALT) & (alt <= MAX_ALT)
+    ok &= (speed >= 0) & (speed <= MAX_SPEED) & np.isfinite(course)
+    ok &= ~has_vel | np.all(np.abs(rows[:, 6:9]) <= MAX_SPEED, axis=1)
+    accepted: npt.NDArray[np.bool_] = ok
     return accepted

@@ -25,7 +25,7 @@ from gcs.core.estimators.base import AttitudeEstimator
 from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.stepping import step_any
-from gcs.core.plausibility import MAX_SPEED, imu_rows_accepted
+from gcs.core.plausibility import gps_rows_accepted, imu_rows_accepted
 from gcs.core.samples import ImuSample
 
 Floats = npt.NDArray[np.float64]
@@ -68,13 +68,7 @@ def imu_accepted(kind: npt.NDArray[np.generic], imu: Floats) -> npt.NDArray[np.b
 def gps_accepted(kind: npt.NDArray[np.generic], gps: Floats) -> npt.NDArray[np.bool_]:
     """plausibility.refusal(...) is None for every GPS row, on whole columns."""
     vel = kind[(kind == InputKind.GPS) | (kind == InputKind.GPS_VEL)] == InputKind.GPS_VEL
-    t, lat, lon, alt, speed, course = (gps[:, i] for i in range(6))
-    ok = np.isfinite(t) & (t >= 0)
-    ok &= (lat >= -90) & (lat <= 90) & (lon >= -180) & (lon <= 180) & (alt >= -1e5) & (alt <= 1e6)
-    ok &= (speed >= 0) & (speed <= MAX_SPEED) & np.isfinite(course)
-    ok &= ~vel | np.all(np.abs(gps[:, 6:9]) <= MAX_SPEED, axis=1)
-    accepted: npt.NDArray[np.bool_] = ok
-    return accepted
+    return gps_rows_accepted(gps, vel)
 
 
 @kernel
