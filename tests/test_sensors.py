@@ -105,7 +105,7 @@ def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
     the time of the ATTITUDE after it, SIMSTATE that of the messages before it, not the previous slot's."""
     sampler = sampling.MessageSampler()
     out = []
-    for t_ms in (1000, 1040):
+    for t_ms in (6000, 6040):  # after the boot's first 5 s: ATTITUDE is onboard
         out += sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
         out += sampler.feed(wire(mavlink.MAVLink_attitude_message(t_ms, 0.11, 0.2, 0.3, 0, 0, 0)))
         out += sampler.feed(_raw_imu(t_ms * 1000 + 344))
@@ -114,17 +114,17 @@ def test_ahrs2_takes_its_slot_time_and_simstate_the_previous():
     # the first AHRS2 came before any IMU message (the vehicle is not chosen yet) and is dropped;
     # the first ATTITUDE is passed on (a device that sends only its attitude is followed)
     assert refs == [
-        ("onboard", 1.0),
-        ("truth", pytest.approx(1.000344)),
-        ("ahrs2", 1.04),
-        ("onboard", 1.04),
-        ("truth", pytest.approx(1.040344)),
+        ("onboard", 6.0),
+        ("truth", pytest.approx(6.000344)),
+        ("ahrs2", 6.04),
+        ("onboard", 6.04),
+        ("truth", pytest.approx(6.040344)),
     ]
     # without ATTITUDE in the stream, an AHRS2 followed by another keeps the previous time
     held = sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
     assert held == []
     released = sampler.feed(wire(mavlink.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0)))
-    assert [(s.source, s.t) for s in released] == [("ahrs2", pytest.approx(1.040344))]
+    assert [(s.source, s.t) for s in released] == [("ahrs2", pytest.approx(6.040344))]
 
 
 def _ekf_status(flags: int):
@@ -133,21 +133,23 @@ def _ekf_status(flags: int):
 
 def test_attitude_is_onboard_only_while_the_vehicles_ekf_says_its_attitude_is_good():
     """ATTITUDE becomes UNREADY while the last EKF_STATUS_REPORT says the EKF is not initialised
-    or its attitude not good (an ArduPlane's boot: a DCM swinging to 70° pitch), "onboard" before
-    any report (a vehicle that sends none) and again once the EKF says so, and after a reboot
-    until the new boot's first report. AHRS2 and SIMSTATE are not renamed."""
+    or its attitude not good (an ArduPlane's boot: a DCM swinging to 70° pitch), "onboard" once the
+    EKF says so. Before a boot's first report it is UNREADY for the boot's first BOOT_SETTLE_S (5 s)
+    of vehicle time, after a reboot too, and "onboard" from then on (a vehicle that sends no
+    report). AHRS2 and SIMSTATE are not renamed."""
     inputs = sampling.MessageInputs()
     sources = []
     for t_ms, flags in ((1000, None), (2000, mavlink.EKF_UNINITIALIZED), (3000, 0),
-                        (4000, mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ), (5000, 0), (500, None)):  # fmt: skip
+                        (4000, mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ), (5000, 0), (500, None),
+                        (4900, None), (5000, None)):  # fmt: skip
         if flags is not None:
             assert inputs.feed(_ekf_status(flags)) == []
         out = inputs.feed(_raw_imu(t_ms * 1000))
         out += inputs.feed(wire(mavlink.MAVLink_attitude_message(t_ms, 0.1, 1.2, 0.3, 0, 0, 0)))
         out += inputs.feed(wire(mavlink.MAVLink_simstate_message(0.12, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0)))
         sources.append([s.source for s in out if isinstance(s, AttitudeSample)])
-    unready = [sampling.UNREADY, "truth"]
-    assert sources == [["onboard", "truth"], unready, unready, ["onboard", "truth"], unready, ["onboard", "truth"]]
+    unready, onboard = [sampling.UNREADY, "truth"], ["onboard", "truth"]
+    assert sources == [unready, unready, unready, onboard, unready, unready, unready, onboard]
 
 
 def dataflash_samples(tmp_path, formats, records, imu=0):

@@ -13,6 +13,7 @@ from live import running_station, served_api, sim_process, wait_for
 
 from gcs.commands.cli import build_parser
 from gcs.commands.options import station_config
+from gcs.mavlink.sampling import UNREADY
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.dashboard import DashboardServer
@@ -72,12 +73,15 @@ async def scenario(udp_port: int, root) -> None:
                 assert replay.status_code == 200, replay.text
                 body = replay.json()
                 assert body["kind"] == "session" and body["frames"] > 0
-                # the onboard series is every ATTITUDE of the session's tlog (read independently)
+                # the onboard series, with the boot's onboard-unready one (ATTITUDE before the first
+                # EKF_STATUS_REPORT), is every ATTITUDE of the session's tlog (read independently)
                 records = [raw for _, raw in read_tlog_records(root / name / layout.TLOG)]
                 attitudes = sum(msg_id(raw) == ATTITUDE for raw in records)
                 t, roll = body["points"]["onboard"][0], body["points"]["onboard"][1]
-                assert len(t) == len(roll) == attitudes > 100
+                unready = body["points"].get(UNREADY, [[]])[0]
+                assert len(t) == len(roll) and len(t) + len(unready) == attitudes > 100
                 assert all(b > a for a, b in zip(t, t[1:]))
+                assert not unready or max(unready) < min(t)  # the boot's first ATTITUDE only
                 assert len(body["points"]["dcm"][0]) == body["imu_samples"] > 100
                 assert {(r["estimator"], r["reference"]) for r in body["table"]} >= {
                     ("dcm", "onboard"),

@@ -32,6 +32,7 @@ from test_sitl_copter import sitl_process
 
 from gcs.core.estimation import AttitudePoint
 from gcs.core.rotation import wrap_pi
+from gcs.mavlink.sampling import UNREADY
 
 pytestmark = pytest.mark.slow
 
@@ -74,7 +75,8 @@ def test_the_first_yaw_is_the_fields(tmp_path, program: str, model: str, default
         start = _first(points, name)
         assert start is not None
         end = start + WINDOW
-        onboard = [p.yaw for p in points if p.source == "onboard" and start <= p.t <= end]
+        # ATTITUDE under either name: before the first EKF_STATUS_REPORT it is onboard-unready
+        onboard = [p.yaw for p in points if p.source in ("onboard", UNREADY) and start <= p.t <= end]
         assert len(onboard) >= 10, (name, onboard)  # ATTITUDE at 25-50 Hz
         heading = statistics.median(onboard)
         yaws = [p.yaw for p in points if p.source == name and p.t <= end]

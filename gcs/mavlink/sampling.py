@@ -170,6 +170,11 @@ UNREADY = "onboard-unready"
 #: EKF_STATUS_REPORT flags (ArduPilot) of an EKF whose attitude can be trusted: attitude good,
 #: and not "never healthy yet".
 EKF_READY, EKF_NEVER_HEALTHY = mavlink.EKF_ATTITUDE, mavlink.EKF_UNINITIALIZED
+#: s of vehicle time after boot in which ATTITUDE is UNREADY until the boot's first
+#: EKF_STATUS_REPORT says otherwise: an ArduPlane SITL's ATTITUDE before its first report (1.7 to
+#: 3.1 s) was 4.3° pitch and 13.5° yaw off the truth, and set the session's max error against
+#: onboard. A vehicle that sends no report (PX4, an APM 2.5) is taken as ready from then on.
+BOOT_SETTLE_S = 5.0
 
 #: Messages whose time_usec is microseconds since boot (others may carry UNIX or GPS time).
 _BOOT_USEC_MESSAGES = frozenset({"RAW_IMU", "HIGHRES_IMU"})
@@ -247,8 +252,9 @@ class MessageSampler:
     was not initialised or its attitude not good: it is then `UNREADY`. At boot an ArduPlane's
     ATTITUDE comes from a DCM still settling and swings to ~70° pitch on the ground for a few
     seconds, which scored as "onboard" dominated every estimator's session error
-    (docs/estimators/comparison.md). A vehicle that sends no EKF_STATUS_REPORT (PX4, APM 2.5),
-    and the first second after boot before its first one, are taken as ready. PX4's
+    (docs/estimators/comparison.md). Before the boot's first report, ATTITUDE is `UNREADY` for
+    the first BOOT_SETTLE_S of vehicle time and `onboard` after it: a vehicle that sends no
+    EKF_STATUS_REPORT (PX4, APM 2.5) is taken as ready once its boot has settled. PX4's
     ESTIMATOR_STATUS is not needed for this: its EKF2 publishes no attitude while its own is not
     valid, so an ATTITUDE from it was good.
     """
@@ -260,8 +266,9 @@ class MessageSampler:
         self.clock = VehicleClock()
         self._secondary_since: dict[str, float] = {}
         self._leading: MAVLinkMessage | None = None  # an AHRS2 waiting for its slot's time
-        #: whether the vehicle's last EKF_STATUS_REPORT (if any) said its attitude can be trusted
-        self.ekf_ready = True
+        #: whether the vehicle's last EKF_STATUS_REPORT said its attitude can be trusted; None:
+        #: no report yet in this boot
+        self.ekf_ready: bool | None = None
 
     def feed(self, msg: MAVLinkMessage | ImuPacket) -> list[ImuSample | GpsSample | AttitudeSample]:
         """The samples msg completes, in order: usually none or one; an AHRS2 held for its slot's
@@ -342,9 +349,13 @@ class MessageSampler:
                 gps = dataclasses.replace(gps, t=now)
             return gps
         sample = attitude_from_message(msg, now)
-        if sample is not None and kind == "ATTITUDE" and not self.ekf_ready:
+        if sample is not None and kind == "ATTITUDE" and not self._attitude_trusted(now):
             return dataclasses.replace(sample, source=UNREADY)
         return sample
+
+    def _attitude_trusted(self, now: float) -> bool:
+        """Whether ATTITUDE at vehicle time `now` is the reference "onboard" (the class's rule)."""
+        return self.ekf_ready if self.ekf_ready is not None else now >= BOOT_SETTLE_S
 
     def _is_imu_stream(self, kind: str, now: float) -> bool:
         if self.imu_type is None:
@@ -415,7 +426,7 @@ class MessageInputs:
         after = clock.get(self.sampler.system) if self.sampler.system is not None else None
         if before is not None and after is not None and after < before - REBOOT_CLOCK_JUMP:
             self.vehicle_declination.reboot()
-            self.sampler.ekf_ready = True  # not known again until the new boot's first EKF_STATUS_REPORT
+            self.sampler.ekf_ready = None  # not known again until the new boot's first EKF_STATUS_REPORT
         if kind == "GPS_RAW_INT" and msg.get_srcSystem() == self.sampler.system:
             change = self._wmm_declination(msg, wall_time)
             if change is not None:
