@@ -23,7 +23,7 @@ import numpy as np
 from gcs.core.colors import hex_color
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP, UNREADY
+from gcs.mavlink.sampling import BOOT_SETTLE_S, REBOOT_CLOCK_JUMP, UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
 from gcs.sessions.contents import Contents, errors_by_boot, read_events
@@ -201,8 +201,8 @@ INTERVAL_GAP = 1.0
 
 
 def unready_note(series: dict[str, np.ndarray]) -> str:
-    """What the onboard figures leave out: ATTITUDE while the vehicle's EKF was not ready (at
-    boot), scored as its own reference (gcs.mavlink.sampling.UNREADY); "" when there was none."""
+    """What the onboard figures leave out: ATTITUDE while the vehicle's EKF was not ready, or not
+    yet known to be (at boot), scored as its own reference (gcs.mavlink.sampling.UNREADY); "" when there was none."""
     if UNREADY not in series:
         return ""
     t = series[UNREADY][:, 0]
@@ -215,7 +215,8 @@ def unready_note(series: dict[str, np.ndarray]) -> str:
     )
     return (
         f"<p class='note'>{UNREADY}: the vehicle's ATTITUDE while its EKF_STATUS_REPORT said its EKF was not "
-        f"initialised or its attitude not good ({len(t)} references, vehicle time {spans}). It is scored apart: "
+        f"initialised or its attitude not good, or in a boot's first {BOOT_SETTLE_S:.0f} s before its first report "
+        f"({len(t)} references, vehicle time {spans}). It is scored apart: "
         "the onboard rows and the errors against onboard leave it out.</p>"
     )
 
