@@ -187,8 +187,9 @@ def test_hung_server(tcp_port):
 async def hung_server_scenario(port: int) -> None:
     """A server that stops answering without closing its sockets (gcs demo stopped with SIGSTOP:
     as a hung process, or a network that drops every packet): the page says it is unreachable
-    within its 5 s status timeout, with one status request waiting at a time, and comes back when
-    the server does. The old page waited for ever, a request more each second, showing its last
+    within its 5 s status timeout, with one status request waiting at a time (and one of each
+    panel's poll: recording, vehicle list, Protocol and Tuning tabs), and comes back when the
+    server does. The old page waited for ever, a request more each second, showing its last
     answer as live."""
     import httpx
 
@@ -214,18 +215,38 @@ async def hung_server_scenario(port: int) -> None:
             page = await open_page(browser, errors)
             connected = "document.querySelector('#link-state').className === 'pill connected'"
             await open_dashboard(page, f"http://127.0.0.1:{port}/?token=t0k", connected)
+            # a page on each tab that polls a panel of its own: Protocol every 1 s, Tuning every 5 s
+            # (its parameter table is not downloaded: each poll is one GET /api/params)
+            tabs = {}
+            for tab, ready in (("protocol", "#protocol-name"), ("tuning", "#param-progress-text")):
+                tabs[tab] = await open_page(browser, errors)
+                await open_dashboard(tabs[tab], f"http://127.0.0.1:{port}/", connected)
+                await tabs[tab].click(f"#tabs button[data-tab={tab}]")
+                await tabs[tab].wait_for_function(
+                    f"document.querySelector('{ready}').textContent !== ''", polling=POLL_MS, timeout=30_000
+                )
             polls: list[str] = []
             others: dict[str, int] = {"/api/recording": 0, "/api/vehicles": 0}
+            panels: dict[str, int] = {"/api/protocol": 0, "/api/params": 0}
+
+            def path_of(request) -> str:
+                return request.url.split("?")[0].removeprefix(f"http://127.0.0.1:{port}")
 
             def count(request) -> None:
-                path = request.url.split("?")[0].removeprefix(f"http://127.0.0.1:{port}")
+                path = path_of(request)
                 if path == "/api/status":
                     polls.append(path)
                 elif path in others:
                     others[path] += 1
 
+            def count_panel(request) -> None:
+                if path_of(request) in panels:
+                    panels[path_of(request)] += 1
+
             page.on("request", count)
             proc.send_signal(signal.SIGSTOP)
+            for tab in tabs.values():  # from the stop on: the one request each that then waits
+                tab.on("request", count_panel)
             try:
                 await page.wait_for_function(
                     "document.querySelector('#link-state').textContent === 'server unreachable'",
@@ -238,9 +259,15 @@ async def hung_server_scenario(port: int) -> None:
                 # list have one request each waiting, not one more each time (5 each on the old page)
                 await wait_for(lambda: len(polls) >= 3, 30, "a third status poll, 5 s after the second")
                 assert max(others.values()) <= 2, others
+                # 15 s and more: the Protocol and Tuning tabs' polls too (about 15 and 3 on the old page)
+                await wait_for(lambda: len(polls) >= 4, 30, "a fourth status poll, 5 s after the third")
+                assert max(panels.values()) <= 1, panels
             finally:
                 proc.send_signal(signal.SIGCONT)
             await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)
+            # ... and the panels go on polling once the server answers again
+            before = dict(panels)
+            await wait_for(lambda: all(panels[p] > before[p] for p in panels), 30, "the panels' polls after the stop")
             await browser.close()
     finally:
         proc.send_signal(signal.SIGCONT)

@@ -28,6 +28,12 @@ function bytes(n) {
   if (n == null) return "–";
   for (const u of ["B", "KiB", "MiB", "GiB"]) { if (n < 1024 || u === "GiB") return u === "B" ? `${n} B` : `${n.toFixed(1)} ${u}`; n /= 1024; }
 }
+// A poll that keeps one request waiting at a time: a server that stops answering must not gather
+// one more each period, all sent in a burst when it comes back.
+function oneAtATime(refresh) {
+  let pending = null;
+  return () => { pending ??= refresh().finally(() => { pending = null; }); return pending; };
+}
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
 const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, sessions: [], whatif: null });
 
@@ -72,7 +78,7 @@ function showDownload(p) {
     bar.hidden = true; btn.hidden = false;
   }
   const busy = !p.complete && prog.state === "downloading";
-  if (busy && !downloadPoll) downloadPoll = setInterval(pollDownload, 400);
+  if (busy && !downloadPoll) downloadPoll = setInterval(oneAtATime(pollDownload), 400);
   if (!busy && downloadPoll) { clearInterval(downloadPoll); downloadPoll = null; }
 }
 
@@ -396,12 +402,12 @@ async function initPanels() {
   $("protocol-skip").addEventListener("click", () => protocolAction("/api/protocol/skip"));
   $("protocol-repeat").addEventListener("click", () => protocolAction("/api/protocol/repeat"));
   $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
-  setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
+  const protocolPoll = oneAtATime(refreshProtocol), recordingPoll = oneAtATime(refreshRecording);
+  const tuningPoll = oneAtATime(refreshTuning);
+  setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) protocolPoll(); }, 1000);
   refreshRecording(); refreshSessions();
-  // one request waiting at a time: a server that stops answering must not gather one every 2 s
-  let recordingPoll = null;
-  setInterval(() => { recordingPoll ??= refreshRecording().finally(() => { recordingPoll = null; }); }, 2000);
-  setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) refreshTuning(); }, 5000);
+  setInterval(recordingPoll, 2000);
+  setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) tuningPoll(); }, 5000);
 }
 
 initPanels();
