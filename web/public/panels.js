@@ -135,7 +135,7 @@ function tuningRow(table, row) {
   Object.assign(number, { min: row.min, max: row.max, step: "any" });
   range.title = `the slider moves at most the largest step (${row.step}) from the current value`;
   range.addEventListener("input", () => { number.value = num(range.value); });
-  range.addEventListener("change", () => writeParam(row.name, Number(range.value)));
+  range.addEventListener("change", () => slid(row.name, Number(range.value)));
   // an emptied box (or one the browser could not read: "1e") is no value, not a write of 0
   number.addEventListener("change", () => {
     const r = tuningRows[row.name];
@@ -155,6 +155,24 @@ const WRITE_RESULT = {
   404: ["refused", "unknown"],
 };
 
+// The keyboard's arrows fire `change` at every step of the slider: one write at a time, the newest
+// position next once the per-parameter interval has passed since the last answer. Each step was a
+// write of its own: six presses made six writes, five refused as rate-limited, and the vehicle
+// kept the first.
+async function slid(name, value) {
+  const r = tuningRows[name];
+  const writing = r.wanted !== undefined;
+  r.wanted = value;
+  if (writing) return;
+  while (r.wanted !== null) {
+    const next = r.wanted;
+    r.wanted = null;
+    await writeParam(name, next);
+    if (r.wanted !== null) await new Promise((done) => setTimeout(done, 1000 * panelState.tuning.limits.per_param_interval_s));
+  }
+  delete r.wanted;
+}
+
 async function writeParam(name, value) {
   const r = tuningRows[name];
   r.result.className = "result pending"; r.result.textContent = `writing ${num(value)}…`;
@@ -172,8 +190,8 @@ async function writeParam(name, value) {
   say("tuning-message", `${name}: ${text}`, kind === "verified" ? "ok" : "error");
   await refreshTuning();
   // Show what the vehicle holds now, not the value asked for (a refused value must not linger
-  // in the box, to be sent again when the box loses focus).
-  if (r.spec && r.spec.current != null) { r.number.value = num(r.spec.current); r.range.value = r.spec.current; }
+  // in the box, to be sent again when the box loses focus); not while the slider has moved on.
+  if (r.spec && r.spec.current != null && r.wanted == null) { r.number.value = num(r.spec.current); r.range.value = r.spec.current; }
 }
 
 async function revertAll() {

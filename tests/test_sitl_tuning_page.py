@@ -1,0 +1,65 @@
+"""The dashboard's Tuning tab against the real ArduCopter SITL (../shared/sitl), in Debian's
+Chromium driven by Playwright: what the engineer does with the keyboard reaches the vehicle, and
+what the page then says is what the vehicle holds (read back from it, not from the page)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from live import POLL_MS, dashboard, launch_chromium, open_dashboard, open_page, running_station, wait_for
+from playwright.async_api import async_playwright
+from test_sitl_copter import sitl  # noqa: F401  (the fixture)
+
+pytestmark = pytest.mark.slow
+
+ROW = "tr.tune-edit[data-param=ATC_RAT_RLL_P]"
+CURRENT = "#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur"
+
+
+def test_keyboard_arrows_on_a_slider_reach_the_vehicle(sitl):  # noqa: F811
+    asyncio.run(asyncio.wait_for(keyboard_scenario(sitl), 240))
+
+
+async def keyboard_scenario(port: int) -> None:
+    """Six presses of → on a focused slider (each a step of 1/20 of the largest change per write)
+    leave the vehicle at the sixth position, with no write refused. Each press was a write of its
+    own: the first verified, the next five refused as rate-limited (0.2 s between writes of one
+    parameter), the vehicle kept the first and the slider jumped back to it."""
+    errors: list[str] = []
+    async with (
+        running_station(f"tcp:127.0.0.1:{port}") as station,
+        dashboard(station, viser=False) as server,
+        async_playwright() as pw,
+    ):
+        await wait_for(lambda: station.link.target_system is not None, 60, "SITL's heartbeat")
+        start = (await station.params.read("ATC_RAT_RLL_P")).value
+        browser = await launch_chromium(pw)
+        page = await open_page(browser, errors, 1500, 1000)
+        puts: list[int] = []
+        page.on("response", lambda r: r.request.method == "PUT" and puts.append(r.status))
+        await open_dashboard(page, server.url, "document.querySelector('#param-download-btn') !== null")
+        await page.click("#tabs button[data-tab=tuning]")
+        await page.locator("#param-download-btn").click(timeout=30_000)
+        await page.wait_for_function(
+            f"(document.querySelector('{CURRENT}')?.textContent || '–') !== '–'", polling=POLL_MS, timeout=120_000
+        )
+        slider = page.locator(f"{ROW} input[type=range]")
+        step = await slider.evaluate("el => Number(el.step)")
+        await slider.focus()
+        for _ in range(6):
+            await page.keyboard.press("ArrowRight")
+        wanted = round(start + 6 * step, 6)
+        assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
+        await page.wait_for_function(
+            f"Math.abs(Number(document.querySelector('{CURRENT}').textContent) - {wanted}) < 1e-6"
+            f" && document.querySelector('{ROW} td.result').className === 'result verified'",
+            polling=POLL_MS,
+            timeout=30_000,
+        )
+        assert (await station.params.read("ATC_RAT_RLL_P")).value == pytest.approx(wanted, abs=1e-6)
+        assert puts and set(puts) == {200}, puts  # none refused as rate-limited (429)
+        assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
+        assert "verified" in await page.text_content("#tuning-message")
+        await browser.close()
+    assert errors == [], errors
