@@ -8,6 +8,7 @@ import asyncio
 
 import pytest
 from live import POLL_MS, dashboard, launch_chromium, open_dashboard, open_page, running_station, wait_for
+from playwright.async_api import TimeoutError as PlaywrightTimeout
 from playwright.async_api import async_playwright
 from test_sitl_copter import sitl  # noqa: F401  (the fixture)
 
@@ -45,21 +46,33 @@ async def keyboard_scenario(port: int) -> None:
             f"(document.querySelector('{CURRENT}')?.textContent || '–') !== '–'", polling=POLL_MS, timeout=120_000
         )
         slider = page.locator(f"{ROW} input[type=range]")
-        step = await slider.evaluate("el => Number(el.step)")
+        step = await slider.evaluate("el => Number(el.step)")  # 1/20 of the largest change per write
         await slider.focus()
-        for _ in range(6):
-            await page.keyboard.press("ArrowRight")
-        wanted = round(start + 6 * step, 6)
-        assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
-        await page.wait_for_function(
-            f"Math.abs(Number(document.querySelector('{CURRENT}').textContent) - {wanted}) < 1e-6"
-            f" && document.querySelector('{ROW} td.result').className === 'result verified'",
-            polling=POLL_MS,
-            timeout=30_000,
-        )
-        assert (await station.params.read("ATC_RAT_RLL_P")).value == pytest.approx(wanted, abs=1e-6)
-        assert puts and set(puts) == {200}, puts  # none refused as rate-limited (429)
-        assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
-        assert "verified" in await page.text_content("#tuning-message")
+        wanted = start
+        # six presses, then twenty: the second batch goes past the slider's first window (the
+        # largest step either side of the value before the first write), which it kept while
+        # focused: the vehicle stopped at start + 20 steps, the arrows did nothing more
+        for presses in (6, 20):
+            for _ in range(presses):
+                await page.keyboard.press("ArrowRight")
+            wanted = round(wanted + presses * step, 6)
+            assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
+            try:
+                await page.wait_for_function(
+                    f"Math.abs(Number(document.querySelector('{CURRENT}').textContent) - {wanted}) < 1e-6"
+                    f" && document.querySelector('{ROW} td.result').className === 'result verified'"
+                    f" && Math.abs(Number(document.querySelector('{ROW} input[type=range]').max)"
+                    f" - {wanted + 20 * step}) < 1e-6",
+                    polling=POLL_MS,
+                    timeout=30_000,
+                )
+            except PlaywrightTimeout:
+                shown = await page.text_content(f"{ROW} td.result")
+                window = await slider.evaluate("el => [Number(el.min), Number(el.max)]")
+                raise AssertionError(f"wanted {wanted}, the slider spans {window}; the page says {shown!r}") from None
+            assert (await station.params.read("ATC_RAT_RLL_P")).value == pytest.approx(wanted, abs=1e-6)
+            assert puts and set(puts) == {200}, puts  # none refused as rate-limited (429)
+            assert await slider.evaluate("el => Number(el.value)") == pytest.approx(wanted)
+            assert "verified" in await page.text_content("#tuning-message")
         await browser.close()
     assert errors == [], errors

@@ -113,12 +113,18 @@ function showTuning(t) {
     r.preflight.textContent = num(row.preflight);
     r.tr.classList.toggle("changed", !!row.changed);
     if (row.current != null) {
-      const round = (x) => Number(x.toPrecision(6));  // float32 values: keep the slider grid clean
-      const lo = round(Math.max(row.min, row.current - row.step)), hi = round(Math.min(row.max, row.current + row.step));
-      if (document.activeElement !== r.range) Object.assign(r.range, { min: lo, max: hi, value: row.current });
+      if (document.activeElement !== r.range) centre(r.range, row);
       if (document.activeElement !== r.number) r.number.value = num(row.current);
     }
   }
+}
+
+// The slider spans the largest step either side of the vehicle's value: it cannot ask for a write
+// the profile refuses.
+function centre(range, row) {
+  const round = (x) => Number(x.toPrecision(6));  // float32 values: keep the slider grid clean
+  const lo = round(Math.max(row.min, row.current - row.step)), hi = round(Math.min(row.max, row.current + row.step));
+  Object.assign(range, { min: lo, max: hi, value: row.current });
 }
 
 function tuningRow(table, row) {
@@ -135,11 +141,11 @@ function tuningRow(table, row) {
   Object.assign(number, { min: row.min, max: row.max, step: "any" });
   range.title = `the slider moves at most the largest step (${row.step}) from the current value`;
   range.addEventListener("input", () => { number.value = num(range.value); });
-  range.addEventListener("change", () => slid(row.name, Number(range.value)));
+  range.addEventListener("change", () => queueWrite(row.name, Number(range.value)));
   // an emptied box (or one the browser could not read: "1e") is no value, not a write of 0
   number.addEventListener("change", () => {
     const r = tuningRows[row.name];
-    if (number.value !== "") writeParam(row.name, Number(number.value));
+    if (number.value !== "") queueWrite(row.name, Number(number.value));
     else if (r.spec && r.spec.current != null) number.value = num(r.spec.current);
   });
   if (!canChange()) { range.disabled = number.disabled = true; }
@@ -156,19 +162,21 @@ const WRITE_RESULT = {
 };
 
 // The keyboard's arrows fire `change` at every step of the slider: one write at a time, the newest
-// position next once the per-parameter interval has passed since the last answer. Each step was a
-// write of its own: six presses made six writes, five refused as rate-limited, and the vehicle
+// value next, each once the per-parameter interval has passed since the last answer. Each step was
+// a write of its own: six presses made six writes, five refused as rate-limited, and the vehicle
 // kept the first.
-async function slid(name, value) {
+async function queueWrite(name, value) {
   const r = tuningRows[name];
   const writing = r.wanted !== undefined;
   r.wanted = value;
   if (writing) return;
   while (r.wanted !== null) {
+    const wait = (r.answeredAt ?? -Infinity) + 1000 * panelState.tuning.limits.per_param_interval_s - performance.now();
+    if (wait > 0) await new Promise((done) => setTimeout(done, wait));
     const next = r.wanted;
     r.wanted = null;
     await writeParam(name, next);
-    if (r.wanted !== null) await new Promise((done) => setTimeout(done, 1000 * panelState.tuning.limits.per_param_interval_s));
+    r.answeredAt = performance.now();
   }
   delete r.wanted;
 }
@@ -191,7 +199,9 @@ async function writeParam(name, value) {
   await refreshTuning();
   // Show what the vehicle holds now, not the value asked for (a refused value must not linger
   // in the box, to be sent again when the box loses focus); not while the slider has moved on.
-  if (r.spec && r.spec.current != null && r.wanted == null) { r.number.value = num(r.spec.current); r.range.value = r.spec.current; }
+  // The slider, focused since the click or the arrows that moved it, spans the steps from the new
+  // value (it kept those from the old one: the next drag or arrow could go no further).
+  if (r.spec && r.spec.current != null && r.wanted == null) { r.number.value = num(r.spec.current); centre(r.range, r.spec); }
 }
 
 async function revertAll() {
