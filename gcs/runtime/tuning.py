@@ -214,9 +214,9 @@ class TunedParam:
     max: float
     step: float
     meaning: str
-    current: float | None
+    current: float | None  # the table's: after a write the vehicle did not echo, what it held before
     preflight: float | None
-    changed: bool | None  # None while either value is unknown
+    changed: bool | None  # None while either value is unknown (the vehicle's, after a write it did not echo)
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,6 +243,9 @@ class TuningSession:
         self.table_snapshot: dict[str, int | float] = {}
         self.started: float | None = None  # UNIX time of the snapshot
         self.written: set[str] = set()
+        # name -> the table's entry when a write of it got no echo: the vehicle's value is unknown
+        # (it may have taken the write) until another PARAM_VALUE of it replaces that entry
+        self.unechoed: dict[str, Param | None] = {}
 
     async def start(self) -> None:
         if self.started is not None:
@@ -263,7 +266,17 @@ class TuningSession:
         self.profile.check(name, value, current)
         self.limiter.take(name)
         self.written.add(name)  # even if the write fails: the vehicle may have taken it
-        return await self.params.set(name, value, client)
+        return await self._write(name, value, client)
+
+    async def _write(self, name: str, value: float, client: str) -> Param:
+        """A verified write, remembering one that got no echo (see `rows`)."""
+        try:
+            stored = await self.params.set(name, value, client)
+        except ParamTimeout:
+            self.unechoed[name] = self.params.table.get(name)
+            raise
+        self.unechoed.pop(name, None)
+        return stored
 
     async def revert(self, client: str) -> list[Param]:
         """Write back the pre-flight value of every profile parameter that differs from it now (or
@@ -279,7 +292,7 @@ class TuningSession:
             if name not in self.written and known is not None and same_value(known.value, value):
                 continue
             try:
-                restored.append(await self.params.set(name, value, client))
+                restored.append(await self._write(name, value, client))
                 self.written.discard(name)
             except ParamError as exc:
                 failed.append(exc)
@@ -289,13 +302,17 @@ class TuningSession:
         return restored
 
     def rows(self) -> list[TunedParam]:
-        """Each tunable with its limits, current and pre-flight value: what the panel shows."""
+        """Each tunable with its limits, current and pre-flight value: what the panel shows. A
+        parameter whose last write got no echo is `changed: None` until the vehicle sends its value
+        again: it may hold the new value while the table still has the old one, and the panel
+        showed it unchanged, with nothing to revert."""
         out = []
         for name, spec in self.profile.params.items():
             known = self.params.table.get(name)
             current = known.value if known is not None else None
             before = self.preflight.get(name)
-            changed = None if current is None or before is None else not same_value(current, before)
+            unechoed = name in self.unechoed and self.unechoed[name] is known
+            changed = None if current is None or before is None or unechoed else not same_value(current, before)
             out.append(TunedParam(name, spec.min, spec.max, spec.step, spec.meaning, current, before, changed))
         return out
 

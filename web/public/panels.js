@@ -100,7 +100,8 @@ function showTuning(t) {
   $("tuning-profile").textContent = `${t.title} (profile ${t.profile})`;
   $("tuning-limits").textContent = `at most one write per parameter every ${t.limits.per_param_interval_s} s, `
     + `${t.limits.max_writes_per_s} writes per s` + (t.started ? ` · pre-flight snapshot ${new Date(t.started * 1000).toLocaleTimeString()}` : "");
-  $("tuning-revert").disabled = !canChange() || !t.params.some((r) => r.changed);
+  // changed null: the vehicle did not echo a write, and may hold it: Revert all writes it back
+  $("tuning-revert").disabled = !canChange() || t.params.every((r) => r.changed === false);
   const table = $("tuning-table");
   if (!table.rows.length) {
     table.innerHTML = "<tr><th>parameter</th><th>current</th><th>pre-flight</th><th>bounds · max step</th></tr>";
@@ -109,9 +110,10 @@ function showTuning(t) {
     let r = tuningRows[row.name];
     if (!r) r = tuningRows[row.name] = tuningRow(table, row);
     r.spec = row;
-    r.current.textContent = num(row.current);
+    const unknown = row.changed === null && row.current != null && row.preflight != null;
+    r.current.textContent = unknown ? `? (${num(row.current)} before a write it did not echo)` : num(row.current);
     r.preflight.textContent = num(row.preflight);
-    r.tr.classList.toggle("changed", !!row.changed);
+    r.tr.classList.toggle("changed", row.changed !== false);
     if (row.current != null) {
       if (document.activeElement !== r.range) centre(r.range, row);
       if (document.activeElement !== r.number) r.number.value = num(row.current);
