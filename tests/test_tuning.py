@@ -206,3 +206,27 @@ def test_a_write_without_echo_is_unknown_until_the_vehicle_says():
             assert next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P").changed is False
 
     asyncio.run(asyncio.wait_for(scenario(), 60))
+
+
+def test_the_step_after_a_write_without_echo_is_from_the_vehicles_value():
+    """After a write the vehicle took without echo (0.135 -> 0.155), the next write's step is
+    measured from what the vehicle holds, read from it, not from the table's 0.135: 0.115 was
+    allowed, moving the vehicle's gain by 0.04, twice the largest step per write."""
+
+    async def scenario():
+        async with station_and_sim("pixhawk") as (station, sim):
+            session = await open_session(station.params)
+            start = sim.params["ATC_RAT_RLL_P"]
+            up, down = round(start + 0.02, 4), round(start - 0.02, 4)
+            sim.param_drop = 1.0
+            with pytest.raises(ParamTimeout):
+                await session.set("ATC_RAT_RLL_P", up, "test")
+            sim.param_drop = 0.0
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(up)
+            with pytest.raises(TuningRefused, match=r"0.155 -> 0.115 changes it by 0.04, more than the largest step"):
+                await session.set("ATC_RAT_RLL_P", down, "test")
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(up)
+            row = next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P")
+            assert row.changed is True and row.current == pytest.approx(up)  # the read told the page too
+
+    asyncio.run(asyncio.wait_for(scenario(), 60))

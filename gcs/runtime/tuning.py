@@ -78,11 +78,11 @@ class TuningProfile:
                 f"{name} = {format_value(value)} is outside the allowed range "
                 f"[{format_value(spec.min)}, {format_value(spec.max)}]"
             )
-        change = abs(value - current)
+        change = abs(value - current)  # shown to 6 digits: 0.04, not the float32 values' 0.040000001
         if change > spec.step and not same_value(change, spec.step):
             raise TuningRefused(
                 f"{name}: {format_value(current)} -> {format_value(value)} changes it by "
-                f"{format_value(change)}, more than the largest step {format_value(spec.step)} "
+                f"{format_value(float(f'{change:.6g}'))}, more than the largest step {format_value(spec.step)} "
                 f"allowed per write"
             )
         return spec
@@ -262,8 +262,11 @@ class TuningSession:
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
         await self.start()
         known = self.params.table.get(name)
-        current = known.value if known is not None else (await self.params.read(name)).value
-        self.profile.check(name, value, current)
+        if known is None or self._unechoed(name, known):
+            # the vehicle's value, not the table's: after a write it took without echo, a step
+            # from the table's older value moved the gain by up to twice the largest step
+            known = await self.params.read(name)
+        self.profile.check(name, value, known.value)
         self.limiter.take(name)
         self.written.add(name)  # even if the write fails: the vehicle may have taken it
         return await self._write(name, value, client)
@@ -301,6 +304,10 @@ class TuningSession:
             raise kind(f"revert incomplete ({len(restored)} restored): " + "; ".join(map(str, failed)))
         return restored
 
+    def _unechoed(self, name: str, known: Param) -> bool:
+        """Is the table's entry for name still the one it had when a write of it got no echo?"""
+        return name in self.unechoed and self.unechoed[name] is known
+
     def rows(self) -> list[TunedParam]:
         """Each tunable with its limits, current and pre-flight value: what the panel shows. A
         parameter whose last write got no echo is `changed: None` until the vehicle sends its value
@@ -311,7 +318,7 @@ class TuningSession:
             known = self.params.table.get(name)
             current = known.value if known is not None else None
             before = self.preflight.get(name)
-            unechoed = name in self.unechoed and self.unechoed[name] is known
+            unechoed = known is not None and self._unechoed(name, known)
             changed = None if current is None or before is None or unechoed else not same_value(current, before)
             out.append(TunedParam(name, spec.min, spec.max, spec.step, spec.meaning, current, before, changed))
         return out
