@@ -275,6 +275,68 @@ async def hung_server_scenario(port: int) -> None:
     assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
 
 
+def test_hung_server_while_a_log_downloads(udp_port, tcp_port, tmp_path):
+    asyncio.run(asyncio.wait_for(hung_log_scenario(udp_port, tcp_port, tmp_path), 240))
+
+
+async def hung_log_scenario(udp_port: int, port: int, tmp_path) -> None:
+    """A page following an onboard log download (a 1-s poll of GET /api/onboard-logs) whose
+    server stops answering (gcs serve stopped with SIGSTOP) keeps one request waiting, not one
+    more each second, and goes on following the download when the server is back."""
+    import httpx
+
+    errors: list[str] = []
+    command = [sys.executable, "-m", "gcs", "serve", "--connect", f"udpin:127.0.0.1:{udp_port}", "--port", str(port)]
+    serve = subprocess.Popen(
+        [*command, "--token", "t0k", "--record-dir", str(tmp_path), "--viser-port", str(free_port(socket.SOCK_STREAM))],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    # log 1: an earlier five-minute flight, tens of seconds to download
+    command = [sys.executable, "-m", "gcs", "sim", "--profile", "pixhawk", "--flight-log", "300"]
+    sim = subprocess.Popen(
+        [*command, "--link", f"udpout:127.0.0.1:{udp_port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.monotonic() + 120
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", headers={"X-GCS-Token": "t0k"}) as api:
+            while True:
+                try:
+                    if (await api.get("/api/status")).json()["link"]["state"] == "connected":
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline and serve.poll() is None, "gcs serve never heard the vehicle"
+                await asyncio.sleep(0.2)
+            assert (await api.post("/api/onboard-logs/download", json={"log": 1})).status_code == 202
+        async with async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            await open_dashboard(page, f"http://127.0.0.1:{port}/")
+            await page.click("#tabs button[data-tab=sessions]")
+            await page.locator("#onboard-log-status", has_text="log 1:").wait_for(timeout=60_000)
+            polls: list[str] = []
+            page.on("request", lambda r: "/api/onboard-logs" in r.url and polls.append(r.url))
+            serve.send_signal(signal.SIGSTOP)
+            try:
+                await page.wait_for_function(
+                    "document.querySelector('#link-state').textContent === 'server unreachable'",
+                    polling=POLL_MS,
+                    timeout=20_000,
+                )
+                # 5 s and more without an answer: one request waiting (5 on the old page)
+                assert len(polls) <= 1, polls
+            finally:
+                serve.send_signal(signal.SIGCONT)
+            await page.locator("#onboard-log-status", has_text="downloaded").wait_for(timeout=180_000)
+            await browser.close()
+    finally:
+        serve.send_signal(signal.SIGCONT)
+        stop_process(sim)
+        stop_process(serve)
+    assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
+
+
 def test_onboard_log_download_followed(udp_port, tmp_path):
     asyncio.run(asyncio.wait_for(onboard_log_scenario(udp_port, tmp_path), 240))
 
