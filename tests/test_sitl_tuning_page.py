@@ -5,12 +5,23 @@ what the page then says is what the vehicle holds (read back from it, not from t
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
 
 import pytest
-from live import POLL_MS, dashboard, launch_chromium, open_dashboard, open_page, running_station, wait_for
+from live import (
+    POLL_MS,
+    dashboard,
+    launch_chromium,
+    open_dashboard,
+    open_page,
+    running_station,
+    served_api,
+    wait_for,
+)
 from playwright.async_api import TimeoutError as PlaywrightTimeout
 from playwright.async_api import async_playwright
-from test_sitl_copter import sitl  # noqa: F401  (the fixture)
+from test_sitl_copter import PROCESSES, sitl  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.slow
 
@@ -76,3 +87,36 @@ async def keyboard_scenario(port: int) -> None:
             assert "verified" in await page.text_content("#tuning-message")
         await browser.close()
     assert errors == [], errors
+
+
+def test_a_write_while_the_link_is_lost_is_refused_at_once(sitl):  # noqa: F811
+    asyncio.run(asyncio.wait_for(lost_link_scenario(sitl), 240))
+
+
+async def lost_link_scenario(port: int) -> None:
+    """SITL stopped (SIGSTOP: the link lost, the vehicle's socket kept): a gain write is refused
+    at once, saying why, and nothing reaches the vehicle when it is back. The write waited up to
+    10 s for a heartbeat and was made whenever the link came back, seconds after the click."""
+    async with running_station(f"tcp:127.0.0.1:{port}") as station, served_api(station) as api:
+        await wait_for(lambda: station.link.target_system is not None, 60, "SITL's heartbeat")
+        assert (await api.post("/api/params/download")).status_code == 202
+        await wait_for(lambda: station.params.complete, 120, "the parameter table")
+        tuning = (await api.get("/api/tuning")).json()
+        start = next(p["current"] for p in tuning["params"] if p["name"] == "ATC_RAT_RLL_P")
+        pid = PROCESSES[port].pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            await wait_for(lambda: station.link.state == "lost", 30, "the link lost")
+            value = {"value": round(start + 0.01, 4)}
+            write = asyncio.create_task(api.put("/api/tuning/ATC_RAT_RLL_P", json=value, timeout=60))
+            await wait_for(write.done, 5, "the write's answer while the link is lost")
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        answer = write.result()
+        assert answer.status_code == 422, answer.text
+        assert (
+            answer.json()["detail"]
+            == "ATC_RAT_RLL_P: not written: the link to the vehicle is lost; try again when it is back"
+        )
+        await wait_for(lambda: station.link.state == "connected", 30, "the link back")
+        assert (await station.params.read("ATC_RAT_RLL_P")).value == pytest.approx(start)

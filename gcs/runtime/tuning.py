@@ -22,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 from gcs.mavlink.params import ParamError, format_value, same_value
+from gcs.runtime.link import LinkState
 from gcs.runtime.params import Param, ParamClient, ParamTimeout
 
 #: The shipped profiles (package data).
@@ -260,6 +261,13 @@ class TuningSession:
     async def set(self, name: str, value: float, client: str) -> Param:
         """A verified write of one profile parameter, or TuningRefused / ParamError saying why not."""
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
+        link = self.params.link
+        if link.state != LinkState.CONNECTED:
+            # ParamClient waits up to 10 s for the link: the gain then changed whenever it came
+            # back, seconds after the click, the page saying "writing…" all along
+            raise TuningRefused(
+                f"{name}: not written: the link to the vehicle is {link.state}; try again when it is back"
+            )
         await self.start()
         known = self.params.table.get(name)
         if known is None or self._unechoed(name, known):
