@@ -274,11 +274,11 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
 
 
 # ---- a write the vehicle took but did not echo -----------------------------------------------
-def test_a_write_without_echo_can_be_reverted(udp_port):
-    asyncio.run(asyncio.wait_for(unechoed_scenario(udp_port), 240))
+def test_a_write_without_echo_can_be_reverted(udp_port, artifacts_dir):
+    asyncio.run(asyncio.wait_for(unechoed_scenario(udp_port, artifacts_dir), 240))
 
 
-async def unechoed_scenario(udp_port: int) -> None:
+async def unechoed_scenario(udp_port: int, artifacts_dir) -> None:
     """The vehicle takes a write and its echo is lost (every PARAM_VALUE dropped, as by a radio
     that loses the downlink): the page says the write's result is unknown, the row's value is
     unknown and "Revert all" is offered, which puts the pre-flight value back. The old page
@@ -315,6 +315,7 @@ async def unechoed_scenario(udp_port: int) -> None:
                     shown = await page.text_content(current)
                     raise AssertionError(f"Revert all stays disabled; the page shows {shown!r} as current") from None
                 assert (await page.text_content(current)).startswith("?"), await page.text_content(current)
+                await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning-unechoed.png"))
 
                 sim.param_drop = 0.0
                 await page.click("#tuning-revert")
