@@ -208,15 +208,21 @@ async function writeParam(name, value) {
 
 async function revertAll() {
   const btn = $("tuning-revert"); btn.disabled = true;
+  // a slider's value still waiting for its turn would be written after the revert, undoing it
+  const dropped = [];
+  for (const [name, r] of Object.entries(tuningRows)) {
+    if (r.wanted != null) { dropped.push(`${name} = ${num(r.wanted)}`); r.wanted = null; }
+  }
+  const unsent = dropped.length ? `; not sent: ${dropped.join(", ")}` : "";
   say("tuning-message", "reverting every change to its pre-flight value…", "pending");
   const res = await call("POST", "/api/tuning/revert");
   if (res.ok) {
     const names = res.data.restored.map((p) => `${p.name} = ${num(p.value)}`);
-    say("tuning-message", names.length ? `✓ reverted and verified: ${names.join(", ")}` : "nothing to revert: every value is the pre-flight one", "ok");
+    say("tuning-message", (names.length ? `✓ reverted and verified: ${names.join(", ")}` : "nothing to revert: every value is the pre-flight one") + unsent, "ok");
     for (const r of Object.values(tuningRows)) { r.result.textContent = ""; r.result.className = "result"; delete r.tr2.dataset.result; }
     showTuning({ ...panelState.tuning, params: res.data.params });
   } else {
-    say("tuning-message", `✗ revert failed (${res.status}): ${res.message}`, "error");
+    say("tuning-message", `✗ revert failed (${res.status}): ${res.message}${unsent}`, "error");
   }
   await refreshTuning();
 }
