@@ -187,8 +187,9 @@ def test_hung_server(tcp_port):
 async def hung_server_scenario(port: int) -> None:
     """A server that stops answering without closing its sockets (gcs demo stopped with SIGSTOP:
     as a hung process, or a network that drops every packet): the page says it is unreachable
-    within its 5 s status timeout, with one status request waiting at a time, and comes back when
-    the server does. The old page waited for ever, a request more each second, showing its last
+    within its 5 s status timeout, with one status request waiting at a time (and one of each
+    panel's poll: recording, vehicle list, Protocol and Tuning tabs), and comes back when the
+    server does. The old page waited for ever, a request more each second, showing its last
     answer as live."""
     import httpx
 
@@ -214,18 +215,38 @@ async def hung_server_scenario(port: int) -> None:
             page = await open_page(browser, errors)
             connected = "document.querySelector('#link-state').className === 'pill connected'"
             await open_dashboard(page, f"http://127.0.0.1:{port}/?token=t0k", connected)
+            # a page on each tab that polls a panel of its own: Protocol every 1 s, Tuning every 5 s
+            # (its parameter table is not downloaded: each poll is one GET /api/params)
+            tabs = {}
+            for tab, ready in (("protocol", "#protocol-name"), ("tuning", "#param-progress-text")):
+                tabs[tab] = await open_page(browser, errors)
+                await open_dashboard(tabs[tab], f"http://127.0.0.1:{port}/", connected)
+                await tabs[tab].click(f"#tabs button[data-tab={tab}]")
+                await tabs[tab].wait_for_function(
+                    f"document.querySelector('{ready}').textContent !== ''", polling=POLL_MS, timeout=30_000
+                )
             polls: list[str] = []
             others: dict[str, int] = {"/api/recording": 0, "/api/vehicles": 0}
+            panels: dict[str, int] = {"/api/protocol": 0, "/api/params": 0}
+
+            def path_of(request) -> str:
+                return request.url.split("?")[0].removeprefix(f"http://127.0.0.1:{port}")
 
             def count(request) -> None:
-                path = request.url.split("?")[0].removeprefix(f"http://127.0.0.1:{port}")
+                path = path_of(request)
                 if path == "/api/status":
                     polls.append(path)
                 elif path in others:
                     others[path] += 1
 
+            def count_panel(request) -> None:
+                if path_of(request) in panels:
+                    panels[path_of(request)] += 1
+
             page.on("request", count)
             proc.send_signal(signal.SIGSTOP)
+            for tab in tabs.values():  # from the stop on: the one request each that then waits
+                tab.on("request", count_panel)
             try:
                 await page.wait_for_function(
                     "document.querySelector('#link-state').textContent === 'server unreachable'",
@@ -238,13 +259,81 @@ async def hung_server_scenario(port: int) -> None:
                 # list have one request each waiting, not one more each time (5 each on the old page)
                 await wait_for(lambda: len(polls) >= 3, 30, "a third status poll, 5 s after the second")
                 assert max(others.values()) <= 2, others
+                # 15 s and more: the Protocol and Tuning tabs' polls too (about 15 and 3 on the old page)
+                await wait_for(lambda: len(polls) >= 4, 30, "a fourth status poll, 5 s after the third")
+                assert max(panels.values()) <= 1, panels
             finally:
                 proc.send_signal(signal.SIGCONT)
             await page.wait_for_function(connected, polling=POLL_MS, timeout=30_000)
+            # ... and the panels go on polling once the server answers again
+            before = dict(panels)
+            await wait_for(lambda: all(panels[p] > before[p] for p in panels), 30, "the panels' polls after the stop")
             await browser.close()
     finally:
         proc.send_signal(signal.SIGCONT)
         stop_process(proc)
+    assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
+
+
+def test_hung_server_while_a_log_downloads(udp_port, tcp_port, tmp_path):
+    asyncio.run(asyncio.wait_for(hung_log_scenario(udp_port, tcp_port, tmp_path), 240))
+
+
+async def hung_log_scenario(udp_port: int, port: int, tmp_path) -> None:
+    """A page following an onboard log download (a 1-s poll of GET /api/onboard-logs) whose
+    server stops answering (gcs serve stopped with SIGSTOP) keeps one request waiting, not one
+    more each second, and goes on following the download when the server is back."""
+    import httpx
+
+    errors: list[str] = []
+    command = [sys.executable, "-m", "gcs", "serve", "--connect", f"udpin:127.0.0.1:{udp_port}", "--port", str(port)]
+    serve = subprocess.Popen(
+        [*command, "--token", "t0k", "--record-dir", str(tmp_path), "--viser-port", str(free_port(socket.SOCK_STREAM))],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    # log 1: an earlier five-minute flight, tens of seconds to download
+    command = [sys.executable, "-m", "gcs", "sim", "--profile", "pixhawk", "--flight-log", "300"]
+    sim = subprocess.Popen(
+        [*command, "--link", f"udpout:127.0.0.1:{udp_port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.monotonic() + 120
+        async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", headers={"X-GCS-Token": "t0k"}) as api:
+            while True:
+                try:
+                    if (await api.get("/api/status")).json()["link"]["state"] == "connected":
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline and serve.poll() is None, "gcs serve never heard the vehicle"
+                await asyncio.sleep(0.2)
+            assert (await api.post("/api/onboard-logs/download", json={"log": 1})).status_code == 202
+        async with async_playwright() as pw:
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            await open_dashboard(page, f"http://127.0.0.1:{port}/")
+            await page.click("#tabs button[data-tab=sessions]")
+            await page.locator("#onboard-log-status", has_text="log 1:").wait_for(timeout=60_000)
+            polls: list[str] = []
+            page.on("request", lambda r: "/api/onboard-logs" in r.url and polls.append(r.url))
+            serve.send_signal(signal.SIGSTOP)
+            try:
+                await page.wait_for_function(
+                    "document.querySelector('#link-state').textContent === 'server unreachable'",
+                    polling=POLL_MS,
+                    timeout=20_000,
+                )
+                # 5 s and more without an answer: one request waiting (5 on the old page)
+                assert len(polls) <= 1, polls
+            finally:
+                serve.send_signal(signal.SIGCONT)
+            await page.locator("#onboard-log-status", has_text="downloaded").wait_for(timeout=180_000)
+            await browser.close()
+    finally:
+        serve.send_signal(signal.SIGCONT)
+        stop_process(sim)
+        stop_process(serve)
     assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
 
 

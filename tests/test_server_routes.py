@@ -303,6 +303,9 @@ def test_the_startup_url_trades_the_token_for_a_strict_cookie(station: FakeStati
     assert api.put(url, json={"value": 0.3}).status_code == 200
     other_port = TestClient(api.app, base_url="http://127.0.0.1:8010", cookies={"gcs_token_8000": TOKEN})
     assert other_port.put(url, json={"value": 0.4}).status_code == 401  # another server's cookie is not ours
+    # the page's other parameters stay: a bookmark of vehicle 2's page opened the first vehicle's
+    kept = api.get("/", params={"vehicle": "2", "token": TOKEN}, follow_redirects=False)
+    assert kept.status_code == 303 and kept.headers["location"] == "/?vehicle=2", kept.headers["location"]
 
     fresh = TestClient(create_app(station, token=TOKEN), base_url="http://127.0.0.1:8000")  # type: ignore[arg-type]
     wrong = fresh.get("/", params={"token": "guess"}, follow_redirects=False)

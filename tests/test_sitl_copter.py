@@ -53,6 +53,10 @@ SETTLE = 10.0
 
 pytestmark = pytest.mark.slow
 
+#: The running SITL of each SERIAL0 TCP port `sitl_process` yielded (a test that stops one with
+#: SIGSTOP, as a hung vehicle or a link that drops everything, needs its process).
+PROCESSES: dict[int, subprocess.Popen] = {}
+
 
 def _free_instance() -> int:
     """A SITL instance number whose ports (TCP 5760+10·I..5763+10·I, the simulator's UDP
@@ -102,9 +106,12 @@ def sitl_process(
     if serial0 is not None:
         argv += ["--serial0", serial0]
     proc = subprocess.Popen(argv, cwd=folder, stdout=log, stderr=subprocess.STDOUT)
+    port = 5760 + 10 * instance
+    PROCESSES[port] = proc
     try:
-        yield 5760 + 10 * instance
+        yield port
     finally:
+        del PROCESSES[port]
         proc.send_signal(signal.SIGTERM)
         try:
             proc.wait(10)

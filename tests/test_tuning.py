@@ -9,7 +9,7 @@ import dataclasses
 import pytest
 from test_params_protocol import station_and_sim
 
-from gcs.runtime.params import ParamMismatch
+from gcs.runtime.params import ParamMismatch, ParamTimeout
 from gcs.runtime.tuning import (
     GLOBAL_PER_SECOND,
     PER_PARAM_INTERVAL,
@@ -173,5 +173,60 @@ def test_session_refuses_writes_audits_them_and_reverts_exactly():
             ]  # revert: in profile order
             assert all(w["wall_time"] > 0 and "old" in w and "new" in w for w in writes)
             assert writes[0]["old"] == before["ATC_RAT_RLL_P"]
+
+    asyncio.run(asyncio.wait_for(scenario(), 60))
+
+
+def test_a_write_without_echo_is_unknown_until_the_vehicle_says():
+    """The vehicle takes a write whose echo is lost: the row is `changed: None` (not "unchanged",
+    which it was, with the new value on the vehicle) until a PARAM_VALUE of it arrives, and a
+    revert writes it back."""
+
+    async def scenario():
+        async with station_and_sim("pixhawk") as (station, sim):
+            session = await open_session(station.params)
+            start = sim.params["ATC_RAT_RLL_P"]
+            sim.param_drop = 1.0
+            with pytest.raises(ParamTimeout, match="the value on the vehicle is unknown"):
+                await session.set("ATC_RAT_RLL_P", 0.145, "test")
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(0.145)
+            row = next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P")
+            assert row.changed is None and row.current == pytest.approx(start), row
+            sim.param_drop = 0.0
+            await station.params.read("ATC_RAT_RLL_P")  # the vehicle's word, by any PARAM_VALUE
+            row = next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P")
+            assert row.changed is True and row.current == pytest.approx(0.145), row
+            sim.param_drop = 1.0
+            with pytest.raises(ParamTimeout):
+                await session.revert("test")
+            assert next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P").changed is None
+            sim.param_drop = 0.0
+            assert [p.name for p in await session.revert("test")] == ["ATC_RAT_RLL_P"]
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(start)
+            assert next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P").changed is False
+
+    asyncio.run(asyncio.wait_for(scenario(), 60))
+
+
+def test_the_step_after_a_write_without_echo_is_from_the_vehicles_value():
+    """After a write the vehicle took without echo (0.135 -> 0.155), the next write's step is
+    measured from what the vehicle holds, read from it, not from the table's 0.135: 0.115 was
+    allowed, moving the vehicle's gain by 0.04, twice the largest step per write."""
+
+    async def scenario():
+        async with station_and_sim("pixhawk") as (station, sim):
+            session = await open_session(station.params)
+            start = sim.params["ATC_RAT_RLL_P"]
+            up, down = round(start + 0.02, 4), round(start - 0.02, 4)
+            sim.param_drop = 1.0
+            with pytest.raises(ParamTimeout):
+                await session.set("ATC_RAT_RLL_P", up, "test")
+            sim.param_drop = 0.0
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(up)
+            with pytest.raises(TuningRefused, match=r"0.155 -> 0.115 changes it by 0.04, more than the largest step"):
+                await session.set("ATC_RAT_RLL_P", down, "test")
+            assert sim.params["ATC_RAT_RLL_P"] == pytest.approx(up)
+            row = next(r for r in session.rows() if r.name == "ATC_RAT_RLL_P")
+            assert row.changed is True and row.current == pytest.approx(up)  # the read told the page too
 
     asyncio.run(asyncio.wait_for(scenario(), 60))

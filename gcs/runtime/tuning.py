@@ -22,6 +22,7 @@ from importlib import resources
 from pathlib import Path
 
 from gcs.mavlink.params import ParamError, format_value, same_value
+from gcs.runtime.link import LinkState
 from gcs.runtime.params import Param, ParamClient, ParamTimeout
 
 #: The shipped profiles (package data).
@@ -78,11 +79,11 @@ class TuningProfile:
                 f"{name} = {format_value(value)} is outside the allowed range "
                 f"[{format_value(spec.min)}, {format_value(spec.max)}]"
             )
-        change = abs(value - current)
+        change = abs(value - current)  # shown to 6 digits: 0.04, not the float32 values' 0.040000001
         if change > spec.step and not same_value(change, spec.step):
             raise TuningRefused(
                 f"{name}: {format_value(current)} -> {format_value(value)} changes it by "
-                f"{format_value(change)}, more than the largest step {format_value(spec.step)} "
+                f"{format_value(float(f'{change:.6g}'))}, more than the largest step {format_value(spec.step)} "
                 f"allowed per write"
             )
         return spec
@@ -214,9 +215,9 @@ class TunedParam:
     max: float
     step: float
     meaning: str
-    current: float | None
+    current: float | None  # the table's: after a write the vehicle did not echo, what it held before
     preflight: float | None
-    changed: bool | None  # None while either value is unknown
+    changed: bool | None  # None while either value is unknown (the vehicle's, after a write it did not echo)
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,6 +244,9 @@ class TuningSession:
         self.table_snapshot: dict[str, int | float] = {}
         self.started: float | None = None  # UNIX time of the snapshot
         self.written: set[str] = set()
+        # name -> the table's entry when a write of it got no echo: the vehicle's value is unknown
+        # (it may have taken the write) until another PARAM_VALUE of it replaces that entry
+        self.unechoed: dict[str, Param | None] = {}
 
     async def start(self) -> None:
         if self.started is not None:
@@ -257,13 +261,33 @@ class TuningSession:
     async def set(self, name: str, value: float, client: str) -> Param:
         """A verified write of one profile parameter, or TuningRefused / ParamError saying why not."""
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
+        link = self.params.link
+        if link.state != LinkState.CONNECTED:
+            # ParamClient waits up to 10 s for the link: the gain then changed whenever it came
+            # back, seconds after the click, the page saying "writing…" all along
+            raise TuningRefused(
+                f"{name}: not written: the link to the vehicle is {link.state}; try again when it is back"
+            )
         await self.start()
         known = self.params.table.get(name)
-        current = known.value if known is not None else (await self.params.read(name)).value
-        self.profile.check(name, value, current)
+        if known is None or self._unechoed(name, known):
+            # the vehicle's value, not the table's: after a write it took without echo, a step
+            # from the table's older value moved the gain by up to twice the largest step
+            known = await self.params.read(name)
+        self.profile.check(name, value, known.value)
         self.limiter.take(name)
         self.written.add(name)  # even if the write fails: the vehicle may have taken it
-        return await self.params.set(name, value, client)
+        return await self._write(name, value, client)
+
+    async def _write(self, name: str, value: float, client: str) -> Param:
+        """A verified write, remembering one that got no echo (see `rows`)."""
+        try:
+            stored = await self.params.set(name, value, client)
+        except ParamTimeout:
+            self.unechoed[name] = self.params.table.get(name)
+            raise
+        self.unechoed.pop(name, None)
+        return stored
 
     async def revert(self, client: str) -> list[Param]:
         """Write back the pre-flight value of every profile parameter that differs from it now (or
@@ -279,7 +303,7 @@ class TuningSession:
             if name not in self.written and known is not None and same_value(known.value, value):
                 continue
             try:
-                restored.append(await self.params.set(name, value, client))
+                restored.append(await self._write(name, value, client))
                 self.written.discard(name)
             except ParamError as exc:
                 failed.append(exc)
@@ -288,14 +312,22 @@ class TuningSession:
             raise kind(f"revert incomplete ({len(restored)} restored): " + "; ".join(map(str, failed)))
         return restored
 
+    def _unechoed(self, name: str, known: Param) -> bool:
+        """Is the table's entry for name still the one it had when a write of it got no echo?"""
+        return name in self.unechoed and self.unechoed[name] is known
+
     def rows(self) -> list[TunedParam]:
-        """Each tunable with its limits, current and pre-flight value: what the panel shows."""
+        """Each tunable with its limits, current and pre-flight value: what the panel shows. A
+        parameter whose last write got no echo is `changed: None` until the vehicle sends its value
+        again: it may hold the new value while the table still has the old one, and the panel
+        showed it unchanged, with nothing to revert."""
         out = []
         for name, spec in self.profile.params.items():
             known = self.params.table.get(name)
             current = known.value if known is not None else None
             before = self.preflight.get(name)
-            changed = None if current is None or before is None else not same_value(current, before)
+            unechoed = known is not None and self._unechoed(name, known)
+            changed = None if current is None or before is None or unechoed else not same_value(current, before)
             out.append(TunedParam(name, spec.min, spec.max, spec.step, spec.meaning, current, before, changed))
         return out
 

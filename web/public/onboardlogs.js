@@ -1,7 +1,7 @@
 // The vehicle's onboard log: one button that downloads the latest log into the recording folder
 // (POST /api/onboard-logs/download) and follows its progress (GET /api/onboard-logs); when done,
 // the sessions and replay lists are refreshed so the log can be opened next to the live session.
-// Uses call() from panels.js and $ from dashboard.js.
+// Uses call() and oneAtATime() from panels.js and $ from dashboard.js.
 "use strict";
 
 (() => {
@@ -23,7 +23,7 @@
     }
   }
 
-  async function poll() {
+  const poll = oneAtATime(async () => {
     const r = await call("GET", "/api/onboard-logs");
     if (r.ok) show(r.data.progress);
     if (!r.ok || !["listing", "downloading"].includes(r.data.progress.state)) {
@@ -32,7 +32,7 @@
       button.disabled = !canChange();  // a read-only page follows a download, it never starts one
       $("sessions-refresh").click();  // the new log appears among the replay sources
     }
-  }
+  });  // one request waiting at a time: a server that stops answering must not gather one a second
 
   // A download already running (started before a reload, or from another page) is followed from
   // the start: the page said nothing of it, and offered to start it again.

@@ -28,6 +28,12 @@ function bytes(n) {
   if (n == null) return "–";
   for (const u of ["B", "KiB", "MiB", "GiB"]) { if (n < 1024 || u === "GiB") return u === "B" ? `${n} B` : `${n.toFixed(1)} ${u}`; n /= 1024; }
 }
+// A poll that keeps one request waiting at a time: a server that stops answering must not gather
+// one more each period, all sent in a burst when it comes back.
+function oneAtATime(refresh) {
+  let pending = null;
+  return () => { pending ??= refresh().finally(() => { pending = null; }); return pending; };
+}
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
 const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, sessions: [], whatif: null });
 
@@ -72,7 +78,7 @@ function showDownload(p) {
     bar.hidden = true; btn.hidden = false;
   }
   const busy = !p.complete && prog.state === "downloading";
-  if (busy && !downloadPoll) downloadPoll = setInterval(pollDownload, 400);
+  if (busy && !downloadPoll) downloadPoll = setInterval(oneAtATime(pollDownload), 400);
   if (!busy && downloadPoll) { clearInterval(downloadPoll); downloadPoll = null; }
 }
 
@@ -94,7 +100,8 @@ function showTuning(t) {
   $("tuning-profile").textContent = `${t.title} (profile ${t.profile})`;
   $("tuning-limits").textContent = `at most one write per parameter every ${t.limits.per_param_interval_s} s, `
     + `${t.limits.max_writes_per_s} writes per s` + (t.started ? ` · pre-flight snapshot ${new Date(t.started * 1000).toLocaleTimeString()}` : "");
-  $("tuning-revert").disabled = !canChange() || !t.params.some((r) => r.changed);
+  // changed null: the vehicle did not echo a write, and may hold it: Revert all writes it back
+  $("tuning-revert").disabled = !canChange() || t.params.every((r) => r.changed === false);
   const table = $("tuning-table");
   if (!table.rows.length) {
     table.innerHTML = "<tr><th>parameter</th><th>current</th><th>pre-flight</th><th>bounds · max step</th></tr>";
@@ -103,16 +110,23 @@ function showTuning(t) {
     let r = tuningRows[row.name];
     if (!r) r = tuningRows[row.name] = tuningRow(table, row);
     r.spec = row;
-    r.current.textContent = num(row.current);
+    const unknown = row.changed === null && row.current != null && row.preflight != null;
+    r.current.textContent = unknown ? `? (${num(row.current)} before a write it did not echo)` : num(row.current);
     r.preflight.textContent = num(row.preflight);
-    r.tr.classList.toggle("changed", !!row.changed);
+    r.tr.classList.toggle("changed", row.changed !== false);
     if (row.current != null) {
-      const round = (x) => Number(x.toPrecision(6));  // float32 values: keep the slider grid clean
-      const lo = round(Math.max(row.min, row.current - row.step)), hi = round(Math.min(row.max, row.current + row.step));
-      if (document.activeElement !== r.range) Object.assign(r.range, { min: lo, max: hi, value: row.current });
+      if (document.activeElement !== r.range) centre(r.range, row);
       if (document.activeElement !== r.number) r.number.value = num(row.current);
     }
   }
+}
+
+// The slider spans the largest step either side of the vehicle's value: it cannot ask for a write
+// the profile refuses.
+function centre(range, row) {
+  const round = (x) => Number(x.toPrecision(6));  // float32 values: keep the slider grid clean
+  const lo = round(Math.max(row.min, row.current - row.step)), hi = round(Math.min(row.max, row.current + row.step));
+  Object.assign(range, { min: lo, max: hi, value: row.current });
 }
 
 function tuningRow(table, row) {
@@ -129,11 +143,11 @@ function tuningRow(table, row) {
   Object.assign(number, { min: row.min, max: row.max, step: "any" });
   range.title = `the slider moves at most the largest step (${row.step}) from the current value`;
   range.addEventListener("input", () => { number.value = num(range.value); });
-  range.addEventListener("change", () => writeParam(row.name, Number(range.value)));
+  range.addEventListener("change", () => queueWrite(row.name, Number(range.value)));
   // an emptied box (or one the browser could not read: "1e") is no value, not a write of 0
   number.addEventListener("change", () => {
     const r = tuningRows[row.name];
-    if (number.value !== "") writeParam(row.name, Number(number.value));
+    if (number.value !== "") queueWrite(row.name, Number(number.value));
     else if (r.spec && r.spec.current != null) number.value = num(r.spec.current);
   });
   if (!canChange()) { range.disabled = number.disabled = true; }
@@ -148,6 +162,26 @@ const WRITE_RESULT = {
   401: ["refused", "not allowed"],
   404: ["refused", "unknown"],
 };
+
+// The keyboard's arrows fire `change` at every step of the slider: one write at a time, the newest
+// value next, each once the per-parameter interval has passed since the last answer. Each step was
+// a write of its own: six presses made six writes, five refused as rate-limited, and the vehicle
+// kept the first.
+async function queueWrite(name, value) {
+  const r = tuningRows[name];
+  const writing = r.wanted !== undefined;
+  r.wanted = value;
+  if (writing) return;
+  while (r.wanted !== null) {
+    const wait = (r.answeredAt ?? -Infinity) + 1000 * panelState.tuning.limits.per_param_interval_s - performance.now();
+    if (wait > 0) await new Promise((done) => setTimeout(done, wait));
+    const next = r.wanted;
+    r.wanted = null;
+    await writeParam(name, next);
+    r.answeredAt = performance.now();
+  }
+  delete r.wanted;
+}
 
 async function writeParam(name, value) {
   const r = tuningRows[name];
@@ -166,21 +200,29 @@ async function writeParam(name, value) {
   say("tuning-message", `${name}: ${text}`, kind === "verified" ? "ok" : "error");
   await refreshTuning();
   // Show what the vehicle holds now, not the value asked for (a refused value must not linger
-  // in the box, to be sent again when the box loses focus).
-  if (r.spec && r.spec.current != null) { r.number.value = num(r.spec.current); r.range.value = r.spec.current; }
+  // in the box, to be sent again when the box loses focus); not while the slider has moved on.
+  // The slider, focused since the click or the arrows that moved it, spans the steps from the new
+  // value (it kept those from the old one: the next drag or arrow could go no further).
+  if (r.spec && r.spec.current != null && r.wanted == null) { r.number.value = num(r.spec.current); centre(r.range, r.spec); }
 }
 
 async function revertAll() {
   const btn = $("tuning-revert"); btn.disabled = true;
+  // a slider's value still waiting for its turn would be written after the revert, undoing it
+  const dropped = [];
+  for (const [name, r] of Object.entries(tuningRows)) {
+    if (r.wanted != null) { dropped.push(`${name} = ${num(r.wanted)}`); r.wanted = null; }
+  }
+  const unsent = dropped.length ? `; not sent: ${dropped.join(", ")}` : "";
   say("tuning-message", "reverting every change to its pre-flight value…", "pending");
   const res = await call("POST", "/api/tuning/revert");
   if (res.ok) {
     const names = res.data.restored.map((p) => `${p.name} = ${num(p.value)}`);
-    say("tuning-message", names.length ? `✓ reverted and verified: ${names.join(", ")}` : "nothing to revert: every value is the pre-flight one", "ok");
+    say("tuning-message", (names.length ? `✓ reverted and verified: ${names.join(", ")}` : "nothing to revert: every value is the pre-flight one") + unsent, "ok");
     for (const r of Object.values(tuningRows)) { r.result.textContent = ""; r.result.className = "result"; delete r.tr2.dataset.result; }
     showTuning({ ...panelState.tuning, params: res.data.params });
   } else {
-    say("tuning-message", `✗ revert failed (${res.status}): ${res.message}`, "error");
+    say("tuning-message", `✗ revert failed (${res.status}): ${res.message}${unsent}`, "error");
   }
   await refreshTuning();
 }
@@ -396,12 +438,12 @@ async function initPanels() {
   $("protocol-skip").addEventListener("click", () => protocolAction("/api/protocol/skip"));
   $("protocol-repeat").addEventListener("click", () => protocolAction("/api/protocol/repeat"));
   $("protocol-stop").addEventListener("click", () => protocolAction("/api/protocol/stop"));
-  setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) refreshProtocol(); }, 1000);
+  const protocolPoll = oneAtATime(refreshProtocol), recordingPoll = oneAtATime(refreshRecording);
+  const tuningPoll = oneAtATime(refreshTuning);
+  setInterval(() => { if (panelState.tab === "protocol" || panelState.protocol?.running) protocolPoll(); }, 1000);
   refreshRecording(); refreshSessions();
-  // one request waiting at a time: a server that stops answering must not gather one every 2 s
-  let recordingPoll = null;
-  setInterval(() => { recordingPoll ??= refreshRecording().finally(() => { recordingPoll = null; }); }, 2000);
-  setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) refreshTuning(); }, 5000);
+  setInterval(recordingPoll, 2000);
+  setInterval(() => { if (panelState.tab === "tuning" && !downloadPoll) tuningPoll(); }, 5000);
 }
 
 initPanels();
