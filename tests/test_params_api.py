@@ -54,7 +54,15 @@ def test_tuning_over_rest_needs_the_token():
                 table = (await client.get("/api/params")).json()
                 assert table["progress"]["state"] == "complete" and len(table["params"]) == len(before)
 
-                tuning = (await client.get("/api/tuning")).json()
+                # opening the session reads the profile's parameters from the vehicle and fixes the
+                # pre-flight values: a read without the token (another site's <img>) does not open it
+                reads = sim.received.get("PARAM_REQUEST_READ", 0)
+                unopened = await client.get("/api/tuning")
+                assert unopened.status_code == 409 and "token" in unopened.json()["detail"], unopened.text
+                assert sim.received.get("PARAM_REQUEST_READ", 0) == reads, sim.received
+                tuning = (await client.get("/api/tuning", headers=auth)).json()
+                assert sim.received["PARAM_REQUEST_READ"] > reads  # what opening it does
+                assert (await client.get("/api/tuning")).json() == tuning  # then read without the token
                 assert tuning["profile"] == "arducopter-3.2"
                 assert tuning["limits"] == {"per_param_interval_s": 0.2, "max_writes_per_s": 5}
                 row = next(r for r in tuning["params"] if r["name"] == "RATE_RLL_P")

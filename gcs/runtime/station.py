@@ -428,6 +428,11 @@ class Station:
                 self._tuning = await open_session(self.params)
         return self._tuning
 
+    def started_tuning(self) -> TuningSession | None:
+        """The tuning session if something opened it (`tuning`), else None: reading it talks to
+        nobody, where opening it reads the profile's parameters from the vehicle."""
+        return self._tuning
+
     # ---- heavy work ------------------------------------------------------------------------
     async def in_worker(self, function: Callable[P, R], *args: P.args, **kwargs: P.kwargs) -> R:
         """Run function(*args) in the station's worker process: CPU-heavy work (replay, what-if,

@@ -3,25 +3,28 @@
 GET  /api/params            the table as known now and the download progress
 POST /api/params/download   start a full download (token)
 GET  /api/tuning            the tuning profile: limits, current and pre-flight value of each gain
+                            (opens the session with the token; without it, reads an open one)
 PUT  /api/tuning/{name}     write one gain, checked against the profile and verified (token)
 POST /api/tuning/revert     put back every pre-flight value, verified (token)
 
 The tuning session (pre-flight snapshot, profile detected from the table) is opened by the
-first tuning request and kept by the Station for its life, so the snapshot always predates every
-write made through the panel.
+first tuning request that carries the token and kept by the Station for its life, so the snapshot
+always predates every write made through the panel. Opening it reads the profile's parameters
+from the vehicle, so a request without the token (a read-only page, another site's <img>) does
+not open it: it reads the open session, or gets a 409.
 """
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from pydantic import Field
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
 from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, TuningSnapshot
-from gcs.server.deps import TOKEN, ClientDep, StationDep
+from gcs.server.deps import TOKEN, ClientDep, StationDep, is_authorised
 from gcs.server.models import Body
 from gcs.server.ratelimit import rate_limited
 
@@ -81,14 +84,25 @@ async def start_download(station: StationDep) -> dict:
     return {"download": "started" if started else "already running", "progress": station.params.progress()}
 
 
-@router.get("/api/tuning", responses={409: {"description": "the parameter table is not downloaded yet"}})
-async def get_tuning(station: StationDep) -> TuningSnapshot:
-    """The tuning session. A read never talks to the vehicle: without the whole parameter table
-    (POST /api/params/download first, which needs the token) this is a 409, not a download."""
+@router.get(
+    "/api/tuning",
+    responses={409: {"description": "the parameter table is not downloaded, or no page with the token opened tuning"}},
+)
+async def get_tuning(station: StationDep, request: Request) -> TuningSnapshot:
+    """The tuning session. Without the whole parameter table (POST /api/params/download first,
+    which needs the token) this is a 409, not a download; without the token, a 409 until a
+    request with it has opened the session (which reads the profile's parameters)."""
     if not station.params.complete:
         raise HTTPException(
             status.HTTP_409_CONFLICT, detail="parameters not downloaded yet: POST /api/params/download first"
         )
+    if not is_authorised(request):
+        started = station.started_tuning()
+        if started is None:
+            raise HTTPException(
+                status.HTTP_409_CONFLICT, detail="tuning not opened yet: a page with the token opens it"
+            )
+        return started.snapshot()
     return (await tuning_session(station)).snapshot()
 
 
