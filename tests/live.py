@@ -49,6 +49,11 @@ async def open_page(browser, errors: list[str], width: int = 1366, height: int =
     return page
 
 
+#: The page's tab buttons have their handlers (panels.js ran): a tab clicked before that stays
+#: closed, and on a loaded machine a test sometimes clicked first.
+PANELS_READY = "window.gcsPanels !== undefined"
+
+
 async def open_dashboard(page, url: str, *ready: str) -> None:
     """Load the dashboard at `url` and wait until each of the page-side conditions `ready` holds
     (a first start may still be compiling the estimators: minutes, on a loaded machine)."""

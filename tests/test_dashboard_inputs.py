@@ -14,6 +14,7 @@ import time
 
 from conftest import free_port
 from live import (
+    PANELS_READY,
     POLL_MS,
     dashboard,
     launch_chromium,
@@ -312,7 +313,7 @@ async def hung_log_scenario(udp_port: int, port: int, tmp_path) -> None:
         async with async_playwright() as pw:
             browser = await launch_chromium(pw)
             page = await open_page(browser, errors)
-            await open_dashboard(page, f"http://127.0.0.1:{port}/")
+            await open_dashboard(page, f"http://127.0.0.1:{port}/", PANELS_READY)
             await page.click("#tabs button[data-tab=sessions]")
             await page.locator("#onboard-log-status", has_text="log 1:").wait_for(timeout=60_000)
             polls: list[str] = []
@@ -366,7 +367,7 @@ async def onboard_log_scenario(udp_port: int, tmp_path) -> None:
                 assert (await api.post("/api/onboard-logs/download", json={"log": 1})).status_code == 202
             browser = await launch_chromium(pw)
             page = await open_page(browser, errors)
-            await open_dashboard(page, f"http://127.0.0.1:{server.port}/")  # without the token: read-only
+            await open_dashboard(page, f"http://127.0.0.1:{server.port}/", PANELS_READY)  # no token: read-only
             await page.click("#tabs button[data-tab=sessions]")
             status = page.locator("#onboard-log-status", has_text="log 1")
             try:

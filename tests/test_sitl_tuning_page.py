@@ -10,6 +10,7 @@ import signal
 
 import pytest
 from live import (
+    PANELS_READY,
     POLL_MS,
     dashboard,
     launch_chromium,
@@ -50,7 +51,7 @@ async def keyboard_scenario(port: int) -> None:
         page = await open_page(browser, errors, 1500, 1000)
         puts: list[int] = []
         page.on("response", lambda r: r.request.method == "PUT" and puts.append(r.status))
-        await open_dashboard(page, server.url, "document.querySelector('#param-download-btn') !== null")
+        await open_dashboard(page, server.url, PANELS_READY)
         await page.click("#tabs button[data-tab=tuning]")
         await page.locator("#param-download-btn").click(timeout=30_000)
         await page.wait_for_function(
