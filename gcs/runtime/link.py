@@ -2,7 +2,9 @@
 the ground station's own heartbeat sent, and the link state followed.
 
 State: waiting → connected (first autopilot heartbeat) → lost (no heartbeat for
-`heartbeat_timeout` s) → connected again, automatically. A serial port that vanishes is
+`heartbeat_timeout` s) → connected again, automatically. A lost link says why (`lost_reason`):
+the transport's own end when it closed since the last heartbeat (a serial port gone with its
+errno's words, the TCP peer's close, a socket error), else the silence. A serial port that vanishes is
 reopened when it comes back, a TCP peer that drops is redialled with backoff, UDP resumes
 when packets return: never a restart.
 """
@@ -142,6 +144,10 @@ class Link:
         self.target_component: int | None = None
         self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
         self.last_heartbeat: float | None = None  # host monotonic s
+        #: why the link is lost, while it is ("no heartbeat for 3 s", "/dev/ttyUSB0 closed: ...")
+        self.lost_reason: str | None = None
+        #: the last transport that closed by itself: (host monotonic s, "ADDRESS closed: why")
+        self.transport_gone: tuple[float, str] | None = None
         self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
         self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
@@ -264,6 +270,7 @@ class Link:
             target_component=self.target_component,
             mavlink_version=self.vehicle_mavlink,
             heartbeat_age_s=None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
+            lost_reason=self.lost_reason if self.state == LinkState.LOST else None,
             stats=self.stats.snapshot(),
             events=[LinkNote(e.wall_time, e.kind, e.detail) for e in list(self.events)[-50:]],
             signing=None if self.signing is None else self.signing.snapshot(),
@@ -437,9 +444,23 @@ class Link:
             and self.last_heartbeat is not None
             and time.monotonic() - self.last_heartbeat > self.heartbeat_timeout
         ):
+            self.lost_reason = self._loss_reason(self.last_heartbeat)
             self._set_state(LinkState.LOST)
         else:
             self._arm_loss_check()
+
+    def _loss_reason(self, last_heartbeat: float) -> str:
+        """Why a link whose last heartbeat came at `last_heartbeat` is lost: its transport's end
+        when one closed by itself since (what the field engineer must fix: the cable, the
+        port, the peer), else the silence (a radio fade, a vehicle switched off)."""
+        gone = self._gone()
+        if gone is not None and gone[0] >= last_heartbeat:
+            return gone[1]
+        return f"no heartbeat for {self.heartbeat_timeout:g} s"
+
+    def _gone(self) -> tuple[float, str] | None:
+        """The last transport of the link this vehicle is heard on that closed by itself."""
+        return self.transport_gone
 
     # ---- helpers ----------------------------------------------------------------------
     def _new_decoder(self) -> MavlinkDecoder | AsciiAttitudeDecoder:
@@ -451,8 +472,11 @@ class Link:
         return make_transport(self.address, baud=baud, speed=self.speed)
 
     def _set_transport(self, transport: Transport | None) -> None:
-        if self._transport is not None:  # closed: its drops stay counted
-            self._closed_drops += self._transport.kernel_drops
+        old = self._transport
+        if old is not None:  # closed: its drops stay counted
+            self._closed_drops += old.kernel_drops
+            if transport is None and old.close_reason is not None:
+                self.transport_gone = (time.monotonic(), f"{old.address} closed: {old.close_reason}")
         self._transport = transport
         if transport is not None:
             self.decoder.new_stream()
@@ -463,9 +487,11 @@ class Link:
         old, self.state = self.state, new
         if new == LinkState.CONNECTED:
             self._connected.set()
+            self.lost_reason = None
         else:
             self._connected.clear()
-        self._event("state", f"{old} -> {new}")
+        why = f": {self.lost_reason}" if new == LinkState.LOST and self.lost_reason else ""
+        self._event("state", f"{old} -> {new}{why}")
         self.state_changed.emit(old, new)
 
     def _event(self, kind: str, detail: str) -> None:

@@ -122,6 +122,9 @@ class VehicleLink(Link):
         self.stats.packets_out += 1
         self.packet_sent.emit(packet)
 
+    def _gone(self) -> tuple[float, str] | None:
+        return self._shown.transport_gone
+
     # ---- the rest of Link's surface ---------------------------------------------------------------
     async def run(self) -> None:
         """The state watchdog and rate sampling; the transport is the link's."""

@@ -227,7 +227,8 @@ class UdpTransport(Transport):
                     break
                 except ConnectionRefusedError:
                     continue  # ICMP "port unreachable" while the peer is not listening yet
-                except OSError:
+                except OSError as exc:
+                    self.close_reason = f"socket error ({describe_error(exc)})"
                     self.close()
                     break
                 ancdata = anc
@@ -281,6 +282,8 @@ class _StreamProtocol(asyncio.Protocol):
         self.on_data = on_data
         self.on_lost = on_lost
         self.transport: asyncio.Transport | None = None
+        #: why the connection ended: None (the other end closed it, or we did) or the socket's error
+        self.lost_error: Exception | None = None
 
     def connection_made(self, transport) -> None:
         self.transport = transport
@@ -292,6 +295,7 @@ class _StreamProtocol(asyncio.Protocol):
         self.on_data(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
+        self.lost_error = exc
         self.on_lost(self)
 
     def write(self, data: bytes) -> bool:
@@ -303,7 +307,8 @@ class _StreamProtocol(asyncio.Protocol):
 
 
 class TcpClientTransport(Transport):
-    """`tcp:HOST:PORT`: dial a server. Closes when the peer hangs up; the link redials."""
+    """`tcp:HOST:PORT`: dial a server. Closes when the peer hangs up (`close_reason` says whether
+    it closed the connection or the socket failed); the link redials."""
 
     def __init__(self, address: Address) -> None:
         super().__init__(address)
@@ -313,8 +318,20 @@ class TcpClientTransport(Transport):
         loop = asyncio.get_running_loop()
         self._new_closed_future()
         _, self._protocol = await loop.create_connection(
-            lambda: _StreamProtocol(on_data, lambda _p: self._mark_closed()), self.address.host, self.address.port
+            lambda: _StreamProtocol(on_data, self._lost), self.address.host, self.address.port
         )
+
+    def _lost(self, protocol: _StreamProtocol) -> None:
+        if self._closed is not None and not self._closed.done():  # not closed by us
+            error = protocol.lost_error
+            if error is None:
+                self.close_reason = "the remote end closed the connection"
+            elif isinstance(error, BrokenPipeError | ConnectionResetError):  # found by a write: closed all the same
+                self.close_reason = f"the remote end closed the connection ({describe_error(error)})"
+            else:
+                words = describe_error(error) if isinstance(error, OSError) else str(error)
+                self.close_reason = f"connection error ({words})"
+        self._mark_closed()
 
     def write(self, data: bytes) -> None:
         if self._protocol is None or not self._protocol.write(data):
@@ -369,6 +386,12 @@ class TcpServerTransport(Transport):
         self._mark_closed()
 
 
+def describe_error(exc: OSError) -> str:
+    """The words of an OSError's errno ("Input/output error", "Connection reset by peer"), else
+    its own text."""
+    return os.strerror(exc.errno) if exc.errno else str(exc)
+
+
 def open_serial(path: str, baud: int) -> serial.Serial:
     """The serial port at path, non-blocking; OSError with one line (`cannot open serial port
     PATH: No such file or directory`), not pyserial's message nested in another."""
@@ -414,7 +437,7 @@ class SerialTransport(Transport):
         except BlockingIOError:
             return
         except OSError as exc:
-            self.close_reason = f"the device is gone ({os.strerror(exc.errno) if exc.errno else exc})"
+            self.close_reason = f"the device is gone ({describe_error(exc)})"
             self.close()
             return
         if not data:
