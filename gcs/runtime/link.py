@@ -458,6 +458,17 @@ class Link:
             return gone[1]
         return f"no heartbeat for {self.heartbeat_timeout:g} s"
 
+    def down_reason(self, since: float) -> str | None:
+        """Why nothing can come from the vehicle now: the link lost (its `lost_reason`), or its
+        transport closed by itself at or after `since` (host monotonic s) and not open again;
+        None while it is up. A request waiting for an answer names this, not its own timeout."""
+        if self.state == LinkState.LOST:
+            return self.lost_reason
+        gone = self._gone()
+        if not self.is_open and gone is not None and gone[0] >= since:
+            return gone[1]
+        return None
+
     def _gone(self) -> tuple[float, str] | None:
         """The last transport of the link this vehicle is heard on that closed by itself."""
         return self.transport_gone
