@@ -13,7 +13,9 @@ from live import running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
 from gcs.mavlink.dialect import Encoder, mavlink
+from gcs.runtime.fleet import Fleet
 from gcs.runtime.link import LinkState
+from gcs.runtime.station import StationConfig
 from gcs.sessions import layout
 
 
@@ -78,3 +80,26 @@ def test_a_tcp_peer_that_closes_is_the_reason_of_the_loss(tcp_port):
     # (the close itself, or found by the station's next heartbeat: "Broken pipe")
     closed = f"tcp:127.0.0.1:{tcp_port} closed: the remote end closed the connection"
     assert snap.link.lost_reason in {closed, f"{closed} (Broken pipe)", f"{closed} (Connection reset by peer)"}
+
+
+def test_a_serial_port_that_vanishes_is_lost_at_once_not_a_heartbeat_timeout_later(tmp_path):
+    """The port's end is known when it comes: the page and `gcs status` showed the vehicle
+    "connected" for `--heartbeat-timeout` s more (5 s here) with nothing able to arrive."""
+    path = tmp_path / "ttyUSB-sim"
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=str(path), heartbeat_timeout=5.0, estimate=False))
+        await fleet.start()
+        try:
+            link = fleet.first.link  # the vehicle's view of the serial link, as gcs serve shows it
+            async with running_sim(f"pty:{path}", profile="apm25"):
+                assert await link.wait_connected(10)
+            await wait_for(lambda: not link.is_open, 5, "the vanished port to be noticed")
+            await wait_for(lambda: link.state == LinkState.LOST, 1.0, "the link lost with its port")
+            return link.lost_reason, fleet.links[0].lost_reason
+        finally:
+            await fleet.stop()
+
+    view, shared = asyncio.run(scenario())
+    reasons = {f"{path} closed: the device is gone ({why})" for why in ("end of file", "Input/output error")}
+    assert view in reasons and shared in reasons

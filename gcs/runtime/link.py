@@ -2,7 +2,8 @@
 the ground station's own heartbeat sent, and the link state followed.
 
 State: waiting → connected (first autopilot heartbeat) → lost (no heartbeat for
-`heartbeat_timeout` s) → connected again, automatically. A lost link says why (`lost_reason`):
+`heartbeat_timeout` s, or at once when the transport closes by itself) → connected again,
+automatically. A lost link says why (`lost_reason`):
 the transport's own end when it closed since the last heartbeat (a serial port gone with its
 errno's words, the TCP peer's close, a socket error), else the silence. A serial port that vanishes is
 reopened when it comes back, a TCP peer that drops is redialled with backoff, UDP resumes
@@ -163,6 +164,8 @@ class Link:
         self.state_changed: Signal[[LinkState, LinkState]] = Signal()
         #: every event as it is added to `events`, in the event loop
         self.noted: Signal[[LinkEvent]] = Signal()
+        #: its transport closed by itself (`transport_gone` says why), in the event loop
+        self.transport_closed: Signal[[]] = Signal()
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
@@ -449,6 +452,16 @@ class Link:
         else:
             self._arm_loss_check()
 
+    def _lose_now(self) -> None:
+        """The transport closed by itself: nothing can arrive until it reopens, so a connected link
+        is lost now, with the transport's reason, not a heartbeat timeout later."""
+        if self.state == LinkState.CONNECTED and self.last_heartbeat is not None:
+            if self._loss_check is not None:
+                self._loss_check.cancel()
+                self._loss_check = None
+            self.lost_reason = self._loss_reason(self.last_heartbeat)
+            self._set_state(LinkState.LOST)
+
     def _loss_reason(self, last_heartbeat: float) -> str:
         """Why a link whose last heartbeat came at `last_heartbeat` is lost: its transport's end
         when one closed by itself since (what the field engineer must fix: the cable, the
@@ -458,16 +471,23 @@ class Link:
             return gone[1]
         return f"no heartbeat for {self.heartbeat_timeout:g} s"
 
-    def down_reason(self, since: float) -> str | None:
-        """Why nothing can come from the vehicle now: the link lost (its `lost_reason`), or its
-        transport closed by itself at or after `since` (host monotonic s) and not open again;
-        None while it is up. A request waiting for an answer names this, not its own timeout."""
-        if self.state == LinkState.LOST:
-            return self.lost_reason
+    def closed_since(self, since: float) -> str | None:
+        """Why the transport is closed, when it closed by itself at or after `since` (host monotonic
+        s) and is not open again (a serial port gone); None otherwise. Nothing can come through it:
+        a request waiting for an answer stops and names this."""
         gone = self._gone()
         if not self.is_open and gone is not None and gone[0] >= since:
             return gone[1]
         return None
+
+    def down_reason(self, since: float) -> str | None:
+        """Why no answer came: the transport closed since `since` (`closed_since`), or the link is
+        lost (its `lost_reason`); None while it is up. A request that got no answer names this,
+        not its own timeout alone."""
+        closed = self.closed_since(since)
+        if closed is not None:
+            return closed
+        return self.lost_reason if self.state == LinkState.LOST else None
 
     def _gone(self) -> tuple[float, str] | None:
         """The last transport of the link this vehicle is heard on that closed by itself."""
@@ -488,6 +508,8 @@ class Link:
             self._closed_drops += old.kernel_drops
             if transport is None and old.close_reason is not None:
                 self.transport_gone = (time.monotonic(), f"{old.address} closed: {old.close_reason}")
+                self.transport_closed.emit()
+                self._lose_now()
         self._transport = transport
         if transport is not None:
             self.decoder.new_stream()

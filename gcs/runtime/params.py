@@ -343,8 +343,8 @@ class ParamClient:
             self.complete = False
             self._progress = {"state": "downloading", "started": start, "list_requests": 0, "read_requests": 0}
             try:
-                await self._request_list(deadline)
-                await self._fill_missing(deadline)
+                await self._request_list(start, deadline)
+                await self._fill_missing(start, deadline)
             except ParamTimeout as exc:
                 down = self.link.down_reason(start)  # the cause, whichever wait ran out first
                 error = ParamTimeout(self._cut_short(down)) if down else exc
@@ -386,19 +386,19 @@ class ParamClient:
         return f"parameter download cut short: the link was lost ({down}); {len(self._received)} of {of} received"
 
     def _check_link(self, since: float, what: str) -> None:
-        """Stop waiting for an answer the moment the link is down since `since` (ParamTimeout
-        naming why): retries and timeouts would only add seconds to a generic failure."""
-        down = self.link.down_reason(since)
+        """Stop waiting for an answer the moment the link's transport has closed since `since` (a
+        serial port gone; ParamTimeout naming why): retries and timeouts would only add seconds to
+        a generic failure. A link lost for silence alone (a radio fade) is waited out."""
+        down = self.link.closed_since(since)
         if down is not None:
             raise ParamTimeout(f"{what}: the link was lost ({down})")
 
     def _missing(self) -> list[int]:
         return [] if self.count is None else [i for i in range(self.count) if i not in self._received]
 
-    async def _request_list(self, deadline: float) -> None:
+    async def _request_list(self, since: float, deadline: float) -> None:
         """PARAM_REQUEST_LIST (repeated if nothing comes), then follow the stream until it ends:
         the last index arrived, or nothing for `list_gap` s."""
-        since = time.monotonic()
         for _ in range(self.list_attempts):
             self._check_link(since, "parameter download")
             self._send(mavlink.MAVLink_param_request_list_message(*self._target()))
@@ -417,11 +417,10 @@ class ParamClient:
             if await self._expect(lambda p: True, gap) is None:
                 return
 
-    async def _fill_missing(self, deadline: float) -> None:
+    async def _fill_missing(self, since: float, deadline: float) -> None:
         """Re-request missing indices, `window` outstanding at a time, each `read_attempts` times."""
         tries: dict[int, int] = {}
         pending: dict[int, float] = {}  # index → when its reply is overdue
-        since = time.monotonic()
         while missing := self._missing():
             self._check_link(since, "parameter download")
             now = time.monotonic()

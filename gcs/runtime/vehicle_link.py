@@ -62,9 +62,11 @@ class VehicleLink(Link):
         and what the station sends on it (its heartbeats reach every vehicle there)."""
         self._shown.packet_sent.disconnect(self._on_link_sent)
         self._shown.noted.disconnect(self._on_link_noted)
+        self._shown.transport_closed.disconnect(self._lose_now)
         self._shown = link
         link.packet_sent.connect(self._on_link_sent)
         link.noted.connect(self._on_link_noted)
+        link.transport_closed.connect(self._lose_now)
         self.address, self.name, self.baud = link.address, link.name, link.baud
         self.stats.framing = link.stats.framing
         self.stats.nonfinite = link.stats.nonfinite
