@@ -254,6 +254,15 @@ class Link:
         finally:
             self.addressed = None
 
+    def follow_renamed(self, old: int, new: int) -> None:
+        """Vehicle `old` took the system id `new` (its MAV_SYSID written, gcs.runtime.fleet): follow
+        it as that system, its heartbeats going on as its own."""
+        if old in self.vehicles_heard:
+            self.vehicles_heard[new] = self.vehicles_heard.pop(old)
+        if self.target_system == old:
+            self.target_system = new
+            self._event("state", f"the vehicle is system {new} now (was {old})")
+
     def restart_sequence(self, sysid: int, compid: int, since: float) -> int:
         """A sender rebooted: its sequence numbers started again (`MavlinkDecoder.restart_sequence`).
         Returns the packets no longer counted as lost."""

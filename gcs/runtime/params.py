@@ -123,6 +123,8 @@ class ParamClient:
         self._running = False
         self._write_lock = asyncio.Lock()
         self._download_lock = asyncio.Lock()
+        #: while a write of the vehicle's own system id runs: the id asked (gcs.runtime.fleet follows)
+        self.renaming_to: int | None = None
 
     # ---- state ------------------------------------------------------------------------
     @property
@@ -289,6 +291,7 @@ class ParamClient:
             finally:
                 if renamed is not None:
                     renamed.cancel()
+                    self.renaming_to = None
             verified = reply is not None and same_value(reply.value, asked)
             down = None if reply is not None else self.link.down_reason(written)
             self.events.record(
@@ -319,6 +322,7 @@ class ParamClient:
         at reboot: its echo comes from the old id, as for any parameter."""
         if name not in ARDUPILOT_SYSID_PARAMS or asked == self.link.target_system or not 1 <= asked <= 255:
             return None
+        self.renaming_to = int(asked)
         heard_on = self.link.link if isinstance(self.link, VehicleLink) else self.link
         bus: MessageBus = heard_on.bus if heard_on is not None else self.link.bus
         sub = bus.subscribe("params-new-sysid", types=["PARAM_VALUE"], maxlen=100)
