@@ -85,6 +85,7 @@ def format_report(snap: StationSnapshot) -> str:
     lines = [
         f"link       {link.address}  state {link.state}"
         + (f" ({link.lost_reason})" if link.lost_reason else "")
+        + (f" ({link.open_error}; retrying)" if link.open_error else "")
         + "  "
         + (f"heartbeat age {link.heartbeat_age_s} s" if heard else "no heartbeat yet"),
         f"vehicle    sysid {vehicle.sysid}  {vehicle.autopilot}  {vehicle.vehicle_type}  "

@@ -69,10 +69,12 @@ async def keep_open(
     first_backoff: float = 0.5,
     max_backoff: float = 5.0,
     on_batch: BatchCallback | None = None,
+    on_refused: Callable[[str | None], None] | None = None,
 ) -> None:
     """Open a transport and reopen it whenever it closes, with exponential backoff.
     Returns when a transport that cannot be reopened (a replayed file) has ended.
-    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes)."""
+    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes). `on_refused`: why it
+    cannot open ("cannot open ADDRESS: Connection refused") at the first failure, None once open."""
     backoff = first_backoff
     failing = False
     while True:
@@ -81,13 +83,18 @@ async def keep_open(
             await transport.open(on_data, on_batch)
         except OSError as exc:
             if not failing:
-                on_event("transport", f"cannot open {transport.address}: {open_error(exc)}; retrying")
+                why = f"cannot open {transport.address}: {open_error(exc)}"
+                on_event("transport", f"{why}; retrying")
+                if on_refused is not None:
+                    on_refused(why)
             failing = True
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, max_backoff)
             continue
         failing = False
         backoff = first_backoff
+        if on_refused is not None:
+            on_refused(None)
         on_open(transport)
         on_event("transport", f"opened {transport.address}")
         try:
@@ -147,6 +154,8 @@ class Link:
         self.last_heartbeat: float | None = None  # host monotonic s
         #: why the link is lost, while it is ("no heartbeat for 3 s", "/dev/ttyUSB0 closed: ...")
         self.lost_reason: str | None = None
+        #: while its transport cannot be opened: why ("cannot open tcp:HOST:PORT: Connection refused")
+        self.open_error: str | None = None
         #: the last transport that closed by itself: (host monotonic s, "ADDRESS closed: why")
         self.transport_gone: tuple[float, str] | None = None
         self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
@@ -183,7 +192,12 @@ class Link:
             if self.address.kind == "serial" and self.baud == "auto":
                 await self._detect_baud()
             await keep_open(
-                self._make_transport, self._on_data, self._event, self._set_transport, on_batch=self._on_datagrams
+                self._make_transport,
+                self._on_data,
+                self._event,
+                self._set_transport,
+                on_batch=self._on_datagrams,
+                on_refused=self._refused,
             )
         finally:
             for t in tasks:
@@ -283,6 +297,7 @@ class Link:
             mavlink_version=self.vehicle_mavlink,
             heartbeat_age_s=None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
             lost_reason=self.lost_reason if self.state == LinkState.LOST else None,
+            open_error=self.open_error,
             stats=self.stats.snapshot(),
             events=[LinkNote(e.wall_time, e.kind, e.detail) for e in list(self.events)[-50:]],
             signing=None if self.signing is None else self.signing.snapshot(),
@@ -510,6 +525,9 @@ class Link:
     def _make_transport(self) -> Transport:
         baud = self.baud if isinstance(self.baud, int) else AUTO_BAUDS[0]
         return make_transport(self.address, baud=baud, speed=self.speed)
+
+    def _refused(self, why: str | None) -> None:
+        self.open_error = why
 
     def _set_transport(self, transport: Transport | None) -> None:
         old = self._transport

@@ -150,7 +150,14 @@ class VehicleLink(Link):
         shared = [e for e in link.events if e.kind != "state"]
         events = sorted([*shared, *own.events], key=lambda e: e.wall_time)[-50:]
         stats = self._own_loss(dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops))
-        return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)
+        return dataclasses.replace(
+            own,
+            transport_open=link.transport_open,
+            baud=link.baud,
+            stats=stats,
+            events=events,
+            open_error=link.open_error,
+        )
 
     def _own_loss(self, stats: LinkCounters) -> LinkCounters:
         """`stats` with the packets received from this vehicle and those lost by sequence number

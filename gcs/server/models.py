@@ -52,6 +52,9 @@ class LinkStatus(BaseModel):
     lost_reason: str | None = Field(
         default=None, description="while lost: why (no heartbeat for N s, the serial port gone, the TCP peer closed)"
     )
+    open_error: str | None = Field(
+        default=None, description="while its transport cannot be opened: why (cannot open ADDRESS: Connection refused)"
+    )
     heartbeat_age_s: float | None
     packets: int
     packets_lost: int
