@@ -32,6 +32,9 @@ class VehicleLink(Link):
         super().__init__(link.address, bus=MessageBus(), heartbeat_timeout=link.heartbeat_timeout, name=link.name)
         self.link: Link | None = None
         self._pace: Callable[[], float] | None = None  # `pace_reads`: asked of the link it is heard on
+        #: packets from this vehicle's own system (its autopilot and its other components), the
+        #: ones its loss is counted over; what else reaches it (a GCS, a radio) is in stats.counts
+        self.own_packets = 0
         self._shown = link
         self._show(link)
 
@@ -79,17 +82,21 @@ class VehicleLink(Link):
     def deliver_many(self, items: list[Message]) -> None:
         """This vehicle's messages of one wake-up, in order: counted, its heartbeats read (what
         came before one is published first, as per message), published in one call."""
-        stats, bus = self.stats, self.bus
+        stats, bus, target = self.stats, self.bus, self.target_system
         counts = stats.counts
-        start = 0
+        start = own = 0
         for i, item in enumerate(items):
             stats.bytes_in += len(item.raw)
             counts[item.type] = counts.get(item.type, 0) + 1  # stats.count, inline (every packet)
-            if item.type == "HEARTBEAT" and item.sysid == self.target_system:
+            if item.sysid != target:
+                continue
+            own += 1
+            if item.type == "HEARTBEAT":
                 if i > start:
                     bus.publish_many(items[start:i])
                     start = i
                 self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)
+        self.own_packets += own
         bus.publish_many(items[start:] if start else items)
 
     # ---- send path: through the link the vehicle was heard on ---------------------------------
@@ -168,7 +175,7 @@ class VehicleLink(Link):
         if self.target_system is None:
             return stats
         lost = sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == self.target_system)
-        packets = sum(self.stats.counts.values())
+        packets = self.own_packets
         total = packets + lost
         return dataclasses.replace(
             stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0
