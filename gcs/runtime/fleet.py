@@ -190,6 +190,9 @@ class Fleet:
         """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
         link = self.links[index]
         self.heard.add(item.sysid)
+        if (renamed := self._renamed(index, item)) is not None:
+            renamed.deliver(item)
+            return
         takes_first = self._unbound is not None and self._unbound_system in (None, item.sysid)
         if self.single and (not takes_first or self.sysid not in (None, item.sysid)):
             self._ignored.add((index, item.sysid))
@@ -225,19 +228,23 @@ class Fleet:
         _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
 
     def _renamed(self, index: int, item: Message) -> VehicleLink | None:
-        """A PARAM_VALUE from a system not served here saying its own system id is its sender's:
-        the echo of a system id written to a vehicle served on this link (the one whose core is
-        writing it, else the only one there with that component id). Its core then serves it
-        under the new id; the view, or None when no vehicle here is the one renamed."""
+        """A vehicle served on this link that now sends as `item`'s system, its core moved to serve
+        it under that id (its view returned; None when none is). Told by a PARAM_VALUE from a
+        system not served here saying its own system id is its sender's (the echo of the write:
+        the vehicle whose core is writing it, else the only one there with that component id), or
+        by a new system's first heartbeat while a core on this link writes that id (its echo lost)."""
         msg, new = item.msg, item.sysid
-        if msg is None or param_name(msg) not in ARDUPILOT_SYSID_PARAMS or msg.param_value != new:
+        if msg is None or self.vehicle(new) is not None:
+            return None
+        echo = item.type == "PARAM_VALUE"
+        if echo and (param_name(msg) not in ARDUPILOT_SYSID_PARAMS or msg.param_value != new):
             return None
         here = [(i, e) for i, e in enumerate(self._entries) if _view(e.station) in self._on_link[index]]
         same = [(i, e) for i, e in here if e.compid == item.compid and e.sysid != new]
         writing = [(i, e) for i, e in same if e.station.params.renaming_to == new]
-        chosen = writing or same
+        chosen = (writing or same) if echo else writing
         if len(chosen) != 1:
-            return None  # two vehicles with that component id here, neither writing it: which is unknown
+            return None  # none, or two vehicles with that component id here, neither writing it
         i, entry = chosen[0]
         old, view, link = entry.sysid, _view(entry.station), self.links[index]
         assert old is not None  # (a bound core's entry)
