@@ -103,3 +103,27 @@ def test_a_serial_port_that_vanishes_is_lost_at_once_not_a_heartbeat_timeout_lat
     view, shared = asyncio.run(scenario())
     reasons = {f"{path} closed: the device is gone ({why})" for why in ("end of file", "Input/output error")}
     assert view in reasons and shared in reasons
+
+
+def test_a_tcpin_client_that_hangs_up_is_the_reason_of_the_loss(tcp_port):
+    """A vehicle (or a telemetry bridge) dialling the station's `tcpin:` listener hung up: the
+    listener stays open, so the link waited for the heartbeat timeout and read "no heartbeat"."""
+    beat = mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3
+    )
+
+    async def scenario():
+        address = f"tcpin:127.0.0.1:{tcp_port}"
+        async with running_station(address, heartbeat_timeout=5.0, estimate=False) as station:
+            link = station.link
+            await wait_for(lambda: link.is_open, 10, "the listener")
+            _, writer = await asyncio.open_connection("127.0.0.1", tcp_port)
+            writer.write(b"".join(Encoder(1, 1).encode(beat) for _ in range(3)))
+            await writer.drain()
+            assert await link.wait_connected(10)
+            writer.close()
+            await wait_for(lambda: link.state == LinkState.LOST, 1.0, "the link lost with its client")
+            return address, link.lost_reason
+
+    address, reason = asyncio.run(scenario())
+    assert reason == f"{address}: the last client closed the connection"

@@ -526,6 +526,13 @@ class Link:
         baud = self.baud if isinstance(self.baud, int) else AUTO_BAUDS[0]
         return make_transport(self.address, baud=baud, speed=self.speed)
 
+    def _peer_gone(self, why: str) -> None:
+        """The other end went while the transport stays open (a `tcpin` client hung up): lost now,
+        as when a transport closes by itself."""
+        self.transport_gone = (time.monotonic(), f"{self.address}: {why}")
+        self.transport_closed.emit()
+        self._lose_now()
+
     def _refused(self, why: str | None) -> None:
         self.open_error = why
 
@@ -539,6 +546,7 @@ class Link:
                 self._lose_now()
         self._transport = transport
         if transport is not None:
+            transport.on_peer_gone = self._peer_gone
             self.decoder.new_stream()
             if self._read_intervals:
                 transport.pace_reads(self._read_interval)

@@ -65,6 +65,9 @@ class Transport(ABC):
         self.kernel_drops = 0  # received datagrams the kernel dropped before we read them (UDP on Linux)
         #: why it closed by itself, when it knows (a serial device that vanished); None otherwise
         self.close_reason: str | None = None
+        #: told why when the other end went while the transport stays open (a `tcpin` listener's
+        #: last client hung up); set by its user
+        self.on_peer_gone: Callable[[str], None] | None = None
         self._closed: asyncio.Future[None] | None = None
 
     @abstractmethod
@@ -346,7 +349,8 @@ class TcpClientTransport(Transport):
 class TcpServerTransport(Transport):
     """`tcpin:HOST:PORT`: listen; every connected client receives what is written and may send.
 
-    The listener stays open while clients come and go, so it only closes when told to.
+    The listener stays open while clients come and go, so it only closes when told to; its last
+    client hanging up is told to `on_peer_gone`.
     """
 
     def __init__(self, address: Address) -> None:
@@ -359,11 +363,17 @@ class TcpServerTransport(Transport):
         self._new_closed_future()
 
         def new_client() -> _StreamProtocol:
-            p = _StreamProtocol(on_data, self.clients.remove)
+            p = _StreamProtocol(on_data, self._client_lost)
             self.clients.append(p)
             return p
 
         self._server = await loop.create_server(new_client, self.address.host, self.address.port, reuse_address=True)
+
+    def _client_lost(self, client: _StreamProtocol) -> None:
+        self.clients.remove(client)
+        listening = self._closed is not None and not self._closed.done()  # (not our own close)
+        if not self.clients and listening and self.on_peer_gone is not None:
+            self.on_peer_gone("the last client closed the connection")
 
     @property
     def local_port(self) -> int:
