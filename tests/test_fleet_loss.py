@@ -72,3 +72,43 @@ def test_each_vehicle_on_a_shared_link_counts_its_own_packets(udp_port):
 
     packets = asyncio.run(scenario())
     assert 28 <= packets[1] <= 30 and packets[2] == 30  # of the link's 60 (the first core may count from its bind)
+
+
+def test_a_ground_stations_heartbeats_are_not_counted_as_a_vehicles_packets(udp_port):
+    """Messages from a system that is no vehicle (another ground station, sysid 255; a radio's
+    RADIO_STATUS) reach every vehicle on the link, and were counted as each one's packets, beside a
+    loss counted over its own: 30 heartbeats of vehicle 2 with 30 of a GCS read 60 packets, and its
+    loss % half what it was."""
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{udp_port}", estimate=False, request_streams=False))
+        await fleet.start()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        beat = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mavlink.MAV_STATE_STANDBY, 3
+        )
+        gcs_beat = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )
+        vehicle, other_gcs = Encoder(2, 1), Encoder(255, 190)
+        try:
+            await wait_for(lambda: fleet.links[0].is_open, 10, "the station's socket")
+            for _ in range(30):
+                sock.sendto(vehicle.encode(beat), ("127.0.0.1", udp_port))
+                vehicle.mav.seq = (vehicle.mav.seq + 1) % 256  # the one after it never arrives
+                sock.sendto(other_gcs.encode(gcs_beat), ("127.0.0.1", udp_port))
+                await asyncio.sleep(0.01)
+
+            def heartbeats() -> int:  # delivered to vehicle 2's core, its own and the GCS's
+                station = fleet.vehicle(2)
+                return 0 if station is None else station.link.stats.counts.get("HEARTBEAT", 0)
+
+            await wait_for(lambda: heartbeats() >= 60, 10, "every heartbeat delivered")
+            return fleet.vehicle(2).publish().link.stats  # type: ignore[union-attr]
+        finally:
+            sock.close()
+            await fleet.stop()
+
+    stats = asyncio.run(scenario())
+    assert stats.packets == 30 and stats.packets_lost == 29
+    assert stats.loss_fraction == round(29 / 59, 5)

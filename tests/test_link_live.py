@@ -80,7 +80,7 @@ def test_udp_vehicle_silent_for_5_s_goes_lost_then_connected_with_counters_conti
 
     link, before = asyncio.run(scenario())
     states = [e.detail for e in link.events if e.kind == "state"]
-    assert states[:3] == ["waiting -> connected", "connected -> lost", "lost -> connected"]
+    assert states[:3] == ["waiting -> connected", "connected -> lost: no heartbeat for 2 s", "lost -> connected"]
     assert link.stats.framing.packets > before > 0  # the same counters went on
     assert link.stats.framing.crc_errors == 0
 

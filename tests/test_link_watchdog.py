@@ -56,5 +56,5 @@ def test_a_silent_link_is_lost_one_timeout_after_its_last_heartbeat(udp_port):
 
     link, heard, last = asyncio.run(go())
     assert heard == [LinkState.CONNECTED]
-    declared: LinkEvent = next(e for e in link.events if e.detail == "connected -> lost")
+    declared: LinkEvent = next(e for e in link.events if e.detail == "connected -> lost: no heartbeat for 2 s")
     assert TIMEOUT < declared.host_time - last < TIMEOUT + 1.0

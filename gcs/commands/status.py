@@ -62,8 +62,9 @@ def format_vehicles(snapshots: list[StationSnapshot]) -> str:
     for snap in snapshots:
         v = snap.vehicle
         lines.append(
-            f"  sysid {v.sysid}  {v.autopilot}  {v.vehicle_type}  on {snap.link.address}  {snap.link.state}  "
-            f"firmware {v.firmware or '?'}"
+            f"  sysid {v.sysid}  {v.autopilot}  {v.vehicle_type}  on {snap.link.address}  {snap.link.state}"
+            + (f" ({snap.link.lost_reason})" if snap.link.lost_reason else "")
+            + f"  firmware {v.firmware or '?'}"
         )
     for snap in snapshots:
         lines += ["", f"== vehicle sysid {snap.vehicle.sysid} ==", format_report(snap)]
@@ -82,7 +83,10 @@ def format_report(snap: StationSnapshot) -> str:
     link, vehicle, streams, stats, recording = snap.link, snap.vehicle, snap.streams, snap.link.stats, snap.recording
     heard = link.heartbeat_age_s is not None
     lines = [
-        f"link       {link.address}  state {link.state}  "
+        f"link       {link.address}  state {link.state}"
+        + (f" ({link.lost_reason})" if link.lost_reason else "")
+        + (f" ({link.open_error}; retrying)" if link.open_error else "")
+        + "  "
         + (f"heartbeat age {link.heartbeat_age_s} s" if heard else "no heartbeat yet"),
         f"vehicle    sysid {vehicle.sysid}  {vehicle.autopilot}  {vehicle.vehicle_type}  "
         f"MAVLink {vehicle.mavlink_version}  {'ARMED' if vehicle.armed else 'disarmed'}  "

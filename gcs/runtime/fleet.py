@@ -13,6 +13,12 @@ first core is then bound to the vehicle whose sensor data it already took, if an
 and recording follow the first system that sent IMU data): a vehicle heard before that one gets a
 core of its own, so no session starts with another vehicle's data. A sysid already served on one
 link and heard on another stays on the first.
+
+A vehicle whose system id is written (ArduPilot's MAV_SYSID / SYSID_THISMAV, by this station or
+another ground station) answers as the new id at once, and its echo, a PARAM_VALUE of that
+parameter equal to its sender's id, is the first thing heard from it: its core follows it under
+the new id (`_renamed`) rather than a second core starting beside the first, which was left
+"lost" for ever.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from gcs.mavlink.identity import is_vehicle_heartbeat
+from gcs.mavlink.identity import ARDUPILOT_SYSID_PARAMS, is_vehicle_heartbeat
+from gcs.mavlink.params import param_name
 from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.forward import Output
@@ -166,6 +173,9 @@ class Fleet:
         if item.type == "HEARTBEAT" and is_vehicle_heartbeat(item.msg):
             self._adopt(index, item)
             return
+        if item.type == "PARAM_VALUE" and (renamed := self._renamed(index, item)) is not None:
+            renamed.deliver(item)  # its parameter client takes the new value as its vehicle's
+            return
         if item.type not in INPUT_TYPES:  # a GCS, a companion, a radio: as on a one-vehicle link
             for view in self._on_link[index]:  # (sensor data is some vehicle's: never another's)
                 view.deliver(item)
@@ -180,6 +190,9 @@ class Fleet:
         """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
         link = self.links[index]
         self.heard.add(item.sysid)
+        if (renamed := self._renamed(index, item)) is not None:
+            renamed.deliver(item)
+            return
         takes_first = self._unbound is not None and self._unbound_system in (None, item.sysid)
         if self.single and (not takes_first or self.sysid not in (None, item.sysid)):
             self._ignored.add((index, item.sysid))
@@ -213,6 +226,40 @@ class Fleet:
         core.events.record("vehicle", "fleet", event="heard", sysid=item.sysid, compid=item.compid, link=address)
         self.vehicle_added.emit(entry)
         _view(core).deliver(item)  # its parts subscribe when their tasks first run: they see the next one
+
+    def _renamed(self, index: int, item: Message) -> VehicleLink | None:
+        """A vehicle served on this link that now sends as `item`'s system, its core moved to serve
+        it under that id (its view returned; None when none is). Told by a PARAM_VALUE from a
+        system not served here saying its own system id is its sender's (the echo of the write:
+        the vehicle whose core is writing it, else the only one there with that component id), or
+        by a new system's first heartbeat while a core on this link writes that id (its echo lost)."""
+        msg, new = item.msg, item.sysid
+        if msg is None or self.vehicle(new) is not None:
+            return None
+        echo = item.type == "PARAM_VALUE"
+        if echo and (param_name(msg) not in ARDUPILOT_SYSID_PARAMS or msg.param_value != new):
+            return None
+        here = [(i, e) for i, e in enumerate(self._entries) if _view(e.station) in self._on_link[index]]
+        same = [(i, e) for i, e in here if e.compid == item.compid and e.sysid != new]
+        writing = [(i, e) for i, e in same if e.station.params.renaming_to == new]
+        chosen = (writing or same) if echo else writing
+        if len(chosen) != 1:
+            return None  # none, or two vehicles with that component id here, neither writing it
+        i, entry = chosen[0]
+        old, view, link = entry.sysid, _view(entry.station), self.links[index]
+        assert old is not None  # (a bound core's entry)
+        bus = self._buses[index]
+        del bus.views[old]
+        bus.views[new] = view
+        link.follow_renamed(old, new)
+        view.follow_renamed(old, new)
+        entry.station.follow_system(new)
+        self._entries[i] = dataclasses.replace(entry, sysid=new)
+        self.heard.add(new)
+        MessageBus.epoch += 1
+        address = str(link.address)
+        entry.station.events.record("vehicle", "fleet", event="system id changed", old=old, new=new, link=address)
+        return view
 
 
 def _view(core: Station) -> VehicleLink:

@@ -2,7 +2,10 @@
 the ground station's own heartbeat sent, and the link state followed.
 
 State: waiting → connected (first autopilot heartbeat) → lost (no heartbeat for
-`heartbeat_timeout` s) → connected again, automatically. A serial port that vanishes is
+`heartbeat_timeout` s, or at once when the transport closes by itself) → connected again,
+automatically. A lost link says why (`lost_reason`):
+the transport's own end when it closed since the last heartbeat (a serial port gone with its
+errno's words, the TCP peer's close, a socket error), else the silence. A serial port that vanishes is
 reopened when it comes back, a TCP peer that drops is redialled with backoff, UDP resumes
 when packets return: never a restart.
 """
@@ -66,10 +69,12 @@ async def keep_open(
     first_backoff: float = 0.5,
     max_backoff: float = 5.0,
     on_batch: BatchCallback | None = None,
+    on_refused: Callable[[str | None], None] | None = None,
 ) -> None:
     """Open a transport and reopen it whenever it closes, with exponential backoff.
     Returns when a transport that cannot be reopened (a replayed file) has ended.
-    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes)."""
+    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes). `on_refused`: why it
+    cannot open ("cannot open ADDRESS: Connection refused") at the first failure, None once open."""
     backoff = first_backoff
     failing = False
     while True:
@@ -78,13 +83,18 @@ async def keep_open(
             await transport.open(on_data, on_batch)
         except OSError as exc:
             if not failing:
-                on_event("transport", f"cannot open {transport.address}: {open_error(exc)}; retrying")
+                why = f"cannot open {transport.address}: {open_error(exc)}"
+                on_event("transport", f"{why}; retrying")
+                if on_refused is not None:
+                    on_refused(why)
             failing = True
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, max_backoff)
             continue
         failing = False
         backoff = first_backoff
+        if on_refused is not None:
+            on_refused(None)
         on_open(transport)
         on_event("transport", f"opened {transport.address}")
         try:
@@ -142,6 +152,12 @@ class Link:
         self.target_component: int | None = None
         self.vehicle_mavlink: int | None = None  # 1 or 2: what the vehicle speaks
         self.last_heartbeat: float | None = None  # host monotonic s
+        #: why the link is lost, while it is ("no heartbeat for 3 s", "/dev/ttyUSB0 closed: ...")
+        self.lost_reason: str | None = None
+        #: while its transport cannot be opened: why ("cannot open tcp:HOST:PORT: Connection refused")
+        self.open_error: str | None = None
+        #: the last transport that closed by itself: (host monotonic s, "ADDRESS closed: why")
+        self.transport_gone: tuple[float, str] | None = None
         self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
         self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
@@ -157,6 +173,8 @@ class Link:
         self.state_changed: Signal[[LinkState, LinkState]] = Signal()
         #: every event as it is added to `events`, in the event loop
         self.noted: Signal[[LinkEvent]] = Signal()
+        #: its transport closed by itself (`transport_gone` says why), in the event loop
+        self.transport_closed: Signal[[]] = Signal()
         #: every packet sent to the vehicle (ours and forwarded ones), so a recording holds both directions.
         self.packet_sent: Signal[[bytes]] = Signal()
         self._connected = asyncio.Event()
@@ -174,7 +192,12 @@ class Link:
             if self.address.kind == "serial" and self.baud == "auto":
                 await self._detect_baud()
             await keep_open(
-                self._make_transport, self._on_data, self._event, self._set_transport, on_batch=self._on_datagrams
+                self._make_transport,
+                self._on_data,
+                self._event,
+                self._set_transport,
+                on_batch=self._on_datagrams,
+                on_refused=self._refused,
             )
         finally:
             for t in tasks:
@@ -245,6 +268,15 @@ class Link:
         finally:
             self.addressed = None
 
+    def follow_renamed(self, old: int, new: int) -> None:
+        """Vehicle `old` took the system id `new` (its MAV_SYSID written, gcs.runtime.fleet): follow
+        it as that system, its heartbeats going on as its own."""
+        if old in self.vehicles_heard:
+            self.vehicles_heard[new] = self.vehicles_heard.pop(old)
+        if self.target_system == old:
+            self.target_system = new
+            self._event("state", f"the vehicle is system {new} now (was {old})")
+
     def restart_sequence(self, sysid: int, compid: int, since: float) -> int:
         """A sender rebooted: its sequence numbers started again (`MavlinkDecoder.restart_sequence`).
         Returns the packets no longer counted as lost."""
@@ -264,6 +296,8 @@ class Link:
             target_component=self.target_component,
             mavlink_version=self.vehicle_mavlink,
             heartbeat_age_s=None if self.last_heartbeat is None else round(now - self.last_heartbeat, 3),
+            lost_reason=self.lost_reason if self.state == LinkState.LOST else None,
+            open_error=self.open_error,
             stats=self.stats.snapshot(),
             events=[LinkNote(e.wall_time, e.kind, e.detail) for e in list(self.events)[-50:]],
             signing=None if self.signing is None else self.signing.snapshot(),
@@ -437,9 +471,51 @@ class Link:
             and self.last_heartbeat is not None
             and time.monotonic() - self.last_heartbeat > self.heartbeat_timeout
         ):
+            self.lost_reason = self._loss_reason(self.last_heartbeat)
             self._set_state(LinkState.LOST)
         else:
             self._arm_loss_check()
+
+    def _lose_now(self) -> None:
+        """The transport closed by itself: nothing can arrive until it reopens, so a connected link
+        is lost now, with the transport's reason, not a heartbeat timeout later."""
+        if self.state == LinkState.CONNECTED and self.last_heartbeat is not None:
+            if self._loss_check is not None:
+                self._loss_check.cancel()
+                self._loss_check = None
+            self.lost_reason = self._loss_reason(self.last_heartbeat)
+            self._set_state(LinkState.LOST)
+
+    def _loss_reason(self, last_heartbeat: float) -> str:
+        """Why a link whose last heartbeat came at `last_heartbeat` is lost: its transport's end
+        when one closed by itself since (what the field engineer must fix: the cable, the
+        port, the peer), else the silence (a radio fade, a vehicle switched off)."""
+        gone = self._gone()
+        if gone is not None and gone[0] >= last_heartbeat:
+            return gone[1]
+        return f"no heartbeat for {self.heartbeat_timeout:g} s"
+
+    def closed_since(self, since: float) -> str | None:
+        """Why the transport is closed, when it closed by itself at or after `since` (host monotonic
+        s) and is not open again (a serial port gone); None otherwise. Nothing can come through it:
+        a request waiting for an answer stops and names this."""
+        gone = self._gone()
+        if not self.is_open and gone is not None and gone[0] >= since:
+            return gone[1]
+        return None
+
+    def down_reason(self, since: float) -> str | None:
+        """Why no answer came: the transport closed since `since` (`closed_since`), or the link is
+        lost (its `lost_reason`); None while it is up. A request that got no answer names this,
+        not its own timeout alone."""
+        closed = self.closed_since(since)
+        if closed is not None:
+            return closed
+        return self.lost_reason if self.state == LinkState.LOST else None
+
+    def _gone(self) -> tuple[float, str] | None:
+        """The last transport of the link this vehicle is heard on that closed by itself."""
+        return self.transport_gone
 
     # ---- helpers ----------------------------------------------------------------------
     def _new_decoder(self) -> MavlinkDecoder | AsciiAttitudeDecoder:
@@ -450,11 +526,27 @@ class Link:
         baud = self.baud if isinstance(self.baud, int) else AUTO_BAUDS[0]
         return make_transport(self.address, baud=baud, speed=self.speed)
 
+    def _peer_gone(self, why: str) -> None:
+        """The other end went while the transport stays open (a `tcpin` client hung up): lost now,
+        as when a transport closes by itself."""
+        self.transport_gone = (time.monotonic(), f"{self.address}: {why}")
+        self.transport_closed.emit()
+        self._lose_now()
+
+    def _refused(self, why: str | None) -> None:
+        self.open_error = why
+
     def _set_transport(self, transport: Transport | None) -> None:
-        if self._transport is not None:  # closed: its drops stay counted
-            self._closed_drops += self._transport.kernel_drops
+        old = self._transport
+        if old is not None:  # closed: its drops stay counted
+            self._closed_drops += old.kernel_drops
+            if transport is None and old.close_reason is not None:
+                self.transport_gone = (time.monotonic(), f"{old.address} closed: {old.close_reason}")
+                self.transport_closed.emit()
+                self._lose_now()
         self._transport = transport
         if transport is not None:
+            transport.on_peer_gone = self._peer_gone
             self.decoder.new_stream()
             if self._read_intervals:
                 transport.pace_reads(self._read_interval)
@@ -463,9 +555,11 @@ class Link:
         old, self.state = self.state, new
         if new == LinkState.CONNECTED:
             self._connected.set()
+            self.lost_reason = None
         else:
             self._connected.clear()
-        self._event("state", f"{old} -> {new}")
+        why = f": {self.lost_reason}" if new == LinkState.LOST and self.lost_reason else ""
+        self._event("state", f"{old} -> {new}{why}")
         self.state_changed.emit(old, new)
 
     def _event(self, kind: str, detail: str) -> None:

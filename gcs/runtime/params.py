@@ -123,6 +123,8 @@ class ParamClient:
         self._running = False
         self._write_lock = asyncio.Lock()
         self._download_lock = asyncio.Lock()
+        #: while a write of the vehicle's own system id runs: the id asked (gcs.runtime.fleet follows)
+        self.renaming_to: int | None = None
 
     # ---- state ------------------------------------------------------------------------
     @property
@@ -208,7 +210,11 @@ class ParamClient:
         if not self._running:
             raise ParamError("the parameter client is not running (start Station first)")
         if not await self.link.wait_connected(10.0):
-            raise ParamTimeout(f"no heartbeat from a vehicle on {self.link.address} within 10 s")
+            down = self.link.down_reason(0.0)
+            raise ParamTimeout(
+                f"no heartbeat from a vehicle on {self.link.address} within 10 s"
+                + (f"; the link is lost: {down}" if down else "")
+            )
         if self.capabilities is None and not self._version_asked:
             self._version_asked = True
             self._send(
@@ -250,11 +256,14 @@ class ParamClient:
         if self.complete and name not in self.table:
             raise UnknownParam(unknown_message(name, self.table))
         await self._ready()
+        asked = time.monotonic()
         for _ in range(self.read_attempts):
+            self._check_link(asked, f"{name}: no answer")
             self._send(mavlink.MAVLink_param_request_read_message(*self._target(), name.encode(), -1))
             param = await self._expect(lambda p: p.name == name, self.reply_timeout)
             if param is not None:
                 return param
+        self._check_link(asked, f"{name}: no answer")
         raise ParamTimeout(
             f"{name}: no answer after {self.read_attempts} requests × {self.reply_timeout} s "
             f"(not a parameter of this vehicle, or the link is down)"
@@ -271,6 +280,7 @@ class ParamClient:
             current = self.table.get(name) or await self.read(name)
             wire, asked = encode(name, value, current.type, self.bytewise)
             reply = None
+            written = time.monotonic()
             renamed = self._echo_as_new_system(name, asked)
             try:
                 for _ in range(self.set_attempts):
@@ -281,7 +291,9 @@ class ParamClient:
             finally:
                 if renamed is not None:
                     renamed.cancel()
+                    self.renaming_to = None
             verified = reply is not None and same_value(reply.value, asked)
+            down = None if reply is not None else self.link.down_reason(written)
             self.events.record(
                 "param",
                 client,
@@ -293,8 +305,9 @@ class ParamClient:
             )
             if reply is None:
                 raise ParamTimeout(
-                    f"{name}: no echo after {self.set_attempts} writes × {self.reply_timeout} s; "
-                    f"the value on the vehicle is unknown"
+                    f"{name}: no echo after {self.set_attempts} writes × {self.reply_timeout} s"
+                    + (f" (the link was lost: {down})" if down else "")
+                    + "; the value on the vehicle is unknown"
                 )
             if not verified:
                 raise ParamMismatch(name, asked, reply.value)
@@ -309,6 +322,7 @@ class ParamClient:
         at reboot: its echo comes from the old id, as for any parameter."""
         if name not in ARDUPILOT_SYSID_PARAMS or asked == self.link.target_system or not 1 <= asked <= 255:
             return None
+        self.renaming_to = int(asked)
         heard_on = self.link.link if isinstance(self.link, VehicleLink) else self.link
         bus: MessageBus = heard_on.bus if heard_on is not None else self.link.bus
         sub = bus.subscribe("params-new-sysid", types=["PARAM_VALUE"], maxlen=100)
@@ -333,19 +347,15 @@ class ParamClient:
             self.complete = False
             self._progress = {"state": "downloading", "started": start, "list_requests": 0, "read_requests": 0}
             try:
-                await self._request_list(deadline)
-                await self._fill_missing(deadline)
+                await self._request_list(start, deadline)
+                await self._fill_missing(start, deadline)
+            except ParamTimeout as exc:
+                down = self.link.down_reason(start)  # the cause, whichever wait ran out first
+                error = ParamTimeout(self._cut_short(down)) if down else exc
+                self._failed(start, error)
+                raise error from None
             except ParamError as exc:
-                self._progress = {
-                    "state": "incomplete",
-                    "received": len(self._received),
-                    "count": self.count,
-                    "missing": self._missing()[:50],
-                    "error": str(exc),
-                    "elapsed_s": round(time.monotonic() - start, 3),
-                    "list_requests": self._progress["list_requests"],
-                    "read_requests": self._progress["read_requests"],
-                }
+                self._failed(start, exc)
                 raise
             names = set(self._received.values())
             self.table = {name: p for name, p in self.table.items() if name in names}
@@ -361,13 +371,40 @@ class ParamClient:
             }
             return dict(self.table)
 
+    def _failed(self, start: float, error: ParamError) -> None:
+        """The download's progress once it stopped short with `error` (kept for the page)."""
+        self._progress = {
+            "state": "incomplete",
+            "received": len(self._received),
+            "count": self.count,
+            "missing": self._missing()[:50],
+            "error": str(error),
+            "elapsed_s": round(time.monotonic() - start, 3),
+            "list_requests": self._progress["list_requests"],
+            "read_requests": self._progress["read_requests"],
+        }
+
+    def _cut_short(self, down: str) -> str:
+        """A download stopped by a lost link, as the person reads it: the link, then how far it got."""
+        of = "?" if self.count is None else str(self.count)
+        return f"parameter download cut short: the link was lost ({down}); {len(self._received)} of {of} received"
+
+    def _check_link(self, since: float, what: str) -> None:
+        """Stop waiting for an answer the moment the link's transport has closed since `since` (a
+        serial port gone; ParamTimeout naming why): retries and timeouts would only add seconds to
+        a generic failure. A link lost for silence alone (a radio fade) is waited out."""
+        down = self.link.closed_since(since)
+        if down is not None:
+            raise ParamTimeout(f"{what}: the link was lost ({down})")
+
     def _missing(self) -> list[int]:
         return [] if self.count is None else [i for i in range(self.count) if i not in self._received]
 
-    async def _request_list(self, deadline: float) -> None:
+    async def _request_list(self, since: float, deadline: float) -> None:
         """PARAM_REQUEST_LIST (repeated if nothing comes), then follow the stream until it ends:
         the last index arrived, or nothing for `list_gap` s."""
         for _ in range(self.list_attempts):
+            self._check_link(since, "parameter download")
             self._send(mavlink.MAVLink_param_request_list_message(*self._target()))
             self._progress["list_requests"] += 1
             if await self._expect(
@@ -379,15 +416,17 @@ class ParamClient:
                 f"no PARAM_VALUE after {self.list_attempts} PARAM_REQUEST_LIST × {2 * self.reply_timeout} s"
             )
         while self._missing() and ((self.count or 0) - 1) not in self._received:
+            self._check_link(since, "parameter download")
             gap = min(self.list_gap, deadline - time.monotonic())
             if await self._expect(lambda p: True, gap) is None:
                 return
 
-    async def _fill_missing(self, deadline: float) -> None:
+    async def _fill_missing(self, since: float, deadline: float) -> None:
         """Re-request missing indices, `window` outstanding at a time, each `read_attempts` times."""
         tries: dict[int, int] = {}
         pending: dict[int, float] = {}  # index → when its reply is overdue
         while missing := self._missing():
+            self._check_link(since, "parameter download")
             now = time.monotonic()
             if now > deadline:
                 raise ParamTimeout(incomplete_message(missing, self.count, "deadline reached"))

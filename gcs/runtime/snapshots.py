@@ -67,6 +67,11 @@ class LinkSnapshot:
     events: list[LinkNote]
     #: MAVLink 2 signing on this link (None: off)
     signing: SigningSnapshot | None = None
+    #: while the state is lost: why ("no heartbeat for 3 s", "/dev/ttyUSB0 closed: the device is
+    #: gone (Input/output error)", "tcp:HOST:PORT closed: the remote end closed the connection")
+    lost_reason: str | None = None
+    #: while its transport cannot be opened: why ("cannot open /dev/ttyUSB0: Permission denied")
+    open_error: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

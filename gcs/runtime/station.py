@@ -136,7 +136,7 @@ class Station:
         #: forwarding outputs: the station's own, or (with a fleet's link) the fleet's, shown here
         self.outputs = outputs if outputs is not None else [Output(address, [self.link]) for address in config.outputs]
         self.estimation = LiveEstimation(self.link, pipeline_from(config.presets)) if config.estimate else None
-        self.link.state_changed.connect(lambda old, new: self.events.record("link", "link", old=old, new=new))
+        self.link.state_changed.connect(self._link_state_changed)
         self.link.noted.connect(self._link_noted)
         if self.estimation is not None:  # the magnetometer's declination comes from the vehicle:
             # asked at connect, after the first 3D fix (ArduPilot sets COMPASS_DEC only then, and
@@ -220,6 +220,12 @@ class Station:
     async def link_finished(self) -> None:
         """Returns when the link has ended by itself (a replayed log reached its end)."""
         await self.supervisor.task("link")
+
+    def _link_state_changed(self, old: str, new: str) -> None:
+        """Each state change in the event log; a loss with its reason (`Link.lost_reason`), so the
+        session says whether the cable, the peer or the radio went."""
+        why = {"reason": self.link.lost_reason} if new == "lost" and self.link.lost_reason else {}
+        self.events.record("link", "link", old=old, new=new, **why)
 
     def _link_noted(self, event: LinkEvent) -> None:
         """The transport's events go to the event log (and the session's events.jsonl) too: a serial

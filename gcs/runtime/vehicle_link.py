@@ -32,6 +32,9 @@ class VehicleLink(Link):
         super().__init__(link.address, bus=MessageBus(), heartbeat_timeout=link.heartbeat_timeout, name=link.name)
         self.link: Link | None = None
         self._pace: Callable[[], float] | None = None  # `pace_reads`: asked of the link it is heard on
+        #: packets from this vehicle's own system (its autopilot and its other components), the
+        #: ones its loss is counted over; what else reaches it (a GCS, a radio) is in stats.counts
+        self.own_packets = 0
         self._shown = link
         self._show(link)
 
@@ -62,9 +65,11 @@ class VehicleLink(Link):
         and what the station sends on it (its heartbeats reach every vehicle there)."""
         self._shown.packet_sent.disconnect(self._on_link_sent)
         self._shown.noted.disconnect(self._on_link_noted)
+        self._shown.transport_closed.disconnect(self._lose_now)
         self._shown = link
         link.packet_sent.connect(self._on_link_sent)
         link.noted.connect(self._on_link_noted)
+        link.transport_closed.connect(self._lose_now)
         self.address, self.name, self.baud = link.address, link.name, link.baud
         self.stats.framing = link.stats.framing
         self.stats.nonfinite = link.stats.nonfinite
@@ -77,17 +82,21 @@ class VehicleLink(Link):
     def deliver_many(self, items: list[Message]) -> None:
         """This vehicle's messages of one wake-up, in order: counted, its heartbeats read (what
         came before one is published first, as per message), published in one call."""
-        stats, bus = self.stats, self.bus
+        stats, bus, target = self.stats, self.bus, self.target_system
         counts = stats.counts
-        start = 0
+        start = own = 0
         for i, item in enumerate(items):
             stats.bytes_in += len(item.raw)
             counts[item.type] = counts.get(item.type, 0) + 1  # stats.count, inline (every packet)
-            if item.type == "HEARTBEAT" and item.sysid == self.target_system:
+            if item.sysid != target:
+                continue
+            own += 1
+            if item.type == "HEARTBEAT":
                 if i > start:
                     bus.publish_many(items[start:i])
                     start = i
                 self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)
+        self.own_packets += own
         bus.publish_many(items[start:] if start else items)
 
     # ---- send path: through the link the vehicle was heard on ---------------------------------
@@ -122,6 +131,9 @@ class VehicleLink(Link):
         self.stats.packets_out += 1
         self.packet_sent.emit(packet)
 
+    def _gone(self) -> tuple[float, str] | None:
+        return self._shown.transport_gone
+
     # ---- the rest of Link's surface ---------------------------------------------------------------
     async def run(self) -> None:
         """The state watchdog and rate sampling; the transport is the link's."""
@@ -145,7 +157,14 @@ class VehicleLink(Link):
         shared = [e for e in link.events if e.kind != "state"]
         events = sorted([*shared, *own.events], key=lambda e: e.wall_time)[-50:]
         stats = self._own_loss(dataclasses.replace(own.stats, kernel_drops=link.stats.kernel_drops))
-        return dataclasses.replace(own, transport_open=link.transport_open, baud=link.baud, stats=stats, events=events)
+        return dataclasses.replace(
+            own,
+            transport_open=link.transport_open,
+            baud=link.baud,
+            stats=stats,
+            events=events,
+            open_error=link.open_error,
+        )
 
     def _own_loss(self, stats: LinkCounters) -> LinkCounters:
         """`stats` with the packets received from this vehicle and those lost by sequence number
@@ -156,7 +175,7 @@ class VehicleLink(Link):
         if self.target_system is None:
             return stats
         lost = sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == self.target_system)
-        packets = sum(self.stats.counts.values())
+        packets = self.own_packets
         total = packets + lost
         return dataclasses.replace(
             stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0

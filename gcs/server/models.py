@@ -49,6 +49,12 @@ class EstimatesResponse(BaseModel):
 class LinkStatus(BaseModel):
     address: str
     state: str
+    lost_reason: str | None = Field(
+        default=None, description="while lost: why (no heartbeat for N s, the serial port gone, the TCP peer closed)"
+    )
+    open_error: str | None = Field(
+        default=None, description="while its transport cannot be opened: why (cannot open ADDRESS: Connection refused)"
+    )
     heartbeat_age_s: float | None
     packets: int
     packets_lost: int
@@ -183,6 +189,7 @@ class VehicleSummary(BaseModel):
     compid: int | None
     link: str = Field(description="the address it is heard on")
     state: str = Field(description="waiting, connected or lost: its own heartbeats")
+    lost_reason: str | None = Field(default=None, description="while lost: why")
     autopilot: str | None
     vehicle_type: str | None
     first: bool = Field(description="served at the one-vehicle URLs too (/api/status, /ws/live, ...)")

@@ -72,6 +72,8 @@ def snapshot_status(snap: StationSnapshot) -> dict:
         link=LinkStatus(
             address=link.address,
             state=link.state,
+            lost_reason=link.lost_reason,
+            open_error=link.open_error,
             heartbeat_age_s=link.heartbeat_age_s,
             packets=stats.packets,
             packets_lost=stats.packets_lost,

@@ -85,6 +85,7 @@ def summary(station: StationFacade, link: str | None, first: bool) -> VehicleSum
         compid=v.compid,
         link=link or snap.link.address,
         state=snap.link.state,
+        lost_reason=snap.link.lost_reason,
         autopilot=v.autopilot,
         vehicle_type=v.vehicle_type,
         first=first,

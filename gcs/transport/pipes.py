@@ -65,6 +65,9 @@ class Transport(ABC):
         self.kernel_drops = 0  # received datagrams the kernel dropped before we read them (UDP on Linux)
         #: why it closed by itself, when it knows (a serial device that vanished); None otherwise
         self.close_reason: str | None = None
+        #: told why when the other end went while the transport stays open (a `tcpin` listener's
+        #: last client hung up); set by its user
+        self.on_peer_gone: Callable[[str], None] | None = None
         self._closed: asyncio.Future[None] | None = None
 
     @abstractmethod
@@ -227,7 +230,8 @@ class UdpTransport(Transport):
                     break
                 except ConnectionRefusedError:
                     continue  # ICMP "port unreachable" while the peer is not listening yet
-                except OSError:
+                except OSError as exc:
+                    self.close_reason = f"socket error ({describe_error(exc)})"
                     self.close()
                     break
                 ancdata = anc
@@ -281,6 +285,8 @@ class _StreamProtocol(asyncio.Protocol):
         self.on_data = on_data
         self.on_lost = on_lost
         self.transport: asyncio.Transport | None = None
+        #: why the connection ended: None (the other end closed it, or we did) or the socket's error
+        self.lost_error: Exception | None = None
 
     def connection_made(self, transport) -> None:
         self.transport = transport
@@ -292,6 +298,7 @@ class _StreamProtocol(asyncio.Protocol):
         self.on_data(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
+        self.lost_error = exc
         self.on_lost(self)
 
     def write(self, data: bytes) -> bool:
@@ -303,7 +310,8 @@ class _StreamProtocol(asyncio.Protocol):
 
 
 class TcpClientTransport(Transport):
-    """`tcp:HOST:PORT`: dial a server. Closes when the peer hangs up; the link redials."""
+    """`tcp:HOST:PORT`: dial a server. Closes when the peer hangs up (`close_reason` says whether
+    it closed the connection or the socket failed); the link redials."""
 
     def __init__(self, address: Address) -> None:
         super().__init__(address)
@@ -313,8 +321,20 @@ class TcpClientTransport(Transport):
         loop = asyncio.get_running_loop()
         self._new_closed_future()
         _, self._protocol = await loop.create_connection(
-            lambda: _StreamProtocol(on_data, lambda _p: self._mark_closed()), self.address.host, self.address.port
+            lambda: _StreamProtocol(on_data, self._lost), self.address.host, self.address.port
         )
+
+    def _lost(self, protocol: _StreamProtocol) -> None:
+        if self._closed is not None and not self._closed.done():  # not closed by us
+            error = protocol.lost_error
+            if error is None:
+                self.close_reason = "the remote end closed the connection"
+            elif isinstance(error, BrokenPipeError | ConnectionResetError):  # found by a write: closed all the same
+                self.close_reason = f"the remote end closed the connection ({describe_error(error)})"
+            else:
+                words = describe_error(error) if isinstance(error, OSError) else str(error)
+                self.close_reason = f"connection error ({words})"
+        self._mark_closed()
 
     def write(self, data: bytes) -> None:
         if self._protocol is None or not self._protocol.write(data):
@@ -329,7 +349,8 @@ class TcpClientTransport(Transport):
 class TcpServerTransport(Transport):
     """`tcpin:HOST:PORT`: listen; every connected client receives what is written and may send.
 
-    The listener stays open while clients come and go, so it only closes when told to.
+    The listener stays open while clients come and go, so it only closes when told to; its last
+    client hanging up is told to `on_peer_gone`.
     """
 
     def __init__(self, address: Address) -> None:
@@ -342,11 +363,17 @@ class TcpServerTransport(Transport):
         self._new_closed_future()
 
         def new_client() -> _StreamProtocol:
-            p = _StreamProtocol(on_data, self.clients.remove)
+            p = _StreamProtocol(on_data, self._client_lost)
             self.clients.append(p)
             return p
 
         self._server = await loop.create_server(new_client, self.address.host, self.address.port, reuse_address=True)
+
+    def _client_lost(self, client: _StreamProtocol) -> None:
+        self.clients.remove(client)
+        listening = self._closed is not None and not self._closed.done()  # (not our own close)
+        if not self.clients and listening and self.on_peer_gone is not None:
+            self.on_peer_gone("the last client closed the connection")
 
     @property
     def local_port(self) -> int:
@@ -367,6 +394,12 @@ class TcpServerTransport(Transport):
         if self._server is not None:
             self._server.close()
         self._mark_closed()
+
+
+def describe_error(exc: OSError) -> str:
+    """The words of an OSError's errno ("Input/output error", "Connection reset by peer"), else
+    its own text."""
+    return os.strerror(exc.errno) if exc.errno else str(exc)
 
 
 def open_serial(path: str, baud: int) -> serial.Serial:
@@ -414,7 +447,7 @@ class SerialTransport(Transport):
         except BlockingIOError:
             return
         except OSError as exc:
-            self.close_reason = f"the device is gone ({os.strerror(exc.errno) if exc.errno else exc})"
+            self.close_reason = f"the device is gone ({describe_error(exc)})"
             self.close()
             return
         if not data:

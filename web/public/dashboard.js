@@ -79,6 +79,8 @@ function showStatus(s) {
   const l = s.link;
   $("link-state").textContent = `link ${l.state}`;
   $("link-state").className = `pill ${l.state}`;
+  const why = l.lost_reason || l.open_error;
+  $("link-state").title = why || "";
   $("link-detail").textContent = `${l.address} · ${l.packets} packets · lost ${lossText(l, s.vehicle)} · `
     + `CRC errors ${l.crc_errors} · ${fmt(l.bytes_per_s / 1000)} kB/s · heartbeat ${fmt(l.heartbeat_age_s, 1)} s ago`;
   const sinceFrame = gcsStats.lastFrameAt ? performance.now() - gcsStats.lastFrameAt : null;
@@ -93,7 +95,7 @@ function showStatus(s) {
     unreliable.set(e.reason, [...(unreliable.get(e.reason) || []), n]);
   }
   const warn = [...unreliable].map(([reason, names]) => `${names.join(", ")}: ${reason}`);
-  if (l.state !== "connected") warn.unshift(`link ${l.state}: no fresh data`);
+  if (l.state !== "connected") warn.unshift(`link ${l.state}: ${why ? `${why}; ` : ""}no fresh data`);
   for (const other of s.vehicle.others || []) {
     warn.unshift(`another vehicle sends as system ${s.vehicle.sysid} on ${other}: not served; give each its own system id (MAV_SYSID or SYSID_THISMAV)`);
   }
