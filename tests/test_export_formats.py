@@ -30,7 +30,7 @@ from pymavlink import mavutil
 
 import gcs
 from gcs.commands.cli import main
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
 from gcs.transport.address import free_port

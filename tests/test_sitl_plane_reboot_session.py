@@ -26,8 +26,8 @@ from playwright.async_api import async_playwright
 from test_sitl_copter import _command, sitl_process
 
 from gcs.commands.cli import main
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.mavlink.dialect import mavlink
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions import report
 from gcs.sessions.contents import boots, open_contents

@@ -31,8 +31,8 @@ from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import errors_at, run_whole
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.mavlink.tlog import MAX_WAIT_S
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal

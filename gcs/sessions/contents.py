@@ -32,7 +32,7 @@ import pyarrow.compute as pc
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
 from gcs.core.estimators.whole import errors_at
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
 

@@ -23,7 +23,8 @@ import numpy as np
 from gcs.core.colors import hex_color
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP, UNREADY
+from gcs.core.samples import REBOOT_CLOCK_JUMP
+from gcs.mavlink.sampling import UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
 from gcs.sessions.contents import Contents, errors_by_boot, read_events

@@ -19,8 +19,7 @@ from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import euler_of, run_whole
-from gcs.core.samples import ImuSample
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.core.samples import REBOOT_CLOCK_JUMP, ImuSample
 from gcs.sessions.contents import boot_errors_at
 from gcs.sessions.sources import ReplaySource
 

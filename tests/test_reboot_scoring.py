@@ -1,0 +1,122 @@
+"""Scoring across a reboot, on real data: the SITL hop's tlog cut after BOOT_S s of its clock and
+followed by the whole hop again, as a vehicle rebooted after a parameter change (its clock from
+its start again), the second copy's IMU messages of its first IMU_LATE_S s cut out. ArduCopter
+sends a slot's AHRS2 and ATTITUDE before its RAW_IMU, so a new boot's first references always
+come before its first IMU sample; here its first second of them does. Every figure is checked against errors
+computed here, with scipy's slerp, from the estimator's points: each reference scored against the
+estimator's outputs around it in its own boot, one outside its boot's outputs not at all."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from scipy.spatial.transform import Rotation, Slerp
+
+from gcs.core.estimation import compare_stream
+from gcs.core.estimators import registry
+from gcs.sessions.sources import open_source
+
+#: Vehicle seconds of the first boot (from the hop's first message at 5.7 s): shorter than the
+#: comparison's 30 s history, so the old boot's estimates still cover the new boot's first times.
+BOOT_S = 25.0
+#: s of the new boot's clock during which it sends its attitudes (AHRS2, ATTITUDE) but no IMU yet
+IMU_LATE_S = 1.0
+NAMES = ["dcm", "ekf"]
+REFERENCES = ("onboard", "ahrs2", "truth")
+
+
+def rebooted_hop(logs_dir, out):
+    """The hop's records while its clock is at most BOOT_S, then all of them again, the second
+    copy's record times moved on to follow the first's: (path, references per boot)."""
+    conn = mavutil.mavlink_connection(str(logs_dir / "arducopter-sitl-hop.tlog"), robust_parsing=True)
+    records, clock, imu = [], [], []
+    latest = 0.0
+    while (msg := conn.recv_msg()) is not None:
+        if msg.get_type() == "BAD_DATA":
+            continue
+        if msg.get_srcSystem() == 1 and hasattr(msg, "time_boot_ms"):
+            latest = msg.time_boot_ms / 1e3
+        elif msg.get_srcSystem() == 1 and msg.get_type() == "RAW_IMU":
+            latest = msg.time_usec / 1e6
+        records.append((round(msg._timestamp * 1e6), bytes(msg.get_msgbuf())))
+        clock.append(latest)
+        imu.append(msg.get_type() in ("RAW_IMU", "SCALED_IMU2"))
+    first = [r for r, t in zip(records, clock, strict=True) if t <= BOOT_S]
+    start = clock[next(k for k, is_imu in enumerate(imu) if is_imu)]
+    # the new boot's IMU streams start IMU_LATE_S after its attitudes (streams are set up one by one)
+    second = [r for r, t, is_imu in zip(records, clock, imu, strict=True) if not (is_imu and t < start + IMU_LATE_S)]
+    shift = first[-1][0] - records[0][0] + 1_000_000
+    with open(out, "wb") as f:
+        for usec, packet in first + [(usec + shift, packet) for usec, packet in second]:
+            f.write(struct.pack(">Q", usec) + packet)
+    return out
+
+
+def slerp_errors(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Estimator (N×4 t, roll, pitch, yaw rad, t increasing) − reference (M×4) at each reference
+    time within the estimator's span, Z-Y-X, degrees wrapped to ±180: M'×3."""
+    inside = ref[(ref[:, 0] >= est[0, 0]) & (ref[:, 0] <= est[-1, 0])]
+    rotations = Rotation.from_euler("ZYX", est[:, [3, 2, 1]])
+    yaw, pitch, roll = Slerp(est[:, 0], rotations)(inside[:, 0]).as_euler("ZYX").T
+    diff = np.degrees(np.column_stack([roll, pitch, yaw]) - inside[:, 1:4])
+    return (diff + 180.0) % 360.0 - 180.0
+
+
+def split_boots(rows: np.ndarray) -> list[np.ndarray]:
+    """Rows (in the order made) cut where their clock goes back by more than a second."""
+    return np.split(rows, np.flatnonzero(np.diff(rows[:, 0]) < -1.0) + 1)
+
+
+def expected_errors(points: dict[str, np.ndarray], name: str, reference: str) -> np.ndarray:
+    """Every boot's references against the same boot's outputs of the estimator."""
+    est, ref = split_boots(points[name]), split_boots(points[reference])
+    assert len(est) == len(ref) == 2
+    return np.concatenate([slerp_errors(e, r) for e, r in zip(est, ref, strict=True)])
+
+
+@pytest.fixture(scope="module")
+def rebooted(logs_dir, tmp_path_factory):
+    """The rebooted hop replayed through the pipeline: (path, points per source, pipeline)."""
+    path = rebooted_hop(logs_dir, tmp_path_factory.mktemp("reboot") / "rebooted-hop.tlog")
+    source = open_source(path)
+    points: dict[str, list] = {}
+
+    def keep(batch):
+        for p in batch:
+            points.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
+
+    pipeline = source.replay(source.new_pipeline(NAMES), keep)
+    return path, {s: np.array(rows) for s, rows in points.items()}, pipeline
+
+
+def test_the_live_comparison_starts_a_new_boot_clean(rebooted):
+    """The new boot's first AHRS2 and ATTITUDE (5.7 s on its clock) were scored against the old
+    boot's estimates at 5.7 s, still in the comparison's history: one reference too many per
+    source and reboot, in the live figures, `gcs replay` and `gcs batch`."""
+    _, points, pipeline = rebooted
+    for name in NAMES:
+        summary = pipeline.comparisons[name].summary()["references"]
+        for reference in REFERENCES:
+            expected = expected_errors(points, name, reference)
+            session = summary[reference]["session"]
+            assert session["n"] == len(expected), (name, reference)
+            rms = np.sqrt(np.mean(expected**2, axis=0))
+            np.testing.assert_allclose(session["rms"], rms, atol=1e-5, err_msg=f"{name} {reference}")
+            worst = np.max(np.abs(expected), axis=0)
+            np.testing.assert_allclose(session["max"], worst, atol=1e-5, err_msg=f"{name} {reference}")
+
+
+def test_the_readable_comparison_starts_a_new_boot_clean_too(rebooted):
+    """gcs.core.comparison.Comparison, the compiled one's readable reference, per sample."""
+    path, points, _ = rebooted
+    source = open_source(path)
+    preset, gains = source.estimator_config("dcm")
+    summary = compare_stream(source.inputs(), registry.create("dcm", preset, **gains)).summary()
+    for reference in REFERENCES:
+        expected = expected_errors(points, "dcm", reference)
+        session = summary["references"][reference]["session"]
+        assert session["n"] == len(expected), reference
+        np.testing.assert_allclose(session["rms"], np.sqrt(np.mean(expected**2, axis=0)), atol=1e-5, err_msg=reference)
