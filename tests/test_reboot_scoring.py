@@ -8,16 +8,23 @@ estimator's outputs around it in its own boot, one outside its boot's outputs no
 
 from __future__ import annotations
 
+import math
 import struct
 
+import matplotlib.axes
 import numpy as np
 import pytest
 from pymavlink import mavutil
 from scipy.spatial.transform import Rotation, Slerp
 
+from gcs.batch.sweep import score_flight
 from gcs.core.estimation import compare_stream
 from gcs.core.estimators import registry
+from gcs.runtime.replay import whole_table
+from gcs.sessions import report
+from gcs.sessions.contents import open_contents
 from gcs.sessions.sources import open_source
+from gcs.sessions.whatif import run_estimator
 
 #: Vehicle seconds of the first boot (from the hop's first message at 5.7 s): shorter than the
 #: comparison's 30 s history, so the old boot's estimates still cover the new boot's first times.
@@ -28,11 +35,11 @@ NAMES = ["dcm", "ekf"]
 REFERENCES = ("onboard", "ahrs2", "truth")
 
 
-def rebooted_hop(logs_dir, out):
-    """The hop's records while its clock is at most BOOT_S, then all of them again, the second
-    copy's record times moved on to follow the first's: (path, references per boot)."""
+def rebooted_hop(logs_dir, out, left_out: tuple[str, ...] = ()):
+    """The hop's records while its clock is at most BOOT_S (but the message types `left_out`),
+    then all of them again, the second copy's record times moved on to follow the first's."""
     conn = mavutil.mavlink_connection(str(logs_dir / "arducopter-sitl-hop.tlog"), robust_parsing=True)
-    records, clock, imu = [], [], []
+    records, clock, imu, kinds = [], [], [], []
     latest = 0.0
     while (msg := conn.recv_msg()) is not None:
         if msg.get_type() == "BAD_DATA":
@@ -44,7 +51,8 @@ def rebooted_hop(logs_dir, out):
         records.append((round(msg._timestamp * 1e6), bytes(msg.get_msgbuf())))
         clock.append(latest)
         imu.append(msg.get_type() in ("RAW_IMU", "SCALED_IMU2"))
-    first = [r for r, t in zip(records, clock, strict=True) if t <= BOOT_S]
+        kinds.append(msg.get_type())
+    first = [r for r, t, k in zip(records, clock, kinds, strict=True) if t <= BOOT_S and k not in left_out]
     start = clock[next(k for k, is_imu in enumerate(imu) if is_imu)]
     # the new boot's IMU streams start IMU_LATE_S after its attitudes (streams are set up one by one)
     second = [r for r, t, is_imu in zip(records, clock, imu, strict=True) if not (is_imu and t < start + IMU_LATE_S)]
@@ -120,3 +128,58 @@ def test_the_readable_comparison_starts_a_new_boot_clean_too(rebooted):
         session = summary["references"][reference]["session"]
         assert session["n"] == len(expected), reference
         np.testing.assert_allclose(session["rms"], np.sqrt(np.mean(expected**2, axis=0)), atol=1e-5, err_msg=reference)
+
+
+def test_what_if_replay_fast_and_the_sweep_score_the_reboot_as_the_pipeline(rebooted):
+    """Whole runs (what-if's old row, `gcs replay --fast`, a sweep's score): the same figures."""
+    path, points, pipeline = rebooted
+    rows, _ = whole_table(open_source(path), NAMES, {})
+    fast = {(r["estimator"], r["reference"]): r for r in rows}
+    for name in NAMES:
+        errors = run_estimator(open_source(path), name, {}).errors
+        for reference in REFERENCES:
+            expected = expected_errors(points, name, reference)
+            rms, worst = np.sqrt(np.mean(expected**2, axis=0)), np.max(np.abs(expected), axis=0)
+            np.testing.assert_allclose(errors[reference]["rms"], rms, atol=1e-5, err_msg=f"{name} {reference}")
+            np.testing.assert_allclose(errors[reference]["max"], worst, atol=1e-5, err_msg=f"{name} {reference}")
+            assert fast[name, reference]["n"] == len(expected), (name, reference)
+            np.testing.assert_allclose(fast[name, reference]["rms_deg"], rms, atol=1e-5, err_msg=f"{name} {reference}")
+        (score,) = score_flight(str(path), name, "truth", [{}]).scores
+        truth = expected_errors(points, name, "truth")
+        assert score == pytest.approx(math.sqrt(np.mean(truth**2)), abs=1e-5)  # the RMS of the axes' RMS
+
+
+def test_a_reference_that_starts_in_the_second_boot_is_scored_against_the_second_boot(logs_dir, tmp_path, monkeypatch):
+    """No SIMSTATE in the first boot (a simulator attached after the reboot): the whole-run
+    errors of a session or log (`gcs report`'s error plot, `errors()`, the .mat export) paired
+    the boots by position, the estimator's first boot with truth's only one, a boot's length
+    apart; the live comparison scored truth against the second boot alone."""
+    path = rebooted_hop(logs_dir, tmp_path / "late-truth.tlog", left_out=("SIMSTATE",))
+    source = open_source(path)
+    points: dict[str, list] = {}
+    pipeline = source.replay(
+        source.new_pipeline(NAMES),
+        lambda batch: [points.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw)) for p in batch],
+    )
+    est = split_boots(np.array(points["dcm"]))
+    expected = slerp_errors(est[1], np.array(points["truth"]))  # truth: the second boot's alone
+    contents = open_contents(path)
+    errors = contents.errors_of("dcm", "truth")
+    assert len(errors) == len(expected) == pipeline.comparisons["dcm"].summary()["references"]["truth"]["session"]["n"]
+    np.testing.assert_allclose(errors[:, 1:], expected, atol=1e-5)
+    row = next(r for r in contents.errors().to_pylist() if (r["estimator"], r["reference"]) == ("dcm", "truth"))
+    assert row["n"] == len(expected)
+    # the report's error plot: dcm − truth drawn where truth was, against the second boot
+    lines = []
+    plot = matplotlib.axes.Axes.plot
+
+    def recording_plot(self, *args, **kwargs):
+        lines.append(np.asarray(args[1], float))
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", recording_plot)
+    series, _ = report.collect(open_source(path), estimators=["dcm"])
+    report.plot_errors(series, ["dcm"], "truth")
+    assert len(lines) == 3  # roll, pitch and yaw
+    for k, drawn in enumerate(lines):
+        np.testing.assert_allclose(drawn[np.isfinite(drawn)], expected[:, k], atol=1e-5, err_msg=f"axis {k}")

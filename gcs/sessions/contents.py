@@ -31,7 +31,6 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
-from gcs.core.estimators.whole import errors_at
 from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
@@ -194,19 +193,33 @@ class Contents:
 
     def series(self, source: str) -> npt.NDArray[np.float64]:
         """N×5 array of one source: t (vehicle s), roll, pitch, yaw (rad), wall_time (UNIX s or NaN),
-        in time order within each boot of the vehicle, the boots in the order recorded (`boots`)."""
-        table = self.attitude.filter(pc.equal(self.attitude["source"], source))
+        in time order within each boot of the vehicle, the boots in the order recorded (`boot_series`)."""
+        return self.boot_series(source)[0]
+
+    @cached_property
+    def row_boots(self) -> npt.NDArray[np.int64]:
+        """Per attitude row, which boot of the vehicle it belongs to (`boot_numbers` of every
+        source's rows together, in the order recorded): a boot has one number in every source,
+        one that has no row in some boot (a reference that starts after a reboot) included."""
+        return boot_numbers(self.attitude["t"].to_numpy(zero_copy_only=False))
+
+    def boot_series(self, source: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """`series(source)` and the boot number of each of its rows (`row_boots`)."""
+        rows = pc.equal(self.attitude["source"], source).to_numpy(zero_copy_only=False)
+        table = self.attitude.filter(rows)
         data = np.column_stack(
             [table[c].to_numpy(zero_copy_only=False) for c in ("t", "roll", "pitch", "yaw", "wall_time")]
         ).reshape(-1, 5)
-        return data[np.lexsort((data[:, 0], boot_numbers(data[:, 0])))]
+        return in_boot_order(data, self.row_boots[rows])
 
     def errors_of(self, estimator: str, reference: str) -> npt.NDArray[np.float64]:
         """M×4: estimator − reference at the reference's times (t s, roll, pitch, yaw error deg),
         each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
         (a serial port that came back with the vehicle restarted) scored one boot's estimates
         against the other's references, as the live comparison never does."""
-        return errors_by_boot(self.series(estimator)[:, :4], self.series(reference)[:, :4])
+        estimates, estimate_boots = self.boot_series(estimator)
+        references, reference_boots = self.boot_series(reference)
+        return errors_by_boot(estimates[:, :4], estimate_boots, references[:, :4], reference_boots)
 
     def errors(self) -> pa.Table:
         """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
@@ -241,7 +254,7 @@ class Contents:
         and its clock offset (median wall_time − t), in the order recorded; empty for logs."""
         t = self.attitude["t"].to_numpy(zero_copy_only=False)
         wall = self.attitude["wall_time"].to_numpy(zero_copy_only=False)
-        boot = boot_numbers(t)  # the rows in the order recorded: every source's clock together
+        boot = self.row_boots
         starts, offsets = [], []
         for number in np.unique(boot).tolist():
             rows = (boot == number) & np.isfinite(wall)
@@ -261,36 +274,62 @@ class Contents:
 
 
 def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
-    """Per row of a source in the order recorded, which boot of the vehicle it belongs to: its clock
-    going back by more than REBOOT_CLOCK_JUMP (the estimation's rule) starts the next one."""
+    """Per row in the order recorded (of one source, or of every source together), which boot of
+    the vehicle it belongs to: a row more than REBOOT_CLOCK_JUMP behind the newest of its boot
+    starts the next one, the rule by which the live comparison starts afresh (one row a little
+    behind another source's is no reboot; the newest, not the row before, is the boot's clock)."""
     numbers = np.zeros(len(t), np.int64)
-    numbers[1:] = np.cumsum(np.diff(t) < -REBOOT_CLOCK_JUMP)
+    start = 0
+    while start < len(t):
+        rest = t[start:]
+        back = np.flatnonzero(rest < np.maximum.accumulate(rest) - REBOOT_CLOCK_JUMP)
+        if not len(back):
+            break
+        start += int(back[0])
+        numbers[start:] += 1
     return numbers
 
 
-def boots(series: npt.NDArray[np.float64]) -> list[npt.NDArray[np.float64]]:
-    """A `series` (boots in order, each in time order) cut into its boots."""
-    cuts = np.flatnonzero(np.diff(series[:, 0]) < -REBOOT_CLOCK_JUMP) + 1
-    return np.split(series, cuts) if len(series) else []
+class BootCounter:
+    """`boot_numbers` a row at a time, for rows that come one by one (a replay's points)."""
+
+    def __init__(self) -> None:
+        self.newest = -math.inf
+        self.boot = 0
+
+    def of(self, t: float) -> int:
+        """The boot of a row at vehicle time t, the rows taken in the order recorded."""
+        if t < self.newest - REBOOT_CLOCK_JUMP:
+            self.boot += 1
+            self.newest = t
+        elif t > self.newest:
+            self.newest = t
+        return self.boot
 
 
-def errors_by_boot(estimates: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """`errors_against` of each boot of the vehicle against the same boot (`boots`; both N×4 t,
-    roll, pitch, yaw rad, boots in the order recorded): its clock starts again at 0 at a reboot, so
-    one search across boots matches one boot's estimates with the other's references."""
-    parts = [errors_against(e, r) for e, r in zip(boots(estimates), boots(reference), strict=False)]
-    return np.concatenate(parts) if parts else np.empty((0, 4))
+def in_boot_order(
+    rows: npt.NDArray[np.float64], boots: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Rows (t first) and their boot numbers, sorted by boot and, within a boot, by time."""
+    order = np.lexsort((rows[:, 0], boots))
+    return rows[order], boots[order]
 
 
-def boot_errors_at(
-    t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
+def errors_by_boot(
+    estimates: npt.NDArray[np.float64],
+    estimate_boots: npt.NDArray[np.int64],
+    reference: npt.NDArray[np.float64],
+    reference_boots: npt.NDArray[np.int64],
 ) -> npt.NDArray[np.float64]:
-    """`errors_by_boot` for an estimator's run as t (N) and quaternions (N×4), with the compiled
-    `errors_at` (what-if, `gcs replay --fast`): one search across the boots of a vehicle that
-    rebooted scored one boot's estimates against the other's references, and their tables
-    disagreed with the live comparison and the per-sample replay."""
-    estimates = boots(np.column_stack([t, q]))
-    parts = [errors_at(e[:, 0], e[:, 1:], r) for e, r in zip(estimates, boots(reference), strict=False)]
+    """`errors_against` of each boot of the reference against the estimator's same boot (both N×4
+    t, roll, pitch, yaw rad, each boot in time order; `*_boots`: each row's boot number, the same
+    for both sources, `Contents.row_boots`). The vehicle clock starts again at 0 at a reboot, so
+    one search across boots matched one boot's estimates with another's references; pairing the
+    boots by their position in each source did too where a source has no row in some boot."""
+    parts = [
+        errors_against(estimates[estimate_boots == boot], reference[reference_boots == boot])
+        for boot in np.unique(reference_boots).tolist()
+    ]
     return np.concatenate(parts) if parts else np.empty((0, 4))
 
 

@@ -27,7 +27,7 @@ from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.mavlink.sampling import UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
-from gcs.sessions.contents import Contents, errors_by_boot, read_events
+from gcs.sessions.contents import BootCounter, Contents, errors_by_boot, in_boot_order, read_events
 from gcs.sessions.export import write_beside
 from gcs.sessions.protocol import formatted, session_tables
 from gcs.sessions.sources import open_source
@@ -42,13 +42,15 @@ EVENT_COLUMNS = ("wall_time", "host_time", "kind", "client")
 
 
 def collect(source, progress=None, estimators: list[str] | None = None) -> tuple[dict[str, np.ndarray], object]:
-    """Replay source through `estimators` (default every one); returns {source name: N×4 array t,
-    roll, pitch, yaw} and the pipeline (for its comparisons)."""
+    """Replay source through `estimators` (default every one); returns {source name: N×5 array t,
+    roll, pitch, yaw, boot}, in replay order (boot: which boot of the vehicle, numbered over every
+    source's points together, `BootCounter`) and the pipeline (for its comparisons)."""
     series: dict[str, list] = {}
+    boots = BootCounter()
 
     def keep(points: list[AttitudePoint]) -> None:
         for p in points:
-            series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
+            series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw, boots.of(p.t)))
 
     pipeline = source.replay(source.new_pipeline(estimators), keep, progress)
     return {name: np.array(rows) for name, rows in series.items()}, pipeline
@@ -97,11 +99,12 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
 
     fig = Figure(figsize=(11, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
-    ref = series[reference]
+    ref, ref_boots = in_boot_order(series[reference][:, :4], series[reference][:, 4].astype(np.int64))
     for name in estimators:
         if name not in series or len(series[name]) < 2:
             continue
-        err = errors_by_boot(series[name], ref)  # series: in replay order, each boot after the last
+        est, est_boots = in_boot_order(series[name][:, :4], series[name][:, 4].astype(np.int64))
+        err = errors_by_boot(est, est_boots, ref, ref_boots)  # each boot of the reference against the same boot
         for k, ax in enumerate(axes):
             ax.plot(*broken_at_wraps(err[:, 0], err[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
     for k, ax in enumerate(axes):
