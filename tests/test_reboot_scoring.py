@@ -8,16 +8,19 @@ estimator's outputs around it in its own boot, one outside its boot's outputs no
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 
 import matplotlib.axes
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from pymavlink import mavutil
 from scipy.spatial.transform import Rotation, Slerp
 
 from gcs.batch.sweep import score_flight
+from gcs.commands.cli import main
 from gcs.core.estimation import compare_stream
 from gcs.core.estimators import registry
 from gcs.runtime.replay import whole_table
@@ -183,3 +186,30 @@ def test_a_reference_that_starts_in_the_second_boot_is_scored_against_the_second
     assert len(lines) == 3  # roll, pitch and yaw
     for k, drawn in enumerate(lines):
         np.testing.assert_allclose(drawn[np.isfinite(drawn)], expected[:, k], atol=1e-5, err_msg=f"axis {k}")
+
+
+def test_the_mcap_export_lays_the_new_boot_after_the_old(rebooted, tmp_path):
+    """MCAP readers (Foxglove, PlotJuggler) order messages by log_time, which was the vehicle clock:
+    the new boot's samples lay over the old boot's first 19 s, each topic's line zigzagging between
+    the two, and the file's log times went back at the reboot. The new boot now follows the old one,
+    1 s after its last sample, on log_time; every message keeps its own clock's t."""
+    path, points, _ = rebooted
+    out = tmp_path / "rebooted.mcap"
+    assert main(["export", str(path), "--format", "mcap", "--out", str(out)]) == 0
+    boots = [split_boots(points[source]) for source in (*NAMES, *REFERENCES)]  # in both boots
+    end = max(b[0][-1, 0] for b in boots)
+    shift = end + 1.0 - min(b[1][0, 0] for b in boots)
+    log_times, topics = [], {}
+    with open(out, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            log_times.append(message.log_time)
+            if channel.topic.startswith(("/attitude/", "/imu/")):
+                t = json.loads(message.data)["t"]
+                topics.setdefault(channel.topic, []).append((t, message.log_time / 1e9 - t))
+    assert log_times == sorted(log_times)
+    both = [f"/attitude/{source}" for source in (*NAMES, *REFERENCES)] + ["/imu/RAW_IMU"]
+    for topic in both:
+        t, offset = np.array(topics[topic]).T
+        (cut,) = np.flatnonzero(np.diff(t) < -1.0) + 1  # one reboot, no back and forth
+        np.testing.assert_allclose(offset[:cut], 0.0, atol=1e-6, err_msg=topic)
+        np.testing.assert_allclose(offset[cut:], shift, atol=1e-6, err_msg=topic)

@@ -31,6 +31,7 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
+from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
@@ -249,28 +250,72 @@ class Contents:
         return float(np.median(diff)) if len(diff) else None
 
     @cached_property
-    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row
-        and its clock offset (median wall_time − t), in the order recorded; empty for logs."""
+    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row,
+        its clock offset (median wall_time − t) and its number (`row_boots`), in the order
+        recorded; empty for logs."""
         t = self.attitude["t"].to_numpy(zero_copy_only=False)
         wall = self.attitude["wall_time"].to_numpy(zero_copy_only=False)
         boot = self.row_boots
-        starts, offsets = [], []
+        starts, offsets, numbers = [], [], []
         for number in np.unique(boot).tolist():
             rows = (boot == number) & np.isfinite(wall)
             if rows.any():
                 starts.append(float(wall[rows].min()))
                 offsets.append(float(np.median(wall[rows] - t[rows])))
-        return np.array(starts), np.array(offsets)
+                numbers.append(number)
+        return np.array(starts), np.array(offsets), np.array(numbers, dtype=np.int64)
+
+    def _boot_at(self, wall: float) -> int:
+        """The index in `boot_clocks` of the boot running at host UNIX time `wall` (before the
+        first boot: the first); there is one."""
+        starts = self.boot_clocks[0]
+        return max(0, int(np.searchsorted(starts, wall, side="right")) - 1)
 
     def vehicle_time(self, wall: float) -> float:
         """A host UNIX time (s; an event's, a comparison row's) on the vehicle clock, by the offset
         of the boot running then (before the first boot: the first boot's): one offset for a whole
         session whose vehicle rebooted placed one boot's events a boot's length off. NaN for a log."""
-        starts, offsets = self.boot_clocks
-        if not len(starts):
+        if not len(self.boot_clocks[0]):
             return math.nan
-        return wall - float(offsets[max(0, int(np.searchsorted(starts, wall, side="right")) - 1)])
+        return wall - float(self.boot_clocks[1][self._boot_at(wall)])
+
+    @cached_property
+    def boot_shifts(self) -> npt.NDArray[np.float64]:
+        """Per boot (`row_boots`), the s added to its vehicle times to lay it BOOT_GAP_S after the
+        end of the boot before it: one timeline for a file whose readers order everything by time
+        (MCAP's log_time), where each reboot's clock from 0 laid the boots over each other."""
+        t = self.attitude["t"].to_numpy(zero_copy_only=False)
+        boot = self.row_boots
+        shifts = [0.0]
+        for number in range(1, int(boot.max()) + 1 if len(boot) else 0):
+            end, start = np.nanmax(t[boot == number - 1]), np.nanmin(t[boot == number])
+            shifts.append(shifts[-1] + float(end) + BOOT_GAP_S - float(start))
+        return np.array(shifts)
+
+    def timeline(self, wall: float) -> float:
+        """`vehicle_time(wall)` on the one timeline of `boot_shifts` (NaN for a log)."""
+        if not len(self.boot_clocks[0]):
+            return math.nan
+        at = self._boot_at(wall)
+        return self.vehicle_time(wall) + float(self.boot_shifts[self.boot_clocks[2][at]])
+
+    @cached_property
+    def imu_boots(self) -> npt.NDArray[np.int64]:
+        """Per row of `source.table.imu`, its boot (`row_boots`' numbers): `boot_numbers` over the
+        IMU and reference inputs in the order they arrived, which every boot with an attitude row has."""
+        table = self.source.table
+        imu = (table.kind == Kind.IMU) | (table.kind == Kind.IMU_MAG)
+        timed = imu | (table.kind == Kind.ATTITUDE)
+        t = np.empty(len(table.kind))
+        t[imu], t[table.kind == Kind.ATTITUDE] = table.imu[:, 0], table.attitude[:, 0]
+        boots = np.zeros(len(t), np.int64)
+        boots[timed] = boot_numbers(t[timed])
+        return np.minimum(boots[imu], len(self.boot_shifts) - 1)
+
+
+#: s between the end of one boot and the start of the next on the exports' one timeline.
+BOOT_GAP_S = 1.0
 
 
 def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
