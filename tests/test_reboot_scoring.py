@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import struct
 
 import matplotlib.axes
@@ -26,6 +27,7 @@ from gcs.core.estimators import registry
 from gcs.runtime.replay import whole_table
 from gcs.sessions import report
 from gcs.sessions.contents import open_contents
+from gcs.sessions.protocol import session_tables
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import run_estimator
 
@@ -213,3 +215,38 @@ def test_the_mcap_export_lays_the_new_boot_after_the_old(rebooted, tmp_path):
         (cut,) = np.flatnonzero(np.diff(t) < -1.0) + 1  # one reboot, no back and forth
         np.testing.assert_allclose(offset[:cut], 0.0, atol=1e-6, err_msg=topic)
         np.testing.assert_allclose(offset[cut:], shift, atol=1e-6, err_msg=topic)
+
+
+def test_a_protocol_run_after_a_reboot_is_scored_with_that_boots_samples(rebooted, tmp_path):
+    """A session whose vehicle rebooted, then ran a protocol step (hold 6.0-6.6 s on the new boot's
+    clock, where the new boot has attitudes but no IMU yet, so no estimate): its tables took every
+    boot's rows and searched them as if in time order, and scored dcm with the first boot's
+    outputs at those clock readings; the step now holds the run's boot's samples alone."""
+    path, points, _ = rebooted
+    folder = tmp_path / "session"
+    folder.mkdir()
+    shutil.copy(path, folder / "telemetry.tlog")
+    (folder / "meta.json").write_text("{}")
+    conn = mavutil.mavlink_connection(str(path))
+    latest = 0.0
+    while (msg := conn.recv_msg()) is not None:  # the record time of the new boot's first ATTITUDE
+        if msg.get_type() == "ATTITUDE":
+            if msg.time_boot_ms / 1e3 < latest - 1.0:
+                break
+            latest = msg.time_boot_ms / 1e3
+    started = msg._timestamp + 0.1
+    step = {"axis": "roll", "target_deg": 5.0, "hold_s": 0.5, "tolerance_deg": 2.0}
+    window = {"index": 0, "attempt": 1, "t_start": 5.8, "t_hold_start": 6.0, "t_hold_end": 6.6}
+    events = [
+        {"kind": "protocol", "action": "start", "wall_time": started, "protocol": {"name": "p", "steps": [step]}},
+        {"kind": "protocol", "action": "hold", "wall_time": started + 1.0, **window},
+    ]
+    (folder / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    tables = session_tables(open_contents(folder))
+    rows = {m.source: m for m in tables.steps}
+    assert "dcm" not in rows  # no estimate in the new boot's hold window
+    onboard = split_boots(points["onboard"])[1]
+    hold = onboard[(onboard[:, 0] >= 6.0) & (onboard[:, 0] <= 6.6)]
+    assert rows["onboard"].n_hold == len(hold) > 10
+    error = np.abs(np.degrees(hold[:, 1]) - 5.0)
+    assert rows["onboard"].abs_err_hold_deg == pytest.approx(np.mean(error), abs=1e-9)

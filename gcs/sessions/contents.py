@@ -272,6 +272,12 @@ class Contents:
         starts = self.boot_clocks[0]
         return max(0, int(np.searchsorted(starts, wall, side="right")) - 1)
 
+    def boot_at(self, wall: float) -> int | None:
+        """The number (`row_boots`) of the boot running at host UNIX time `wall` (before the first
+        boot: the first); None for a log, which has no host clock."""
+        numbers = self.boot_clocks[2]
+        return int(numbers[self._boot_at(wall)]) if len(numbers) else None
+
     def vehicle_time(self, wall: float) -> float:
         """A host UNIX time (s; an event's, a comparison row's) on the vehicle clock, by the offset
         of the boot running then (before the first boot: the first boot's): one offset for a whole
