@@ -14,6 +14,7 @@ import shutil
 import struct
 
 import matplotlib.axes
+import matplotlib.figure
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -217,7 +218,7 @@ def test_the_mcap_export_lays_the_new_boot_after_the_old(rebooted, tmp_path):
         np.testing.assert_allclose(offset[cut:], shift, atol=1e-6, err_msg=topic)
 
 
-def test_a_protocol_run_after_a_reboot_is_scored_with_that_boots_samples(rebooted, tmp_path):
+def test_a_protocol_run_after_a_reboot_is_scored_with_that_boots_samples(rebooted, tmp_path, monkeypatch):
     """A session whose vehicle rebooted, then ran a protocol step (hold 6.0-6.6 s on the new boot's
     clock, where the new boot has attitudes but no IMU yet, so no estimate): its tables took every
     boot's rows and searched them as if in time order, and scored dcm with the first boot's
@@ -250,3 +251,19 @@ def test_a_protocol_run_after_a_reboot_is_scored_with_that_boots_samples(reboote
     assert rows["onboard"].n_hold == len(hold) > 10
     error = np.abs(np.degrees(hold[:, 1]) - 5.0)
     assert rows["onboard"].abs_err_hold_deg == pytest.approx(np.mean(error), abs=1e-9)
+    # the HTML report's plot of the hold: the same boot's samples (it drew dcm's from the first boot)
+    drawn: dict[str, np.ndarray] = {}
+    plot = matplotlib.axes.Axes.plot
+
+    def recording_plot(self, *args, **kwargs):
+        if kwargs.get("label"):
+            drawn[kwargs["label"]] = np.asarray(args[0], float)
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", recording_plot)
+    monkeypatch.setattr(report, "plot_errors", lambda *_: "")  # the error figure draws its own lines
+    monkeypatch.setattr(report, "attitude_figure", lambda *_: matplotlib.figure.Figure())
+    report.write_report(str(folder), str(tmp_path / "report.html"), estimators=NAMES)
+    run = onboard[(onboard[:, 0] >= 5.8) & (onboard[:, 0] <= 6.6), 0]
+    np.testing.assert_array_equal(drawn["onboard"][np.isfinite(drawn["onboard"])], run)
+    assert not np.isfinite(drawn["dcm"]).any()

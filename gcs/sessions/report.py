@@ -29,7 +29,7 @@ from gcs.provenance import provenance
 from gcs.sessions import layout
 from gcs.sessions.contents import BootCounter, Contents, errors_by_boot, in_boot_order, read_events
 from gcs.sessions.export import write_beside
-from gcs.sessions.protocol import formatted, session_tables
+from gcs.sessions.protocol import formatted, run_boot, session_tables
 from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
@@ -299,6 +299,7 @@ def render(
     pipeline,
     protocol: ProtocolTables | None = None,
     events: list[dict] | None = None,
+    protocol_boot: int | None = None,
 ) -> str:
 
     estimators = list(pipeline.estimators)
@@ -341,8 +342,9 @@ def render(
     if events is not None:
         start = meta.get("start") if meta else None
         sections += event_sections(events, start if isinstance(start, int | float) else None)
-    if protocol is not None:
-        sections += protocol_sections(protocol, series)
+    if protocol is not None:  # its windows are on the clock of the boot it ran in (protocol.run_boot)
+        run = series if protocol_boot is None else {n: d[d[:, 4] == protocol_boot] for n, d in series.items()}
+        sections += protocol_sections(protocol, run)
     sections.append("<h2>Rates</h2>" + html_table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
     if source.framing is not None:
         sections.append("<h2>Packets and loss</h2>" + html_table(["", ""], loss_rows(source)))
@@ -364,9 +366,10 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 def write_report(path: str, out: str, progress=None, estimators: list[str] | None = None) -> None:
     source = open_source(path)
     series, pipeline = collect(source, progress, estimators)
-    tables, events = None, None
+    tables, events, boot = None, None, None
     if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
-        tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
+        contents = Contents(Path(path), "session", decode=lambda _: source)
+        tables, boot = session_tables(contents), run_boot(contents)
         events = read_events(Path(path))
-    text = layout.utf8_text(render(source, series, pipeline, tables, events))
+    text = layout.utf8_text(render(source, series, pipeline, tables, events, boot))
     write_beside(Path(out), lambda tmp: tmp.write_text(text, encoding="utf-8"))  # an earlier report stays if it fails
