@@ -17,6 +17,7 @@ import matplotlib.axes
 import matplotlib.figure
 import numpy as np
 import pytest
+import scipy.io
 from mcap.reader import make_reader
 from pymavlink import mavutil
 from scipy.spatial.transform import Rotation, Slerp
@@ -267,3 +268,22 @@ def test_a_protocol_run_after_a_reboot_is_scored_with_that_boots_samples(reboote
     run = onboard[(onboard[:, 0] >= 5.8) & (onboard[:, 0] <= 6.6), 0]
     np.testing.assert_array_equal(drawn["onboard"][np.isfinite(drawn["onboard"])], run)
     assert not np.isfinite(drawn["dcm"]).any()
+
+
+def test_the_mat_export_says_which_boot_each_row_belongs_to(rebooted, tmp_path):
+    """Each source's `t` (and its errors') starts again at the reboot; a `boot` column (1, 2)
+    tells the boots apart, where plotting `t` drew a line back from one into the next."""
+    path, points, _ = rebooted
+    out = tmp_path / "rebooted.mat"
+    assert main(["export", str(path), "--format", "mat", "--out", str(out)]) == 0
+    mat = scipy.io.loadmat(out, simplify_cells=True)
+    for source in (*NAMES, *REFERENCES):
+        first, second = split_boots(points[source])
+        struct = mat[source]
+        assert struct["boot"].tolist() == [1] * len(first) + [2] * len(second), source
+        np.testing.assert_array_equal(struct["t"], np.concatenate([np.sort(first[:, 0]), np.sort(second[:, 0])]))
+    for reference in REFERENCES:
+        errors = mat["dcm"]["errors"][reference]
+        est, ref = split_boots(points["dcm"]), split_boots(points[reference])
+        counts = [len(slerp_errors(e, r)) for e, r in zip(est, ref, strict=True)]
+        assert errors["boot"].tolist() == [1] * counts[0] + [2] * counts[1], reference

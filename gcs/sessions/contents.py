@@ -218,6 +218,10 @@ class Contents:
         each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
         (a serial port that came back with the vehicle restarted) scored one boot's estimates
         against the other's references, as the live comparison never does."""
+        return self.boot_errors_of(estimator, reference)[0]
+
+    def boot_errors_of(self, estimator: str, reference: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """`errors_of` and the boot (`row_boots`) of each of its rows."""
         estimates, estimate_boots = self.boot_series(estimator)
         references, reference_boots = self.boot_series(reference)
         return errors_by_boot(estimates[:, :4], estimate_boots, references[:, :4], reference_boots)
@@ -371,17 +375,21 @@ def errors_by_boot(
     estimate_boots: npt.NDArray[np.int64],
     reference: npt.NDArray[np.float64],
     reference_boots: npt.NDArray[np.int64],
-) -> npt.NDArray[np.float64]:
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """`errors_against` of each boot of the reference against the estimator's same boot (both N×4
     t, roll, pitch, yaw rad, each boot in time order; `*_boots`: each row's boot number, the same
     for both sources, `Contents.row_boots`). The vehicle clock starts again at 0 at a reboot, so
     one search across boots matched one boot's estimates with another's references; pairing the
-    boots by their position in each source did too where a source has no row in some boot."""
+    boots by their position in each source did too where a source has no row in some boot.
+    Returns the M×4 errors and the boot of each."""
+    numbers = np.unique(reference_boots)
     parts = [
         errors_against(estimates[estimate_boots == boot], reference[reference_boots == boot])
-        for boot in np.unique(reference_boots).tolist()
+        for boot in numbers.tolist()
     ]
-    return np.concatenate(parts) if parts else np.empty((0, 4))
+    if not parts:
+        return np.empty((0, 4)), np.empty(0, np.int64)
+    return np.concatenate(parts), np.repeat(numbers, [len(part) for part in parts])
 
 
 def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:

@@ -104,7 +104,7 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
         if name not in series or len(series[name]) < 2:
             continue
         est, est_boots = in_boot_order(series[name][:, :4], series[name][:, 4].astype(np.int64))
-        err = errors_by_boot(est, est_boots, ref, ref_boots)  # each boot of the reference against the same boot
+        err, _ = errors_by_boot(est, est_boots, ref, ref_boots)  # each boot of the reference against the same boot
         for k, ax in enumerate(axes):
             ax.plot(*broken_at_wraps(err[:, 0], err[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
     for k, ax in enumerate(axes):
