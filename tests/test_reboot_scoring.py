@@ -22,6 +22,7 @@ from mcap.reader import make_reader
 from pymavlink import mavutil
 from scipy.spatial.transform import Rotation, Slerp
 
+from gcs.batch.flight import facts
 from gcs.batch.sweep import score_flight
 from gcs.commands.cli import main
 from gcs.core.estimation import compare_stream
@@ -287,3 +288,14 @@ def test_the_mat_export_says_which_boot_each_row_belongs_to(rebooted, tmp_path):
         est, ref = split_boots(points["dcm"]), split_boots(points[reference])
         counts = [len(slerp_errors(e, r)) for e, r in zip(est, ref, strict=True)]
         assert errors["boot"].tolist() == [1] * counts[0] + [2] * counts[1], reference
+
+
+def test_a_flights_imu_rate_counts_each_boot_over_its_own_span(rebooted):
+    """`gcs batch`'s summary (imu_rate_hz) took the first IMU sample to the last across the reboot:
+    the last boot's span alone, for both boots' samples."""
+    path, _, _ = rebooted
+    t = open_source(path).table.imu[:, 0]
+    first, second = np.split(t, np.flatnonzero(np.diff(t) < -1.0) + 1)
+    expected = (len(t) - 2) / (first[-1] - first[0] + second[-1] - second[0])
+    assert facts(open_source(path)).imu_rate_hz == pytest.approx(expected, rel=1e-12)
+    assert 20.0 < expected < 30.0  # the hop's RAW_IMU at about 25 Hz
