@@ -22,6 +22,7 @@ from mcap.reader import make_reader
 from pymavlink import mavutil
 from scipy.spatial.transform import Rotation, Slerp
 
+import gcs
 from gcs.batch.flight import facts
 from gcs.batch.sweep import score_flight
 from gcs.commands.cli import main
@@ -299,3 +300,15 @@ def test_a_flights_imu_rate_counts_each_boot_over_its_own_span(rebooted):
     expected = (len(t) - 2) / (first[-1] - first[0] + second[-1] - second[0])
     assert facts(open_source(path)).imu_rate_hz == pytest.approx(expected, rel=1e-12)
     assert 20.0 < expected < 30.0  # the hop's RAW_IMU at about 25 Hz
+
+
+def test_the_notebook_api_says_which_boot_each_row_belongs_to(rebooted):
+    """`gcs.open_session(...).source(name)` of a log (no wall time to tell the boots apart by): its
+    t starts again at the reboot; a boot column (1, 2) says where."""
+    path, points, _ = rebooted
+    session = gcs.open_session(path)
+    for source in (*NAMES, *REFERENCES):
+        first, second = split_boots(points[source])
+        table = session.source(source)
+        assert table["boot"].to_pylist() == [1] * len(first) + [2] * len(second), source
+        assert table["t"].to_pylist() == [*np.sort(first[:, 0]), *np.sort(second[:, 0])], source
