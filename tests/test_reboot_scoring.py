@@ -28,7 +28,7 @@ from gcs.batch.sweep import score_flight
 from gcs.commands.cli import main
 from gcs.core.estimation import compare_stream
 from gcs.core.estimators import registry
-from gcs.runtime.replay import whole_table
+from gcs.runtime.replay import session_table, whole_table
 from gcs.sessions import report
 from gcs.sessions.contents import open_contents
 from gcs.sessions.protocol import session_tables
@@ -312,3 +312,39 @@ def test_the_notebook_api_says_which_boot_each_row_belongs_to(rebooted):
         table = session.source(source)
         assert table["boot"].to_pylist() == [1] * len(first) + [2] * len(second), source
         assert table["t"].to_pylist() == [*np.sort(first[:, 0]), *np.sort(second[:, 0])], source
+
+
+def test_a_clock_step_under_a_second_is_scored_alike_by_replay_fast_what_if_and_sweep(logs_dir, tmp_path):
+    """The VTOL tlog's IMU clock steps back 1.0001 s, just over REBOOT_CLOCK_JUMP; here the hop's
+    clock steps back 0.5 s (its records to 40 s, then again from 39.5 s), less than a reboot: the
+    pipeline restarts its comparison there, and `--fast`, what-if and a sweep's score give its table."""
+    conn = mavutil.mavlink_connection(str(logs_dir / "arducopter-sitl-hop.tlog"), robust_parsing=True)
+    records, clock, latest = [], [], 0.0
+    while (msg := conn.recv_msg()) is not None:
+        if msg.get_type() == "BAD_DATA":
+            continue
+        if msg.get_srcSystem() == 1 and hasattr(msg, "time_boot_ms"):
+            latest = msg.time_boot_ms / 1e3
+        records.append((round(msg._timestamp * 1e6), bytes(msg.get_msgbuf())))
+        clock.append(latest)
+    first = [r for r, t in zip(records, clock, strict=True) if t <= 40.0]
+    second = [r for r, t in zip(records, clock, strict=True) if t >= 39.5]
+    shift = first[-1][0] - second[0][0] + 20_000
+    path = tmp_path / "stepped.tlog"
+    path.write_bytes(
+        b"".join(struct.pack(">Q", usec) + packet for usec, packet in first + [(u + shift, p) for u, p in second])
+    )
+    source = open_source(path)
+    t = source.table.imu[:, 0]
+    assert -1.0 < np.diff(t).min() < -0.4  # one step back, under a second
+    paced = {r["reference"]: r for r in session_table(source.replay(source.new_pipeline(["dcm"])))}
+    fast = {r["reference"]: r for r in whole_table(source, ["dcm"], {})[0]}
+    errors = run_estimator(source, "dcm", {}).errors
+    assert set(paced) == set(fast) == set(errors) >= set(REFERENCES)
+    for ref, row in paced.items():
+        assert fast[ref]["n"] == row["n"], ref
+        for got in (fast[ref]["rms_deg"], errors[ref]["rms"]):
+            assert got == pytest.approx(row["rms_deg"], rel=1e-9, abs=1e-12), ref
+        assert errors[ref]["max"] == pytest.approx(row["max_deg"], rel=1e-9, abs=1e-12), ref
+    (score,) = score_flight(str(path), "dcm", "truth", [{}]).scores
+    assert score == pytest.approx(math.sqrt(sum(v * v for v in paced["truth"]["rms_deg"]) / 3), rel=1e-9)
