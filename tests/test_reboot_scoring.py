@@ -33,7 +33,7 @@ from gcs.sessions import report
 from gcs.sessions.contents import open_contents
 from gcs.sessions.protocol import session_tables
 from gcs.sessions.sources import open_source
-from gcs.sessions.whatif import run_estimator
+from gcs.sessions.whatif import run_estimator, what_if
 
 #: Vehicle seconds of the first boot (from the hop's first message at 5.7 s): shorter than the
 #: comparison's 30 s history, so the old boot's estimates still cover the new boot's first times.
@@ -314,10 +314,9 @@ def test_the_notebook_api_says_which_boot_each_row_belongs_to(rebooted):
         assert table["t"].to_pylist() == [*np.sort(first[:, 0]), *np.sort(second[:, 0])], source
 
 
-def test_a_clock_step_under_a_second_is_scored_alike_by_replay_fast_what_if_and_sweep(logs_dir, tmp_path):
-    """The VTOL tlog's IMU clock steps back 1.0001 s, just over REBOOT_CLOCK_JUMP; here the hop's
-    clock steps back 0.5 s (its records to 40 s, then again from 39.5 s), less than a reboot: the
-    pipeline restarts its comparison there, and `--fast`, what-if and a sweep's score give its table."""
+def stepped_hop(logs_dir, out):
+    """The hop's records while its clock is at most 40 s, then again from 39.5 s: its clock steps
+    back 0.5 s, less than a reboot (a log's time glitch)."""
     conn = mavutil.mavlink_connection(str(logs_dir / "arducopter-sitl-hop.tlog"), robust_parsing=True)
     records, clock, latest = [], [], 0.0
     while (msg := conn.recv_msg()) is not None:
@@ -330,10 +329,17 @@ def test_a_clock_step_under_a_second_is_scored_alike_by_replay_fast_what_if_and_
     first = [r for r, t in zip(records, clock, strict=True) if t <= 40.0]
     second = [r for r, t in zip(records, clock, strict=True) if t >= 39.5]
     shift = first[-1][0] - second[0][0] + 20_000
-    path = tmp_path / "stepped.tlog"
-    path.write_bytes(
+    out.write_bytes(
         b"".join(struct.pack(">Q", usec) + packet for usec, packet in first + [(u + shift, p) for u, p in second])
     )
+    return out
+
+
+def test_a_clock_step_under_a_second_is_scored_alike_by_replay_fast_what_if_and_sweep(logs_dir, tmp_path):
+    """The VTOL tlog's IMU clock steps back 1.0001 s, just over REBOOT_CLOCK_JUMP; here the hop's
+    clock steps back 0.5 s (its records to 40 s, then again from 39.5 s), less than a reboot: the
+    pipeline restarts its comparison there, and `--fast`, what-if and a sweep's score give its table."""
+    path = stepped_hop(logs_dir, tmp_path / "stepped.tlog")
     source = open_source(path)
     t = source.table.imu[:, 0]
     assert -1.0 < np.diff(t).min() < -0.4  # one step back, under a second
@@ -348,3 +354,15 @@ def test_a_clock_step_under_a_second_is_scored_alike_by_replay_fast_what_if_and_
         assert errors[ref]["max"] == pytest.approx(row["max_deg"], rel=1e-9, abs=1e-12), ref
     (score,) = score_flight(str(path), "dcm", "truth", [{}]).scores
     assert score == pytest.approx(math.sqrt(sum(v * v for v in paced["truth"]["rms_deg"]) / 3), rel=1e-9)
+
+
+def test_the_what_if_chart_goes_forward_past_a_clock_step(logs_dir, tmp_path):
+    """The what-if chart (uPlot wants its x ascending) laid only a reboot's boots one after the
+    other: past the hop's 0.5 s step its x went back and the lines were drawn back in time. What
+    follows the step is now laid after it, the lines broken there, as after a reboot."""
+    path = stepped_hop(logs_dir, tmp_path / "stepped.tlog")
+    view = what_if(open_source(path), "dcm", {"kp_rp": 0.5}).view()
+    t = np.array(view.t, dtype=float)
+    assert np.all(np.diff(t) > 0)
+    (gap,) = [k for k, v in enumerate(view.old.roll) if v is None]  # the lines break once, at the step
+    assert [k for k, v in enumerate(view.new.roll) if v is None] == [gap]

@@ -19,7 +19,7 @@ from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
 from gcs.core.estimators.whole import euler_of, imu_accepted, run_whole
-from gcs.core.samples import REBOOT_CLOCK_JUMP, ImuSample
+from gcs.core.samples import ImuSample
 from gcs.sessions.scoring import scored
 from gcs.sessions.sources import ReplaySource
 
@@ -106,9 +106,11 @@ def boots_in_line(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The chart's time axis for outputs at vehicle times `t` (s), and where each boot after the
     first starts: a vehicle that rebooted starts its clock from 0 again, and the chart (uPlot)
     wants its x ascending; it drew the boots over each other, joined by a line back from the end
-    of one to the start of the next. Each later boot now follows the one before, BOOT_GAP_S on."""
+    of one to the start of the next. Each later boot now follows the one before, BOOT_GAP_S on.
+    So does what follows a smaller step back of the clock (a log's time glitch), where the
+    comparison starts afresh too: it left x going back, and uPlot drew a line back in time."""
     x = np.array(t, dtype=float)
-    cuts = np.flatnonzero(np.diff(x) < -REBOOT_CLOCK_JUMP) + 1
+    cuts = np.flatnonzero(np.diff(x) < 0) + 1
     for cut in cuts:
         x[cut:] += x[cut - 1] + BOOT_GAP_S - x[cut]
     return x, cuts
