@@ -36,7 +36,9 @@ def scored(table: InputTable, q: npt.NDArray[np.float64], fed: npt.NDArray[np.bo
     imu_rows = np.cumsum((kind == Kind.IMU) | (kind == Kind.IMU_MAG))  # IMU rows up to each input
     accepted = attitude_rows_accepted(table.attitude)
     ends = imu_rows[kind == Kind.ATTITUDE][accepted]  # the IMU rows that arrived before each reference
-    lanes = np.array([source_lane(name) for name in table.names], dtype=np.float64)
+    lanes = np.zeros(len(table.names))  # the comparison's lane of each reference's name (only theirs interned)
+    for code in np.unique(table.attitude_source).tolist():
+        lanes[code] = source_lane(table.names[code])
     refs = np.column_stack([table.attitude, lanes[table.attitude_source]])[accepted]
     outputs = np.zeros((len(q), OUT))
     outputs[:, Q : Q + 4] = q
