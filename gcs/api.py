@@ -82,13 +82,13 @@ class Session:
 
     def source(self, name: str) -> pa.Table:
         """One source's attitude in time order (within each boot of the vehicle, the boots in the
-        order recorded): t, wall_time, roll, pitch, yaw (rad). KeyError names the sources there are."""
+        order recorded): t, boot (1 = the first; t starts again at each), wall_time, roll, pitch,
+        yaw (rad). KeyError names the sources there are."""
         if name not in self.sources:
             raise KeyError(f"no source {name!r} in {self.path}; there are {', '.join(self.sources)}")
-        data = self._contents.series(name)
-        return pa.table({c: data[:, k] for k, c in enumerate(("t", "roll", "pitch", "yaw", "wall_time"))}).select(
-            ["t", "wall_time", "roll", "pitch", "yaw"]
-        )
+        data, boots = self._contents.boot_series(name)
+        columns = {c: data[:, k] for k, c in enumerate(("t", "roll", "pitch", "yaw", "wall_time"))}
+        return pa.table({**columns, "boot": boots + 1}).select(["t", "boot", "wall_time", "roll", "pitch", "yaw"])
 
     @property
     def comparison(self) -> pa.Table:

@@ -8,13 +8,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from gcs.core.comparison import SCAN_BACK, Comparison, attitude_error
+from gcs.core.comparison_compiled import CompiledComparison
 from gcs.core.estimators import registry
 from gcs.core.estimators.kernels import Q
 from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
 from gcs.core.rotation import euler_quat, quat_to_euler
-from gcs.core.samples import AttitudeSample, ImuSample
+from gcs.core.samples import REBOOT_CLOCK_JUMP, AttitudeSample, ImuSample
 
 
 def unit(v: np.ndarray) -> tuple[float, float, float, float]:
@@ -49,8 +51,9 @@ def test_a_late_reference_is_scored_against_the_estimates_around_it():
     quats = [euler_quat(*rng.normal(0.0, 0.5, 3).tolist()) for _ in times]
     for t, q in zip(times, quats, strict=True):
         c.add_estimate(t, q)
-    # references 0.5, 1.5, 20, 200 and 1999 estimates back of the newest, and one past it
-    for back in (1, 2, 21, SCAN_BACK + 5, 201, 1999):
+    # references 0.5, 1.5, 20, 200 and 300 estimates back of the newest (under a second: more is a
+    # new boot's reference, test_a_reference_a_reboot_behind_starts_the_new_boot), and one past it
+    for back in (1, 2, 21, SCAN_BACK + 5, 201, 301):
         i = len(times) - 1 - back
         t = times[i] + 0.3 * (times[i + 1] - times[i])
         c.add_reference(AttitudeSample(t, 0.1, -0.2, 0.3, "onboard"))
@@ -59,6 +62,24 @@ def test_a_late_reference_is_scored_against_the_estimates_around_it():
         assert c.stats["onboard"].recent[-1] == (t, *want), back
     c.add_reference(AttitudeSample(times[-1], 0.1, -0.2, 0.3, "onboard"))
     assert c.stats["onboard"].recent[-1][1:] == attitude_error(quats[-1], quats[-1], 0.0, 0.1, -0.2, 0.3)
+
+
+def test_a_reference_a_reboot_behind_starts_the_new_boot():
+    """A reference more than REBOOT_CLOCK_JUMP behind the newest estimate is a rebooted vehicle's
+    (its first ATTITUDE comes before its first IMU sample): not scored against the old boot's
+    estimates at its time, but kept for the new boot's, as at the start of a session."""
+    for c in (Comparison(), CompiledComparison()):
+        for k in range(1000):  # 20 s at 50 Hz
+            c.add_estimate(0.02 * k, (1.0, 0.0, 0.0, 0.0))
+        c.add_reference(AttitudeSample(19.98 - REBOOT_CLOCK_JUMP + 0.01, 0.0, 0.0, 0.0, "onboard"))  # late
+        assert c.summary()["references"]["onboard"]["session"]["n"] == 1, type(c)
+        c.add_reference(AttitudeSample(10.0, 0.5, 0.0, 0.0, "onboard"))  # the old boot's estimates cover 10 s
+        assert c.summary()["references"]["onboard"]["session"]["n"] == 1, type(c)
+        c.add_estimate(10.0, euler_quat(0.5, 0.0, 0.0))  # the new boot's first estimate: as its reference
+        summary = c.summary()
+        assert summary["references"]["onboard"]["session"]["n"] == 2, type(c)
+        assert summary["references"]["onboard"]["session"]["max"] == pytest.approx([0.0] * 3, abs=1e-9), type(c)
+        assert summary["dropped"] == 0, type(c)
 
 
 def test_an_estimators_compiled_attitude_equals_its_quaternion_and_the_python_angles():

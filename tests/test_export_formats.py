@@ -30,7 +30,7 @@ from pymavlink import mavutil
 
 import gcs
 from gcs.commands.cli import main
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.server.dashboard import DashboardServer
 from gcs.sessions import layout
 from gcs.transport.address import free_port
@@ -234,7 +234,7 @@ def test_notebook_style_use(recorded):
     s = gcs.open_session(str(recorded["folder"]))
     dcm = s.attitude_df("dcm")
     truth = s.attitude_df("truth")
-    assert isinstance(dcm, pd.DataFrame) and list(dcm.columns) == ["t", "wall_time", "roll", "pitch", "yaw"]
+    assert isinstance(dcm, pd.DataFrame) and list(dcm.columns) == ["t", "boot", "wall_time", "roll", "pitch", "yaw"]
     # RMS roll error of DCM against the simulator's truth, each truth sample against the nearest estimate
     paired = pd.merge_asof(truth, dcm, on="t", direction="nearest", suffixes=("_truth", "_dcm"))
     rms = float(np.sqrt(((np.degrees(paired["roll_dcm"] - paired["roll_truth"])) ** 2).mean()))

@@ -26,11 +26,11 @@ from playwright.async_api import async_playwright
 from test_sitl_copter import _command, sitl_process
 
 from gcs.commands.cli import main
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.mavlink.dialect import mavlink
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions import report
-from gcs.sessions.contents import boots, open_contents
+from gcs.sessions.contents import open_contents
 from gcs.sessions.sources import open_source
 from gcs.sessions.whatif import what_if
 
@@ -75,32 +75,28 @@ def test_what_if_replay_fast_and_report_score_each_boot_of_a_rebooted_plane_alon
     assert (np.diff(onboard) < -REBOOT_CLOCK_JUMP).sum() == 1  # one session, two boots
     whole_run = {(r["estimator"], r["reference"]): r for r in contents.errors().to_pylist()}
 
-    # the what-if with nothing changed: its "old" row is the session's whole-run errors
-    result = what_if(open_source(rebooted_session), "ekf", {"gyro_noise": 0.02})
-    rows = {row.reference: row for row in result.table()}
-    assert {"onboard", "truth"} <= set(rows)
-    for ref, row in rows.items():
-        expected = whole_run["ekf", ref]
-        rms = [expected[f"rms_{a}"] for a in ("roll", "pitch", "yaw")]
-        assert row.old_rms == pytest.approx(rms, rel=1e-6, abs=1e-9), ref
-
-    # `gcs replay --fast` (whole-run arrays): the table of `gcs replay` (the per-sample pipeline)
+    # `gcs replay --fast` (whole-run arrays) and the what-if with nothing changed (its "old" row):
+    # the table of `gcs replay` (the per-sample pipeline), which no longer scores the new boot's
+    # first ATTITUDE (before its first estimate) against the old boot's estimates
     names = ["dcm", "kf", "ekf"]
     replay = ReplaySession(open_source(rebooted_session), 0, names, {})
     replay.run_to_end()
     per_sample = {(r["estimator"], r["reference"]): r for r in session_table(replay.pipeline)}
     rows, _ = whole_table(open_source(rebooted_session), names, {})
     assert len(rows) == len(per_sample) >= 6
-    exact = 0
     for row in rows:
         expected = per_sample[row["estimator"], row["reference"]]
-        # the per-sample comparison may score the new boot's first ATTITUDE, which comes before the
-        # new boot's first estimate, against the old boot's estimates: one reference more (report)
-        assert 0 <= expected["n"] - row["n"] <= 1, (row, expected)
-        if row["n"] == expected["n"]:
-            assert row["rms_deg"] == pytest.approx(expected["rms_deg"], rel=1e-6, abs=1e-9), row
-            exact += 1
-    assert exact >= 6  # truth and ahrs2 at least, for dcm, kf and ekf
+        assert row["n"] == expected["n"], (row, expected)
+        assert row["rms_deg"] == pytest.approx(expected["rms_deg"], rel=1e-9, abs=1e-12), row
+    result = what_if(open_source(rebooted_session), "ekf", {"gyro_noise": 0.02})
+    old = {row.reference: row.old_rms for row in result.table()}
+    assert {"onboard", "truth"} <= set(old)
+    assert old == {
+        ref: pytest.approx(r["rms_deg"], rel=1e-9, abs=1e-12) for (e, ref), r in per_sample.items() if e == "ekf"
+    }
+    # the session's whole-run errors (its recorded points, each boot against itself): truth, whose rows
+    # the live run and the replay share, as the replay but for the outputs before the first valid one
+    assert 0 <= per_sample["ekf", "truth"]["n"] - whole_run["ekf", "truth"]["n"] <= 5
 
     # the report: its error lines are the session's errors, each boot against itself, and no line
     # runs back in time from one boot into the next
@@ -136,9 +132,8 @@ def test_the_replay_view_plays_a_rebooted_plane_boot_after_boot(rebooted_session
     """Played to the end, the replay view holds every source's second boot, as the live page holds
     the new boot after a reboot (plots.js restarts on a clock that went back)."""
     contents = open_contents(rebooted_session)
-    last_boot = {
-        s: boots(contents.series(s)[:, :4])[-1][:, 0] for s in ("onboard", "truth", "ahrs2", "dcm", "kf", "ekf")
-    }
+    series = {s: contents.boot_series(s) for s in ("onboard", "truth", "ahrs2", "dcm", "kf", "ekf")}
+    last_boot = {s: data[boot == boot.max(), 0] for s, (data, boot) in series.items()}
     errors: list[str] = []
 
     async def scenario():
@@ -195,7 +190,8 @@ def test_the_what_if_chart_lays_a_rebooted_plane_boot_after_boot(rebooted_sessio
 def test_the_mat_and_mcap_exports_place_each_boots_gain_change_on_its_own_clock(rebooted_session, tmp_path):
     """Gain changes (and every event and comparison row, which have only the host clock) are put on
     the vehicle clock by its offset from the host's: one median offset over the whole session put
-    the changes of one of the two boots a boot's length (over 20 s) off."""
+    the changes of one of the two boots a boot's length (over 20 s) off. In the MCAP file the second
+    boot then follows the first on the one timeline."""
     out = tmp_path / "session.mat"
     assert main(["export", str(rebooted_session), "--format", "mat", "--out", str(out)]) == 0
     changes = scipy.io.loadmat(out, simplify_cells=True)["gain_changes"]
@@ -210,4 +206,8 @@ def test_the_mat_and_mcap_exports_place_each_boots_gain_change_on_its_own_clock(
             for _, channel, message in make_reader(f).iter_messages(topics=["/events"])
             if b'"gain"' in message.data and b"kp_rp" in message.data
         ]
-    np.testing.assert_allclose(logged, CHANGED, atol=0.5)
+    # log_time: the second boot laid 1 s after the end of the first (on its own clock it lay over it)
+    t = open_contents(rebooted_session).attitude["t"].to_numpy()  # every source's rows, in the order recorded
+    cut = np.flatnonzero(np.diff(t) < -REBOOT_CLOCK_JUMP)[0] + 1
+    shift = t[:cut].max() + 1.0 - t[cut:].min()
+    np.testing.assert_allclose(logged, [CHANGED[0], CHANGED[1] + shift], atol=0.5)

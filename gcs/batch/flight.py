@@ -21,7 +21,7 @@ from gcs.batch import dataset
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.logs.logfile import InputError
 from gcs.sessions import columnar, layout
-from gcs.sessions.contents import events_table, read_events
+from gcs.sessions.contents import boot_numbers, events_table, read_events
 from gcs.sessions.sources import ReplaySource, open_source
 
 
@@ -51,15 +51,25 @@ class FlightFacts:
 
 def facts(source: ReplaySource) -> FlightFacts:
     """Vehicle and firmware from a session's meta.json ("unknown" for a bare log), start time (the
-    session's, else the file's mtime) and the mean IMU rate over the IMU samples' span."""
+    session's, else the file's mtime) and the mean IMU rate (`imu_rate`)."""
     recorded = source.meta.get("vehicle")
     vehicle: dict = recorded if isinstance(recorded, dict) else {}
     started = layout.meta_time(source.meta.get("start"))
     if started is None:
         started = os.stat(source.packet_file or source.path).st_mtime
+    return FlightFacts(
+        str(vehicle.get("label") or "unknown"), str(vehicle.get("firmware") or ""), started, imu_rate(source)
+    )
+
+
+def imu_rate(source: ReplaySource) -> float:
+    """IMU samples per second of IMU time, each boot of the vehicle over its own span: across a
+    reboot (its clock from 0 again) the first sample to the last spanned the last boot alone, and
+    a session of two boots read about twice its rate."""
     t = source.table.imu[:, 0]
-    rate = (len(t) - 1) / float(t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
-    return FlightFacts(str(vehicle.get("label") or "unknown"), str(vehicle.get("firmware") or ""), started, rate)
+    boots = np.split(t, np.flatnonzero(np.diff(boot_numbers(t))) + 1) if len(t) else []
+    span = sum(float(b[-1] - b[0]) for b in boots)
+    return (len(t) - len(boots)) / span if span > 0 else 0.0
 
 
 def comparison_table(pipeline: EstimationPipeline) -> pa.Table:

@@ -27,7 +27,7 @@ from gcs.core import lag as running_lag
 from gcs.core.estimators.kernels import attitude_error as compiled_attitude_error
 from gcs.core.lag import RunningLag
 from gcs.core.rotation import euler_quat, quat_slerp, quat_to_euler, wrap_pi
-from gcs.core.samples import AttitudeSample
+from gcs.core.samples import REBOOT_CLOCK_JUMP, AttitudeSample
 
 DEG = 180.0 / math.pi
 #: A measured rate this close to the requested one counts as the requested one: over a 10 s window
@@ -253,10 +253,7 @@ class Comparison:
             if estimates:
                 last = estimates[-1][0]
                 if t < last:  # vehicle clock went back: a new session
-                    estimates.clear()
-                    pending.clear()
-                    lag.reset()
-                    recent.clear()
+                    self._restart()
                     next_lag = lag.last_estimate() + lag_step
                 elif t == last:
                     continue
@@ -274,7 +271,25 @@ class Comparison:
             while pending and pending[0].t <= t:
                 self._score(pending.popleft())
 
+    def _restart(self) -> None:
+        """Start afresh on a vehicle clock that went back: what was kept of the old clock (the
+        estimates, the references waiting for them, the lag's history, the rate's window) is not
+        compared with the new; the session's figures go on."""
+        self.estimates.clear()
+        self.pending.clear()
+        self.running_lag.reset()
+        self._window_t.clear()
+
     def add_reference(self, ref: AttitudeSample) -> None:
+        """A reference in arrival order. One more than REBOOT_CLOCK_JUMP behind the newest input is
+        a new boot's (a rebooted vehicle's first ATTITUDE comes before its first IMU sample): the
+        comparison restarts, as at the new boot's first estimate, rather than score it against the
+        old boot's estimates at the same clock reading."""
+        newest = max(
+            self.estimates[-1][0] if self.estimates else -math.inf, self.pending[-1].t if self.pending else -math.inf
+        )
+        if ref.t < newest - REBOOT_CLOCK_JUMP:
+            self._restart()
         if self.estimates and ref.t <= self.estimates[-1][0]:
             self._score(ref)
         else:

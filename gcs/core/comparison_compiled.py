@@ -34,7 +34,7 @@ from gcs.core.comparison import (
 from gcs.core.estimators.jit import kernel
 from gcs.core.estimators.kernels import attitude_error
 from gcs.core.lag import BLOCKS, CHANGE_OVER, SQUARES, SUMMED, best_lag, lag_grid, score_reference
-from gcs.core.samples import AttitudeSample
+from gcs.core.samples import REBOOT_CLOCK_JUMP, AttitudeSample
 
 Floats = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
@@ -247,6 +247,23 @@ def _score(
 
 
 @kernel
+def _restart(
+    counts: Ints, clock: Floats, est_b: Ints, times_b: Ints, pending_b: Ints, lag_est_b: Ints, waiting_b: Ints,
+    scored_b: Ints, lag_sums: Floats,
+) -> None:  # fmt: skip
+    """Comparison._restart: the buffers of the old clock emptied, the lag's sums zeroed."""
+    est_b[0, :] = 0
+    times_b[0, :] = 0
+    pending_b[0, :] = 0
+    lag_est_b[0, :] = 0
+    waiting_b[0, :] = 0
+    scored_b[0, :] = 0
+    lag_sums[:] = 0.0
+    counts[LAG_REMOVED] = 0
+    clock[LAST_REF] = clock[LAST_LAG_ESTIMATE] = -math.inf
+
+
+@kernel
 def add_batch(
     p: Floats, counts: Ints, clock: Floats, est: Floats, est_b: Ints, times_b: Ints, pending: Floats,
     pending_b: Ints, recent: Floats, recent_b: Ints, peaks: Floats, peaks_b: Ints, src_counts: Ints,
@@ -287,15 +304,7 @@ def add_batch(
             if est_b[0, END] > est_b[0, START]:
                 last = est[0, est_b[0, END] - 1, 0]
                 if t < last:  # vehicle clock went back: a new session
-                    est_b[0, :] = 0
-                    times_b[0, :] = 0
-                    pending_b[0, :] = 0
-                    lag_est_b[0, :] = 0
-                    waiting_b[0, :] = 0
-                    scored_b[0, :] = 0
-                    lag_sums[:] = 0.0
-                    counts[LAG_REMOVED] = 0
-                    clock[LAST_REF] = clock[LAST_LAG_ESTIMATE] = -math.inf
+                    _restart(counts, clock, est_b, times_b, pending_b, lag_est_b, waiting_b, scored_b, lag_sums)
                 elif t == last:
                     continue
             row = est[0, _push(est_b, 0)]
@@ -323,6 +332,13 @@ def add_batch(
         first = stop
         if k < m:  # Comparison.add_reference
             ref = refs[k]
+            newest = -math.inf
+            if est_b[0, END] > est_b[0, START]:
+                newest = est[0, est_b[0, END] - 1, 0]
+            if pending_b[0, END] > pending_b[0, START]:
+                newest = max(newest, pending[0, pending_b[0, END] - 1, 0])
+            if ref[0] < newest - REBOOT_CLOCK_JUMP:  # a new boot's reference before its first estimate
+                _restart(counts, clock, est_b, times_b, pending_b, lag_est_b, waiting_b, scored_b, lag_sums)
             if est_b[0, END] > est_b[0, START] and ref[0] <= est[0, est_b[0, END] - 1, 0]:
                 _score(
                     p, counts, clock, est, est_b, recent, recent_b, peaks, peaks_b, src_counts, src_sums, waiting,

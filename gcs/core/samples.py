@@ -13,6 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+#: The vehicle clock going back by more than this (s) is a reboot: its clock starts again near 0.
+#: Less (a log's time glitch) is not: the vehicle and what it set up (declination, EKF state) go on.
+REBOOT_CLOCK_JUMP = 1.0
+
 
 @dataclass(frozen=True, slots=True)
 class ImuSample:

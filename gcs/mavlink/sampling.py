@@ -14,6 +14,7 @@ from gcs.core.declination import WMM_EPOCH, VehicleDeclination, decimal_year
 from gcs.core.estimation import EstimationInput, GainChange
 from gcs.core.estimators.stepping import ImuRow
 from gcs.core.samples import (
+    REBOOT_CLOCK_JUMP,
     AttitudeSample,
     BaroSample,
     GpsSample,
@@ -380,8 +381,6 @@ INPUT_TYPES = frozenset({*IMU_TYPES, "GPS_RAW_INT", "ATTITUDE", "AHRS2", "SIMSTA
 SAMPLED_TYPES = INPUT_TYPES | {"EKF_STATUS_REPORT"}
 
 
-#: The vehicle clock going back by more than this (s) is a reboot.
-REBOOT_CLOCK_JUMP = 1.0
 #: A GPS_RAW_INT time_usec above this (2015-01-01 in µs) is UNIX time, not time since boot.
 UNIX_USEC_MIN = 1_420_070_400_000_000
 

@@ -30,12 +30,13 @@ from gcs.core import strict_json
 from gcs.core.estimation import AttitudePoint, EstimationPipeline
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import errors_at, run_whole
+from gcs.core.estimators.whole import run_whole
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
 from gcs.mavlink.tlog import MAX_WAIT_S
 from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.signal import Signal
+from gcs.sessions.scoring import scored
 from gcs.sessions.sources import PacketReader, ReplaySource, SourceKey
 from gcs.sessions.workbench import workbench
 
@@ -285,17 +286,14 @@ def whole_table(
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[list[dict[str, object]], int]:
     """`session_table` of a replay to the end, from whole-run arrays (gcs.core.estimators.whole)
-    instead of the per-sample pipeline: each estimator in one compiled loop, every reference
-    scored against every output the estimator produced, as the pipeline's Comparison scores them
-    (tests/test_whole_run.py). For `gcs replay --fast`, where nothing watches the frames go by.
-    The estimators are independent and their kernels release the GIL, so each runs in its own
-    thread: the replay takes about the slowest one's time on a machine with as many cores.
-    Also returns the IMU samples fed (the pipeline's `imu_samples`); progress(done, total) counts
-    estimators. A source whose IMU clock does not only go forward runs through the pipeline
-    instead (`steady_clock`), so the table is the pipeline's whatever the log."""
-    if not steady_clock(source):
-        pipeline = source.replay(source.new_pipeline(estimators, gains), progress=progress)
-        return session_table(pipeline), pipeline.imu_samples
+    instead of the per-sample pipeline: each estimator in one compiled loop, its outputs then
+    scored by the pipeline's own comparison with the references in the order they came
+    (gcs.sessions.scoring), so the table is the pipeline's whatever the vehicle clock does (a
+    reboot, a log's clock stepping back). For `gcs replay --fast`, where nothing watches the
+    frames go by. The estimators are independent and their kernels release the GIL, so each runs
+    in its own thread: the replay takes about the slowest one's time on a machine with as many
+    cores. Also returns the IMU samples fed (the pipeline's `imu_samples`); progress(done, total)
+    counts estimators."""
     workers = max(1, min(len(estimators), os.cpu_count() or 1))
     with ThreadPoolExecutor(workers, thread_name_prefix="whole-run") as pool:
         runs = [pool.submit(_whole_rows, source, name, gains.get(name, {})) for name in estimators]
@@ -306,28 +304,16 @@ def whole_table(
     return [row for rows, _ in results for row in rows], results[-1][1] if results else 0
 
 
-def steady_clock(source: ReplaySource) -> bool:
-    """Whether the source's IMU times only increase. Whole runs score every reference against
-    one time-ordered run of outputs; the pipeline's Comparison starts afresh where the clock goes
-    back (a reboot, a log's time glitch: ArduPlane SITL's vtol.tlog steps back 1 s) and skips a
-    repeated time, so only on a steady clock do the two give the same table."""
-    t = source.table.imu[:, 0]
-    return bool(np.all(np.diff(t) > 0))
-
-
 def _whole_rows(source: ReplaySource, name: str, gains: dict[str, float]) -> tuple[list[dict[str, object]], int]:
     """whole_table's rows of one estimator, and the IMU samples it was fed."""
     table = source.table
     preset, recorded = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**recorded, **gains})
     run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name)
-    t = table.imu[run.fed, 0]
-    rows: list[dict[str, object]] = []
-    for ref, data in sorted(source.references.items()):
-        err = errors_at(t, run.q[run.fed], data)[:, 1:]  # one boot: a reboot's clock goes back (steady_clock)
-        if len(err):
-            rms, worst = np.sqrt(np.mean(err**2, axis=0)).tolist(), np.max(np.abs(err), axis=0).tolist()
-            rows.append({"estimator": name, "reference": ref, "n": len(err), "rms_deg": rms, "max_deg": worst})
+    rows: list[dict[str, object]] = [
+        {"estimator": name, "reference": ref, "n": s["n"], "rms_deg": s["rms"], "max_deg": s["max"]}
+        for ref, s in sorted(scored(table, run.q, run.fed).items())
+    ]
     return rows, int(run.fed.sum())
 
 

@@ -31,8 +31,8 @@ import pyarrow.compute as pc
 
 from gcs.core.comparison import errors_against
 from gcs.core.estimators import registry
-from gcs.core.estimators.whole import errors_at
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
+from gcs.core.estimators.whole import InputKind as Kind
+from gcs.core.samples import REBOOT_CLOCK_JUMP
 from gcs.sessions import columnar, layout
 from gcs.sessions.sources import ReplaySource, open_source
 
@@ -194,19 +194,37 @@ class Contents:
 
     def series(self, source: str) -> npt.NDArray[np.float64]:
         """N×5 array of one source: t (vehicle s), roll, pitch, yaw (rad), wall_time (UNIX s or NaN),
-        in time order within each boot of the vehicle, the boots in the order recorded (`boots`)."""
-        table = self.attitude.filter(pc.equal(self.attitude["source"], source))
+        in time order within each boot of the vehicle, the boots in the order recorded (`boot_series`)."""
+        return self.boot_series(source)[0]
+
+    @cached_property
+    def row_boots(self) -> npt.NDArray[np.int64]:
+        """Per attitude row, which boot of the vehicle it belongs to (`boot_numbers` of every
+        source's rows together, in the order recorded): a boot has one number in every source,
+        one that has no row in some boot (a reference that starts after a reboot) included."""
+        return boot_numbers(self.attitude["t"].to_numpy(zero_copy_only=False))
+
+    def boot_series(self, source: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """`series(source)` and the boot number of each of its rows (`row_boots`)."""
+        rows = pc.equal(self.attitude["source"], source).to_numpy(zero_copy_only=False)
+        table = self.attitude.filter(rows)
         data = np.column_stack(
             [table[c].to_numpy(zero_copy_only=False) for c in ("t", "roll", "pitch", "yaw", "wall_time")]
         ).reshape(-1, 5)
-        return data[np.lexsort((data[:, 0], boot_numbers(data[:, 0])))]
+        return in_boot_order(data, self.row_boots[rows])
 
     def errors_of(self, estimator: str, reference: str) -> npt.NDArray[np.float64]:
         """M×4: estimator − reference at the reference's times (t s, roll, pitch, yaw error deg),
         each boot against the same boot: sorted by time alone, a session whose vehicle rebooted
         (a serial port that came back with the vehicle restarted) scored one boot's estimates
         against the other's references, as the live comparison never does."""
-        return errors_by_boot(self.series(estimator)[:, :4], self.series(reference)[:, :4])
+        return self.boot_errors_of(estimator, reference)[0]
+
+    def boot_errors_of(self, estimator: str, reference: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """`errors_of` and the boot (`row_boots`) of each of its rows."""
+        estimates, estimate_boots = self.boot_series(estimator)
+        references, reference_boots = self.boot_series(reference)
+        return errors_by_boot(estimates[:, :4], estimate_boots, references[:, :4], reference_boots)
 
     def errors(self) -> pa.Table:
         """Whole-run RMS and max |error| (degrees) of every estimator against every reference."""
@@ -236,62 +254,142 @@ class Contents:
         return float(np.median(diff)) if len(diff) else None
 
     @cached_property
-    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row
-        and its clock offset (median wall_time − t), in the order recorded; empty for logs."""
+    def boot_clocks(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """Per boot of the vehicle that has wall time: the UNIX time (s) of its first attitude row,
+        its clock offset (median wall_time − t) and its number (`row_boots`), in the order
+        recorded; empty for logs."""
         t = self.attitude["t"].to_numpy(zero_copy_only=False)
         wall = self.attitude["wall_time"].to_numpy(zero_copy_only=False)
-        boot = boot_numbers(t)  # the rows in the order recorded: every source's clock together
-        starts, offsets = [], []
+        boot = self.row_boots
+        starts, offsets, numbers = [], [], []
         for number in np.unique(boot).tolist():
             rows = (boot == number) & np.isfinite(wall)
             if rows.any():
                 starts.append(float(wall[rows].min()))
                 offsets.append(float(np.median(wall[rows] - t[rows])))
-        return np.array(starts), np.array(offsets)
+                numbers.append(number)
+        return np.array(starts), np.array(offsets), np.array(numbers, dtype=np.int64)
+
+    def _boot_at(self, wall: float) -> int:
+        """The index in `boot_clocks` of the boot running at host UNIX time `wall` (before the
+        first boot: the first); there is one."""
+        starts = self.boot_clocks[0]
+        return max(0, int(np.searchsorted(starts, wall, side="right")) - 1)
+
+    def boot_at(self, wall: float) -> int | None:
+        """The number (`row_boots`) of the boot running at host UNIX time `wall` (before the first
+        boot: the first); None for a log, which has no host clock."""
+        numbers = self.boot_clocks[2]
+        return int(numbers[self._boot_at(wall)]) if len(numbers) else None
 
     def vehicle_time(self, wall: float) -> float:
         """A host UNIX time (s; an event's, a comparison row's) on the vehicle clock, by the offset
         of the boot running then (before the first boot: the first boot's): one offset for a whole
         session whose vehicle rebooted placed one boot's events a boot's length off. NaN for a log."""
-        starts, offsets = self.boot_clocks
-        if not len(starts):
+        if not len(self.boot_clocks[0]):
             return math.nan
-        return wall - float(offsets[max(0, int(np.searchsorted(starts, wall, side="right")) - 1)])
+        return wall - float(self.boot_clocks[1][self._boot_at(wall)])
+
+    @cached_property
+    def boot_shifts(self) -> npt.NDArray[np.float64]:
+        """Per boot (`row_boots`), the s added to its vehicle times to lay it BOOT_GAP_S after the
+        end of the boot before it: one timeline for a file whose readers order everything by time
+        (MCAP's log_time), where each reboot's clock from 0 laid the boots over each other."""
+        t = self.attitude["t"].to_numpy(zero_copy_only=False)
+        boot = self.row_boots
+        shifts = [0.0]
+        for number in range(1, int(boot.max()) + 1 if len(boot) else 0):
+            end, start = np.nanmax(t[boot == number - 1]), np.nanmin(t[boot == number])
+            shifts.append(shifts[-1] + float(end) + BOOT_GAP_S - float(start))
+        return np.array(shifts)
+
+    def timeline(self, wall: float) -> float:
+        """`vehicle_time(wall)` on the one timeline of `boot_shifts` (NaN for a log)."""
+        if not len(self.boot_clocks[0]):
+            return math.nan
+        at = self._boot_at(wall)
+        return self.vehicle_time(wall) + float(self.boot_shifts[self.boot_clocks[2][at]])
+
+    @cached_property
+    def imu_boots(self) -> npt.NDArray[np.int64]:
+        """Per row of `source.table.imu`, its boot (`row_boots`' numbers): `boot_numbers` over the
+        IMU and reference inputs in the order they arrived, which every boot with an attitude row has."""
+        table = self.source.table
+        imu = (table.kind == Kind.IMU) | (table.kind == Kind.IMU_MAG)
+        timed = imu | (table.kind == Kind.ATTITUDE)
+        t = np.empty(len(table.kind))
+        t[imu], t[table.kind == Kind.ATTITUDE] = table.imu[:, 0], table.attitude[:, 0]
+        boots = np.zeros(len(t), np.int64)
+        boots[timed] = boot_numbers(t[timed])
+        return np.minimum(boots[imu], len(self.boot_shifts) - 1)
+
+
+#: s between the end of one boot and the start of the next on the exports' one timeline.
+BOOT_GAP_S = 1.0
 
 
 def boot_numbers(t: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
-    """Per row of a source in the order recorded, which boot of the vehicle it belongs to: its clock
-    going back by more than REBOOT_CLOCK_JUMP (the estimation's rule) starts the next one."""
+    """Per row in the order recorded (of one source, or of every source together), which boot of
+    the vehicle it belongs to: a row more than REBOOT_CLOCK_JUMP behind the newest of its boot
+    starts the next one, the rule by which the live comparison starts afresh (one row a little
+    behind another source's is no reboot; the newest, not the row before, is the boot's clock)."""
     numbers = np.zeros(len(t), np.int64)
-    numbers[1:] = np.cumsum(np.diff(t) < -REBOOT_CLOCK_JUMP)
+    start = 0
+    while start < len(t):
+        rest = t[start:]
+        back = np.flatnonzero(rest < np.maximum.accumulate(rest) - REBOOT_CLOCK_JUMP)
+        if not len(back):
+            break
+        start += int(back[0])
+        numbers[start:] += 1
     return numbers
 
 
-def boots(series: npt.NDArray[np.float64]) -> list[npt.NDArray[np.float64]]:
-    """A `series` (boots in order, each in time order) cut into its boots."""
-    cuts = np.flatnonzero(np.diff(series[:, 0]) < -REBOOT_CLOCK_JUMP) + 1
-    return np.split(series, cuts) if len(series) else []
+class BootCounter:
+    """`boot_numbers` a row at a time, for rows that come one by one (a replay's points)."""
+
+    def __init__(self) -> None:
+        self.newest = -math.inf
+        self.boot = 0
+
+    def of(self, t: float) -> int:
+        """The boot of a row at vehicle time t, the rows taken in the order recorded."""
+        if t < self.newest - REBOOT_CLOCK_JUMP:
+            self.boot += 1
+            self.newest = t
+        elif t > self.newest:
+            self.newest = t
+        return self.boot
 
 
-def errors_by_boot(estimates: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """`errors_against` of each boot of the vehicle against the same boot (`boots`; both N×4 t,
-    roll, pitch, yaw rad, boots in the order recorded): its clock starts again at 0 at a reboot, so
-    one search across boots matches one boot's estimates with the other's references."""
-    parts = [errors_against(e, r) for e, r in zip(boots(estimates), boots(reference), strict=False)]
-    return np.concatenate(parts) if parts else np.empty((0, 4))
+def in_boot_order(
+    rows: npt.NDArray[np.float64], boots: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Rows (t first) and their boot numbers, sorted by boot and, within a boot, by time."""
+    order = np.lexsort((rows[:, 0], boots))
+    return rows[order], boots[order]
 
 
-def boot_errors_at(
-    t: npt.NDArray[np.float64], q: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """`errors_by_boot` for an estimator's run as t (N) and quaternions (N×4), with the compiled
-    `errors_at` (what-if, `gcs replay --fast`): one search across the boots of a vehicle that
-    rebooted scored one boot's estimates against the other's references, and their tables
-    disagreed with the live comparison and the per-sample replay."""
-    estimates = boots(np.column_stack([t, q]))
-    parts = [errors_at(e[:, 0], e[:, 1:], r) for e, r in zip(estimates, boots(reference), strict=False)]
-    return np.concatenate(parts) if parts else np.empty((0, 4))
+def errors_by_boot(
+    estimates: npt.NDArray[np.float64],
+    estimate_boots: npt.NDArray[np.int64],
+    reference: npt.NDArray[np.float64],
+    reference_boots: npt.NDArray[np.int64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """`errors_against` of each boot of the reference against the estimator's same boot (both N×4
+    t, roll, pitch, yaw rad, each boot in time order; `*_boots`: each row's boot number, the same
+    for both sources, `Contents.row_boots`). The vehicle clock starts again at 0 at a reboot, so
+    one search across boots matched one boot's estimates with another's references; pairing the
+    boots by their position in each source did too where a source has no row in some boot.
+    Returns the M×4 errors and the boot of each."""
+    numbers = np.unique(reference_boots)
+    parts = [
+        errors_against(estimates[estimate_boots == boot], reference[reference_boots == boot])
+        for boot in numbers.tolist()
+    ]
+    if not parts:
+        return np.empty((0, 4)), np.empty(0, np.int64)
+    return np.concatenate(parts), np.repeat(numbers, [len(part) for part in parts])
 
 
 def open_contents(path: str | os.PathLike, decode: Decode = open_source) -> Contents:

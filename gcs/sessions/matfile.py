@@ -4,10 +4,12 @@ as Mission Planner's MAT export gives one variable per message.
 Variables (every name a valid MATLAB identifier; see `matlab_name`):
 
 - `<source>` for each source (onboard, ahrs2, truth, dcm, kf, ekf, ...): a struct with column
-  vectors `t` (vehicle s), `wall_time` (UNIX s, NaN where unknown), `roll`, `pitch`, `yaw`
-  (degrees, Z-Y-X). An estimator's struct also has `errors`: one field per reference, each a
-  struct with `t`, `roll`, `pitch`, `yaw` (estimator − reference at the reference's times,
-  degrees, wrapped to ±180), `rms` and `max` (1×3: roll, pitch, yaw).
+  vectors `t` (vehicle s), `boot` (which boot of the vehicle, 1 = the first: `t` starts again
+  near 0 after a reboot, and plotting `t` alone drew a line back from one boot into the next),
+  `wall_time` (UNIX s, NaN where unknown), `roll`, `pitch`, `yaw` (degrees, Z-Y-X). An
+  estimator's struct also has `errors`: one field per reference, each a struct with `t`, `boot`,
+  `roll`, `pitch`, `yaw` (estimator − reference at the reference's times, degrees, wrapped to
+  ±180), `rms` and `max` (1×3: roll, pitch, yaw).
 - `gain_changes`: a struct of column vectors, one row per gain change in events.jsonl:
   `wall_time` (UNIX s), `t` (vehicle s, through the session's clock offset; NaN without one),
   `estimator`, `gain`, `client` (cell arrays of char), `old`, `new`.
@@ -75,9 +77,10 @@ def mat_variables(contents: Contents) -> dict[str, object]:
     names = {source: matlab_name(source, taken) for source in contents.sources}
     references = contents.references()
     for source, var in names.items():
-        data = contents.series(source)
+        data, boots = contents.boot_series(source)
         struct: dict[str, object] = {
             "t": _column(data[:, 0]),
+            "boot": _column(boots + 1),
             "wall_time": _column(data[:, 4]),
             **{axis: _column(np.degrees(data[:, 1 + k])) for k, axis in enumerate(("roll", "pitch", "yaw"))},
         }
@@ -85,11 +88,12 @@ def mat_variables(contents: Contents) -> dict[str, object]:
             errors: dict[str, object] = {}
             field_names: set[str] = set()
             for ref in references:
-                err = contents.errors_of(source, ref)
+                err, err_boots = contents.boot_errors_of(source, ref)
                 if not len(err):
                     continue
                 errors[matlab_name(ref, field_names)] = {
                     "t": _column(err[:, 0]),
+                    "boot": _column(err_boots + 1),
                     **{axis: _column(err[:, 1 + k]) for k, axis in enumerate(("roll", "pitch", "yaw"))},
                     "rms": np.sqrt(np.mean(err[:, 1:] ** 2, axis=0)).reshape(1, 3),
                     "max": np.max(np.abs(err[:, 1:]), axis=0).reshape(1, 3),
@@ -114,7 +118,8 @@ def mat_variables(contents: Contents) -> dict[str, object]:
         "name": layout.utf8_text(contents.path.name),
         "kind": contents.kind,
         "sources": pairs,
-        "units": "t: vehicle s since boot; wall_time: UNIX s; angles and errors: degrees, Z-Y-X (yaw, pitch, roll)",
+        "units": "t: vehicle s since boot (boot: which one, 1 = the first; t starts again at each); "
+        "wall_time: UNIX s; angles and errors: degrees, Z-Y-X (yaw, pitch, roll)",
     }
     tables = session_tables(contents) if contents.kind == "session" else None
     if tables is not None:

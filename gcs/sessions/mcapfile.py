@@ -12,8 +12,11 @@ an object schema, as Foxglove requires). Topics:
 
 Clocks. `log_time` is on the vehicle clock (ns since boot) for everything, so the file has one
 timeline: attitude and IMU use their vehicle time `t`; comparison rows and events, which have only
-the host's wall clock, are placed on it with the session's clock offset (median wall_time − t of
-the attitude rows), and fall back to the wall time itself when there is no offset. `publish_time`
+the host's wall clock, are placed on it with the clock offset of the boot running then (median
+wall_time − t of its attitude rows), and fall back to the wall time itself when there is no offset.
+After a reboot (the vehicle clock from 0 again) each boot is laid BOOT_GAP_S after the one before
+(`Contents.boot_shifts`): on its own clock the second boot lay over the first, and a reader,
+which orders by log_time, drew the two boots' samples interleaved in one zigzag line. `publish_time`
 is the host wall time (UNIX ns) where one is known, else equal to `log_time`; every message also
 carries its raw times as fields. A `gcs` metadata record says so in the file.
 
@@ -34,7 +37,7 @@ import pyarrow.compute as pc
 from mcap.writer import Writer
 
 from gcs.sessions import layout
-from gcs.sessions.contents import Contents
+from gcs.sessions.contents import BOOT_GAP_S, Contents
 
 NUMBER = {"type": "number"}
 OPTIONAL_NUMBER = {"type": ["number", "null"]}
@@ -139,12 +142,14 @@ class McapExport:
         self.offset = contents.clock_offset()
 
     def _on_vehicle_clock(self, wall: float) -> float:
-        """By the clock offset of the boot running then (Contents.vehicle_time)."""
-        return wall if self.offset is None else self.contents.vehicle_time(wall)
+        """By the clock offset of the boot running then, on the one timeline (Contents.timeline)."""
+        return wall if self.offset is None else self.contents.timeline(wall)
 
     def attitude(self, channel: int, source: str) -> Iterator[Message]:
-        for t, roll, pitch, yaw, wall in self.contents.series(source).tolist():
-            log = _ns(t)
+        rows, boots = self.contents.boot_series(source)
+        shifts = self.contents.boot_shifts[boots].tolist()
+        for (t, roll, pitch, yaw, wall), shift in zip(rows.tolist(), shifts, strict=True):
+            log = _ns(t + shift)
             data = {
                 "t": t,
                 "wall_time": _finite(wall),
@@ -154,11 +159,13 @@ class McapExport:
             }
             yield log, _ns(wall) if math.isfinite(wall) else log, channel, json.dumps(data).encode()
 
-    def imu(self, channel: int, rows: np.ndarray) -> Iterator[Message]:
-        for row in rows:
+    def imu(self, channel: int, rows: np.ndarray, boots: np.ndarray) -> Iterator[Message]:
+        """IMU rows (of one IMU) and their boots, in time order within each boot."""
+        order = np.lexsort((rows[:, 0], boots))
+        for row, shift in zip(rows[order], self.contents.boot_shifts[boots[order]].tolist(), strict=True):
             mag = None if np.isnan(row[7:10]).any() else _xyz(row, 7)
             data = {"t": float(row[0]), "gyro": _xyz(row, 1), "accel": _xyz(row, 4), "mag": mag}
-            log = _ns(float(row[0]))
+            log = _ns(float(row[0]) + shift)
             yield log, log, channel, json.dumps(data).encode()
 
     def comparison(self, channel: int, rows: list[dict]) -> Iterator[Message]:
@@ -213,9 +220,10 @@ class McapExport:
                 streams.append(self.attitude(channel(f"/attitude/{source}", "gcs.Attitude", n), source))
             imu = contents.source.table
             for code in np.unique(imu.imu_source).tolist():
-                rows = imu.imu[imu.imu_source == code]
+                mine = imu.imu_source == code
+                rows = imu.imu[mine]
                 topic = f"/imu/{imu.names[code]}"
-                streams.append(self.imu(channel(topic, "gcs.Imu", len(rows)), rows))
+                streams.append(self.imu(channel(topic, "gcs.Imu", len(rows)), rows, contents.imu_boots[mine]))
             comparison = contents.comparison.to_pylist()
             pairs: dict[tuple[str, str], list[dict]] = {}
             for row in comparison:
@@ -230,7 +238,9 @@ class McapExport:
                     "session": layout.utf8_text(contents.path.name),
                     "kind": contents.kind,
                     "log_time": "vehicle clock, ns since boot; wall-clock-only records (comparison, events) "
-                    "are placed on it with clock_offset_s (after a reboot, with that boot's own offset)",
+                    "are placed on it with clock_offset_s (after a reboot, with that boot's own offset); "
+                    f"after a reboot each boot follows the one before, {BOOT_GAP_S:g} s after its end "
+                    "(its messages' t: their own clock)",
                     "publish_time": "host UNIX time, ns, where known; else log_time",
                     "clock_offset_s": "" if self.offset is None else repr(self.offset),
                     "angles": "degrees, Z-Y-X; IMU in SI (rad/s, m/s²) and gauss, body FRD",

@@ -85,20 +85,37 @@ def session_tables(contents: Contents) -> ProtocolTables | None:
     if run is None:
         return None
     protocol, windows = run
-    series = {source: contents.series(source)[:, :4] for source in contents.sources}
-    raw = raw_angles(contents, windows)
+    boot = run_boot(contents)
+    series = {}
+    for source in contents.sources:
+        data, boots = contents.boot_series(source)
+        series[source] = data[:, :4] if boot is None else data[boots == boot, :4]
+    raw = raw_angles(contents, windows, boot)
     if raw is not None:
         series[ACCEL_MAG] = raw
     return protocol_tables(protocol, windows, series)
 
 
-def raw_angles(contents: Contents, windows: list[StepWindow]) -> Series | None:
-    """accel_mag_series over the step windows only, from the first IMU's samples, with the
-    declination the estimators used (the last one recorded in the events)."""
+def run_boot(contents: Contents) -> int | None:
+    """The boot of the vehicle (`Contents.row_boots`) the last protocol run ran in, by its start's
+    wall time (None: not known, every row is taken). Its windows are on that boot's clock: with
+    every boot's rows, a vehicle that rebooted in the session had its run scored with samples of
+    another boot at the same clock readings, its rows in boot order searched as if in time order."""
+    starts = [e for e in contents.event_list if e.get("kind") == EVENT_KIND and e.get("action") == "start"]
+    wall = starts[-1].get("wall_time") if starts else None
+    return contents.boot_at(float(wall)) if isinstance(wall, int | float) else None
+
+
+def raw_angles(contents: Contents, windows: list[StepWindow], boot: int | None = None) -> Series | None:
+    """accel_mag_series over the step windows only, from the first IMU's samples (of `boot` alone
+    when given), with the declination the estimators used (the last one recorded in the events)."""
     imu = contents.imu
     if not imu.num_rows or not windows:
         return None
-    imu = imu.filter(pc.equal(imu["source"], imu["source"][0]))
+    first = pc.equal(imu["source"], imu["source"][0]).to_numpy(zero_copy_only=False)
+    if boot is not None:
+        first = first & (contents.imu_boots == boot)
+    imu = imu.filter(first)
     data = np.column_stack([imu[c].to_numpy(zero_copy_only=False) for c in imu.column_names if c != "source"])
     keep = np.zeros(len(data), dtype=bool)
     for w in windows:

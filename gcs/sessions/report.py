@@ -23,12 +23,13 @@ import numpy as np
 from gcs.core.colors import hex_color
 from gcs.core.estimation import AttitudePoint
 from gcs.core.protocol import METRIC_FIELDS, ProtocolTables, Series
-from gcs.mavlink.sampling import BOOT_SETTLE_S, REBOOT_CLOCK_JUMP, UNREADY
+from gcs.core.samples import REBOOT_CLOCK_JUMP
+from gcs.mavlink.sampling import BOOT_SETTLE_S, UNREADY
 from gcs.provenance import provenance
 from gcs.sessions import layout
-from gcs.sessions.contents import Contents, errors_by_boot, read_events
+from gcs.sessions.contents import BootCounter, Contents, errors_by_boot, in_boot_order, read_events
 from gcs.sessions.export import write_beside
-from gcs.sessions.protocol import formatted, session_tables
+from gcs.sessions.protocol import formatted, run_boot, session_tables
 from gcs.sessions.sources import open_source
 
 AXES = ("roll", "pitch", "yaw")
@@ -41,13 +42,15 @@ EVENT_COLUMNS = ("wall_time", "host_time", "kind", "client")
 
 
 def collect(source, progress=None, estimators: list[str] | None = None) -> tuple[dict[str, np.ndarray], object]:
-    """Replay source through `estimators` (default every one); returns {source name: N×4 array t,
-    roll, pitch, yaw} and the pipeline (for its comparisons)."""
+    """Replay source through `estimators` (default every one); returns {source name: N×5 array t,
+    roll, pitch, yaw, boot}, in replay order (boot: which boot of the vehicle, numbered over every
+    source's points together, `BootCounter`) and the pipeline (for its comparisons)."""
     series: dict[str, list] = {}
+    boots = BootCounter()
 
     def keep(points: list[AttitudePoint]) -> None:
         for p in points:
-            series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw))
+            series.setdefault(p.source, []).append((p.t, p.roll, p.pitch, p.yaw, boots.of(p.t)))
 
     pipeline = source.replay(source.new_pipeline(estimators), keep, progress)
     return {name: np.array(rows) for name, rows in series.items()}, pipeline
@@ -96,11 +99,12 @@ def plot_errors(series: dict[str, np.ndarray], estimators: list[str], reference:
 
     fig = Figure(figsize=(11, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
-    ref = series[reference]
+    ref, ref_boots = in_boot_order(series[reference][:, :4], series[reference][:, 4].astype(np.int64))
     for name in estimators:
         if name not in series or len(series[name]) < 2:
             continue
-        err = errors_by_boot(series[name], ref)  # series: in replay order, each boot after the last
+        est, est_boots = in_boot_order(series[name][:, :4], series[name][:, 4].astype(np.int64))
+        err, _ = errors_by_boot(est, est_boots, ref, ref_boots)  # each boot of the reference against the same boot
         for k, ax in enumerate(axes):
             ax.plot(*broken_at_wraps(err[:, 0], err[:, 1 + k]), lw=0.8, label=name, color=hex_color(name))
     for k, ax in enumerate(axes):
@@ -296,6 +300,7 @@ def render(
     pipeline,
     protocol: ProtocolTables | None = None,
     events: list[dict] | None = None,
+    protocol_boot: int | None = None,
 ) -> str:
 
     estimators = list(pipeline.estimators)
@@ -338,8 +343,9 @@ def render(
     if events is not None:
         start = meta.get("start") if meta else None
         sections += event_sections(events, start if isinstance(start, int | float) else None)
-    if protocol is not None:
-        sections += protocol_sections(protocol, series)
+    if protocol is not None:  # its windows are on the clock of the boot it ran in (protocol.run_boot)
+        run = series if protocol_boot is None else {n: d[d[:, 4] == protocol_boot] for n, d in series.items()}
+        sections += protocol_sections(protocol, run)
     sections.append("<h2>Rates</h2>" + html_table(["type", "count", "mean rate (Hz)"], traffic_rows(source)))
     if source.framing is not None:
         sections.append("<h2>Packets and loss</h2>" + html_table(["", ""], loss_rows(source)))
@@ -361,9 +367,10 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}img{{max-width:10
 def write_report(path: str, out: str, progress=None, estimators: list[str] | None = None) -> None:
     source = open_source(path)
     series, pipeline = collect(source, progress, estimators)
-    tables, events = None, None
+    tables, events, boot = None, None, None
     if layout.is_session(Path(path)):  # the recorded attitudes, as protocol.csv and the .mat have them
-        tables = session_tables(Contents(Path(path), "session", decode=lambda _: source))
+        contents = Contents(Path(path), "session", decode=lambda _: source)
+        tables, boot = session_tables(contents), run_boot(contents)
         events = read_events(Path(path))
-    text = layout.utf8_text(render(source, series, pipeline, tables, events))
+    text = layout.utf8_text(render(source, series, pipeline, tables, events, boot))
     write_beside(Path(out), lambda tmp: tmp.write_text(text, encoding="utf-8"))  # an earlier report stays if it fails

@@ -18,10 +18,9 @@ import numpy as np
 from gcs.core.estimation import run_estimator as core_run_estimator
 from gcs.core.estimators import registry
 from gcs.core.estimators.compiled import Compiled
-from gcs.core.estimators.whole import euler_of, run_whole
+from gcs.core.estimators.whole import euler_of, imu_accepted, run_whole
 from gcs.core.samples import ImuSample
-from gcs.mavlink.sampling import REBOOT_CLOCK_JUMP
-from gcs.sessions.contents import boot_errors_at
+from gcs.sessions.scoring import scored
 from gcs.sessions.sources import ReplaySource
 
 
@@ -39,29 +38,25 @@ class EstimatorRun:
 def run_estimator(source: ReplaySource, name: str, pinned: dict[str, float]) -> EstimatorRun:
     """Run estimator `name` alone over the source's inputs, with `pinned` gains held fixed, as one
     compiled loop over the input columns (gcs.core.estimators.whole: the results of
-    gcs.core.estimation.run_estimator's per-sample loop); errors on whole arrays afterwards."""
+    gcs.core.estimation.run_estimator's per-sample loop); its errors afterwards, every output
+    against the references in the order they came, as the pipeline scores them (`scored`: with
+    nothing pinned, the table of `gcs replay` on the source, across reboots and clock steps too)."""
     preset, gains = source.estimator_config(name)
     estimator = registry.create(name, preset, **{**gains, **pinned})
     table = source.table
     if isinstance(estimator, Compiled):
         run = run_whole(estimator, table.kind, table.imu, table.gps, table.gain_change, name, pinned)
-        t, q = table.imu[run.valid, 0], run.q[run.valid]
+        outputs, fed, valid = run.q, run.fed, run.valid
     else:  # an estimator without kernels (a readable reference): one call per sample
-        times, quats = [], []
-        for item, valid in core_run_estimator(estimator, source.inputs(), name, pinned):
-            if valid and isinstance(item, ImuSample):
-                times.append(item.t)
-                quats.append(estimator.quaternion)
-        t, q = np.array(times), np.array(quats).reshape(-1, 4)
-    errors = {}
-    for ref, data in source.references.items():
-        err = boot_errors_at(t, q, data)[:, 1:]
-        if len(err):
-            errors[ref] = {
-                "rms": np.sqrt(np.mean(err**2, axis=0)).tolist(),
-                "max": np.max(np.abs(err), axis=0).tolist(),
-            }
-    return EstimatorRun(dict(estimator.gains.values), t, euler_of(q), errors)
+        fed = imu_accepted(table.kind, table.imu)
+        outputs, valid = np.zeros((len(table.imu), 4)), np.zeros(len(table.imu), dtype=np.bool_)
+        rows = iter(np.flatnonzero(fed).tolist())
+        for item, is_valid in core_run_estimator(estimator, source.inputs(), name, pinned):
+            if isinstance(item, ImuSample):
+                row = next(rows)
+                outputs[row], valid[row] = estimator.quaternion, is_valid
+    errors = {ref: {"rms": s["rms"], "max": s["max"]} for ref, s in scored(table, outputs, fed).items()}
+    return EstimatorRun(dict(estimator.gains.values), table.imu[valid, 0], euler_of(outputs[valid]), errors)
 
 
 @dataclass
@@ -111,9 +106,11 @@ def boots_in_line(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The chart's time axis for outputs at vehicle times `t` (s), and where each boot after the
     first starts: a vehicle that rebooted starts its clock from 0 again, and the chart (uPlot)
     wants its x ascending; it drew the boots over each other, joined by a line back from the end
-    of one to the start of the next. Each later boot now follows the one before, BOOT_GAP_S on."""
+    of one to the start of the next. Each later boot now follows the one before, BOOT_GAP_S on.
+    So does what follows a smaller step back of the clock (a log's time glitch), where the
+    comparison starts afresh too: it left x going back, and uPlot drew a line back in time."""
     x = np.array(t, dtype=float)
-    cuts = np.flatnonzero(np.diff(x) < -REBOOT_CLOCK_JUMP) + 1
+    cuts = np.flatnonzero(np.diff(x) < 0) + 1
     for cut in cuts:
         x[cut:] += x[cut - 1] + BOOT_GAP_S - x[cut]
     return x, cuts
