@@ -100,3 +100,29 @@ def test_demo_shows_live_data_and_stops_on_ctrl_c():
     assert proc.returncode == 0, proc.stderr.read()
     assert f"dashboard at http://127.0.0.1:{port}" in "".join(seen)
     assert "ATTITUDE" in seen[-1] and "truth" in seen[-1], seen[-1]
+
+
+def test_status_says_where_it_forwarded_and_how_many_packets(logs_dir, udp_port, tcp_port):
+    """`--out` forwarded the link to other ground stations, but the report never named the
+    outputs: whether Mission Planner behind one got anything could not be told, nor that a TCP
+    output was never opened (its peer not listening)."""
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.bind(("127.0.0.1", udp_port))
+    peer.settimeout(30)
+    try:
+        done = subprocess.run(
+            GCS
+            + ["status", "--connect", str(logs_dir / "arducopter-sitl-hop.tlog"), "--speed", "0"]
+            + ["--duration", "2", "--out", f"udpout:127.0.0.1:{udp_port}", "--out", f"tcp:127.0.0.1:{tcp_port}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert peer.recv(300)  # the UDP output got packets
+    finally:
+        peer.close()
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    udp = next(line for line in lines if line.startswith(f"forward    udpout:127.0.0.1:{udp_port}  open  "))
+    assert int(udp.split("open")[1].split("packets sent")[0]) > 0
+    assert f"forward    tcp:127.0.0.1:{tcp_port}  NOT OPEN (see events)  0 packets sent, 0 received" in lines

@@ -112,6 +112,7 @@ def format_report(snap: StationSnapshot) -> str:
         if row.reason:
             lines.append(f"  {'':<16} {row.reason}")
     lines += format_radio(snap)
+    lines += format_outputs(snap)
     others = {k: v for k, v in stats.rates_hz.items() if k not in streams.messages}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
@@ -132,6 +133,17 @@ def format_report(snap: StationSnapshot) -> str:
     lines.append("events")
     lines += [f"  {e.kind}: {e.detail}" for e in link.events]
     return "\n".join(lines)
+
+
+def format_outputs(snap: StationSnapshot) -> list[str]:
+    """Where `--out` forwarded the packets and how many went each way: the report never said,
+    so a ground station fed through one could not be told from one the output never reached
+    (a TCP peer not listening is retried, unopened, for the whole run)."""
+    return [
+        f"forward    {o.address}  {'open' if o.open else 'NOT OPEN (see events)'}  "
+        f"{o.packets_out} packets sent, {o.packets_in} received"
+        for o in snap.outputs
+    ]
 
 
 def format_radio(snap: StationSnapshot) -> list[str]:
