@@ -32,4 +32,4 @@ def run(args: argparse.Namespace) -> int:
         count = export(args.session, args.format, out)
         return f"{out}: {count} {UNITS[args.format]}"
 
-    return run_reporting_errors("export", out, work)
+    return run_reporting_errors("export", out, work, source=args.session)

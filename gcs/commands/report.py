@@ -18,4 +18,4 @@ def run(args: argparse.Namespace) -> int:
         write_report(args.path, args.out, progress_bar("report"))
         return f"wrote {args.out}"
 
-    return run_reporting_errors("report", args.out, work)
+    return run_reporting_errors("report", args.out, work, source=args.path)
