@@ -438,7 +438,8 @@ def test_a_glob_or_folder_that_gives_no_flight_is_named(tmp_path, logs_dir, sche
         "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler,
     )  # fmt: skip
     assert f"gcs batch: warning: {unmounted}: matches no file\n" in ran.stderr
-    assert f"gcs batch: warning: {tmp_path / 'day2'}: no session folder or .tlog, .bin, .ulg file there\n" in ran.stderr
+    no_log = "no session folder or .tlog, .bin, .log, .ulg file there"
+    assert f"gcs batch: warning: {tmp_path / 'day2'}: {no_log}\n" in ran.stderr
     assert "1 flights written, 0 failed" in ran.stdout
 
 

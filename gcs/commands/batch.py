@@ -46,7 +46,7 @@ def cluster_error(exc: OSError, args: argparse.Namespace) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.ulg files, folders of them, globs"
+        "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.log/.ulg files, folders of them, globs"
     )
     parser.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder (created; added to)")
     parser.add_argument(

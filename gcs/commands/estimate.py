@@ -4,7 +4,7 @@ Contract (other tools call this; keep it stable):
     gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] [--imu N] --out OUT.csv
     gcs estimate INPUT --preset-file FILE.toml [--gain NAME=VALUE ...] --out OUT.csv
     gcs estimate --list
-INPUT is a .tlog, a DataFlash .bin, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
+INPUT is a .tlog, a DataFlash .bin or text .log, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
 IMU instance (default 0, the first). OUT has the header t,qw,qx,qy,qz,roll,pitch,yaw and one row
 per IMU sample; q rotates sensor/body → NED and the angles are Z-Y-X in degrees. Before the
 filter is valid the row holds its current (initial) attitude. Bad input or arguments: one line on

@@ -11,7 +11,9 @@ from gcs.sessions.export import FORMATS, UNITS, export
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("session", help="a session folder (or a .tlog, .bin, .ulg run through the estimators first)")
+    parser.add_argument(
+        "session", help="a session folder (or a .tlog, .bin, .log, .ulg run through the estimators first)"
+    )
     parser.add_argument(
         "--format",
         choices=FORMATS,

@@ -23,7 +23,7 @@ from gcs.sessions.sources import ReplaySource, open_source
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a session folder, or a .tlog, DataFlash .bin or PX4 .ulg file")
+    parser.add_argument("path", help="a session folder, or a .tlog, DataFlash .bin or text .log, or PX4 .ulg file")
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1 = real time)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")

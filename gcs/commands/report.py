@@ -9,7 +9,7 @@ from gcs.sessions.report import write_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a session folder, or a .tlog, .bin or .ulg file")
+    parser.add_argument("path", help="a session folder, or a .tlog, .bin, .log or .ulg file")
     parser.add_argument("--out", required=True, help="the HTML file to write")
 
 

@@ -29,7 +29,7 @@ from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeli
 from gcs.core.estimators import registry
 from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.plausibility import attitude_rows_accepted
-from gcs.logs.dataflash import DataflashLog
+from gcs.logs.dataflash import DataflashLog, DataflashTextLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
@@ -349,9 +349,9 @@ def sample_frames(table: InputTable) -> Frames:
     return Frames(t[samples], None, np.zeros(len(samples), dtype=np.bool_), input_end.astype(np.int64))
 
 
-KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
+KINDS = {".tlog": "tlog", ".bin": "dataflash", ".log": "dataflash", ".ulg": "ulog"}
 #: Log files replayed sample by sample (a .tlog is replayed packet by packet).
-LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".ulg": UlogFile}
+LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".log": DataflashTextLog, ".ulg": UlogFile}
 
 
 def decoded_file(path: str | os.PathLike) -> Path:
@@ -392,7 +392,7 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
     kind = KINDS.get(os.path.splitext(path)[1].lower())
     if kind is None:
         raise InputError(
-            f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin or .ulg"
+            f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin, .log or .ulg"
         )
     if kind == "tlog":
         d = _decode_tlog(path, {}, [])
