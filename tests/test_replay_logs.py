@@ -324,3 +324,18 @@ def test_a_paced_replay_goes_past_a_damaged_timestamp(logs_dir, tmp_path):
     path.write_bytes(bytes(data))
     _, speed = _replay_cli(str(path), "--speed", "50", "-e", "dcm")
     assert 35 <= speed <= 51, speed
+
+
+def test_a_tlog_without_raw_imu_says_so_rather_than_a_rate(logs_dir, tmp_path, capsys):
+    """The first 1000 bytes of the hop's tlog (heartbeats, no IMU message): the table is empty and
+    the note read "raw IMU at 0.0 Hz, below the 50 Hz needed ... request RAW_IMU at 50 Hz or
+    more", as if a slow IMU had been logged."""
+    path = tmp_path / "no-imu.tlog"
+    path.write_bytes((logs_dir / "arducopter-sitl-hop.tlog").read_bytes()[:1000])
+    assert main(["replay", "--fast", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 2  # the table's header, the timing line
+    note = (
+        f"gcs replay: note: {path} holds no raw IMU samples: the estimators had nothing to run on (the table is empty)"
+    )
+    assert note in err.splitlines() and "0.0 Hz" not in err
