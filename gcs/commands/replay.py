@@ -94,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if source.damage:
         print(f"damage: {source.damage}", file=sys.stderr)
+    for note in source.notes:  # as `gcs estimate` says them: what explains a heading's errors
+        print(f"gcs replay: note: {note}", file=sys.stderr)
     slow = imu_rate_note(source)
     if slow:
         print(f"gcs replay: note: {slow}", file=sys.stderr)

@@ -91,6 +91,8 @@ class ReplaySource:
     framing: FramingCounters | None = None  # tlogs: packets, CRC errors, loss by sequence number
     packet_file: str | None = None  # the tlog the frames' packet offsets point into
     key: SourceKey | None = None
+    #: what a .bin, .log or .ulg lacks (no MAG records: heading from the gyro only ...), LogFile.notes
+    notes: list[str] = field(default_factory=list)
 
     @property
     def duration(self) -> float:
@@ -230,6 +232,7 @@ class _Decoded:
     #: and its firmware's version, as a session's meta names them
     vehicle: str | None = None
     firmware: str | None = None
+    notes: list[str] = field(default_factory=list)
 
     def meta(self) -> dict:
         """What a session's meta.json would say of the vehicle, for a bare log: only what it said."""
@@ -330,7 +333,14 @@ def _decode_log(path: str) -> _Decoded:
     table = log.columns()
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
     return _Decoded(
-        sample_frames(table), table, dict(log.counts), log.damage, span=span, vehicle=log.vehicle, firmware=log.firmware
+        sample_frames(table),
+        table,
+        dict(log.counts),
+        log.damage,
+        span=span,
+        vehicle=log.vehicle,
+        firmware=log.firmware,
+        notes=list(log.notes),
     )
 
 
@@ -411,4 +421,6 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             key=key,
         )
     d = _decode_log(path)
-    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=d.meta(), key=key)
+    return ReplaySource(
+        path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=d.meta(), key=key, notes=d.notes
+    )
