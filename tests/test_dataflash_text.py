@@ -84,7 +84,7 @@ def test_damage_in_a_text_log_is_named_by_line_and_the_rest_is_used(apm25_log, t
     [
         (b"", "line 1: not a DataFlash text log (no FMT line"),
         (b"2026-12-06 12:00:00 some other program's log\n", "line 1: not a DataFlash text log (no FMT line"),
-        (b"FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns\n", "no IMU records of instance 0 (none)"),
+        (b"FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns\n", "line 1: no IMU records of instance 0 (none)"),
     ],
 )
 def test_a_log_that_is_no_dataflash_text_log_is_one_line(tmp_path, capsys, content, expected):

@@ -241,7 +241,7 @@ class DataflashLog(LogFile):
         if not any(name in used for name in IMU_TYPES):
             found = f"instances in the log: {', '.join(map(str, imu_instances))}" if imu_instances else "none"
             places = self._places(contents)
-            at = self._where(contents.end) if not places else f"{places[0]};"
+            at = f"{self._where(contents.end)}:" if not places else f"{places[0]};"
             raise InputError(
                 f"{self.path}: {at} no IMU records of instance {self.imu} ({found}); is this a DataFlash log?"
             )
