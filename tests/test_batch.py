@@ -426,6 +426,23 @@ def test_a_run_whose_every_flight_failed_exits_1(tmp_path, scheduler):
     assert "0 flights written, 1 failed" in out.getvalue() and "junk.bin" in err.getvalue()
 
 
+def test_a_glob_or_folder_that_gives_no_flight_is_named(tmp_path, logs_dir, scheduler):
+    """`gcs batch /media/sd/LOGS/*.BIN day2/ --out fleet` with the card not mounted: the glob
+    matched nothing and was dropped without a word, as was a folder holding no log, and the run
+    said "1 flights written" as if the fleet were complete."""
+    (tmp_path / "day2").mkdir()
+    (tmp_path / "day2" / "notes.txt").write_text("no log here")
+    unmounted = str(tmp_path / "sd" / "*.BIN")
+    ran = _cli(
+        "batch", unmounted, str(tmp_path / "day2"), str(logs_dir / "ardupilot-fragment.bin"),
+        "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler,
+    )  # fmt: skip
+    assert f"gcs batch: warning: {unmounted}: matches no file\n" in ran.stderr
+    no_log = "no session folder or .tlog, .bin, .log, .ulg file there"
+    assert f"gcs batch: warning: {tmp_path / 'day2'}: {no_log}\n" in ran.stderr
+    assert "1 flights written, 0 failed" in ran.stdout
+
+
 def test_a_scheduler_lost_mid_run_is_one_line_and_keeps_the_flights_written(tmp_path, logs_dir):
     """The scheduler killed after the first flight is written: `gcs batch` says so in one line
     (exit 2, no Dask traceback: it printed FutureCancelledError's), and the flights written before

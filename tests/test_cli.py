@@ -100,3 +100,57 @@ def test_demo_shows_live_data_and_stops_on_ctrl_c():
     assert proc.returncode == 0, proc.stderr.read()
     assert f"dashboard at http://127.0.0.1:{port}" in "".join(seen)
     assert "ATTITUDE" in seen[-1] and "truth" in seen[-1], seen[-1]
+
+
+def test_status_says_where_it_forwarded_and_how_many_packets(logs_dir, udp_port, tcp_port):
+    """`--out` forwarded the link to other ground stations, but the report never named the
+    outputs: whether Mission Planner behind one got anything could not be told, nor that a TCP
+    output was never opened (its peer not listening)."""
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.bind(("127.0.0.1", udp_port))
+    peer.settimeout(30)
+    try:
+        done = subprocess.run(
+            GCS
+            + ["status", "--connect", str(logs_dir / "arducopter-sitl-hop.tlog"), "--speed", "0"]
+            + ["--duration", "2", "--out", f"udpout:127.0.0.1:{udp_port}", "--out", f"tcp:127.0.0.1:{tcp_port}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert peer.recv(300)  # the UDP output got packets
+    finally:
+        peer.close()
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    udp = next(line for line in lines if line.startswith(f"forward    udpout:127.0.0.1:{udp_port}  open  "))
+    assert int(udp.split("open")[1].split("packets sent")[0]) > 0
+    assert f"forward    tcp:127.0.0.1:{tcp_port}  NOT OPEN (see events)  0 packets sent, 0 received" in lines
+
+
+def test_status_on_a_log_that_is_no_tlog_says_to_replay_it(logs_dir):
+    """`gcs status --connect flight.BIN` took the log for a serial port: "cannot open serial port
+    flight.BIN: Could not configure port: (25, 'Inappropriate ioctl for device')"."""
+    log = logs_dir / "arducopter-sitl-hop.BIN"
+    done = subprocess.run(GCS + ["status", "--connect", str(log)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr == (
+        f"gcs status: {log}: a file, not a serial device: only a .tlog is replayed as a link; "
+        f"`gcs replay {log}` replays a .bin, .log or .ulg\n"
+    )
+
+
+def test_status_record_of_a_replayed_tlog_says_why_nothing_is_recorded(logs_dir, tmp_path):
+    """--record with a .tlog records nothing (the log is the recording): the report said only
+    "recording  off", as if the option had been ignored."""
+    done = subprocess.run(
+        GCS
+        + ["status", "--connect", str(logs_dir / "arduplane-sitl-vtol.tlog"), "--speed", "0", "--duration", "0.5"]
+        + ["--record", "--record-dir", str(tmp_path / "sessions")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == "gcs status: note: --record: a replayed .tlog is not recorded again (it is the recording)\n"
+    assert not (tmp_path / "sessions").exists()

@@ -152,7 +152,10 @@ def test_bad_csv_is_a_clear_error(tmp_path, capsys, content, expected):
     [
         (["missing.csv", "-e", "dcm", "-o", "OUT"], "missing.csv: no such file"),
         # a session folder: "no such file" (found by the audit) of a folder that is there
-        (["FOLDER", "-e", "dcm", "-o", "OUT"], "FOLDER: a folder, not a log file; give a .csv, .tlog, .bin, .ulg file"),
+        (
+            ["FOLDER", "-e", "dcm", "-o", "OUT"],
+            "FOLDER: a folder, not a log file; give a .csv, .tlog, .bin, .log, .ulg file",
+        ),
         (["IN", "-e", "nope", "-o", "OUT"], "unknown estimator 'nope'"),
         (["IN", "-e", "dcm", "-p", "nope", "-o", "OUT"], "unknown preset 'nope'"),
         (["IN", "-e", "dcm", "-g", "kp_rp=99", "-o", "OUT"], "gain kp_rp: 99 1/s is outside [0, 50]"),

@@ -355,3 +355,13 @@ def test_mcap_of_a_tlog_with_a_damaged_timestamp(logs_dir, tmp_path):
     with out.open("rb") as fh:
         written = sum(1 for _ in make_reader(fh).iter_messages())
     assert done.stderr.strip().splitlines() == [f"{out}: {written} messages"]
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet", "mat", "mcap"])
+def test_an_export_that_cannot_be_created_names_the_file_asked_for(logs_dir, fmt, capsys):
+    """A folder where no file can be made (/proc, for root too; a read-only folder): CSV and
+    Parquet said "Failed to open local file '/proc/.x.csv.8252-40d47174.tmp'. Detail: [errno 2]
+    ...", the temporary file pyarrow was given, never the --out the user wrote."""
+    out = f"/proc/gcs-export.{fmt}"
+    assert main(["export", str(logs_dir / "ardupilot-fragment.bin"), "--format", fmt, "--out", out]) == 2
+    assert capsys.readouterr().err == f"gcs export: error: {out}: No such file or directory\n"

@@ -288,3 +288,31 @@ def test_partial_download_resumes_only_the_same_log(tmp_path):
     assert PartialLog(tmp_path / "log3.bin", other).load(0.5).bytes_received == 0
     (tmp_path / "log3.bin.partial.json").write_text("{not json")  # damaged: start afresh, no traceback
     assert partial.load(0.5).bytes_received == 0
+
+
+def test_a_download_never_replaces_another_log_of_the_same_name(tmp_path, udp_port, monkeypatch):
+    """A vehicle without a clock names its logs by id alone, and after its logs are erased log 1 is
+    another flight: `gcs logs download 1` replaced the earlier flight's log1.bin. It is kept and
+    the new log goes beside it (and the same log again is not written a second time)."""
+    earlier = b"\xa3\x95 yesterday's flight" * 100
+    (tmp_path / "log1.bin").write_bytes(earlier)
+
+    async def download() -> tuple[list[str], bytes]:
+        async with log_vehicle(f"udpout:127.0.0.1:{udp_port}", "apm25", 3.0) as sim:
+            outputs = []
+            for _ in range(2):
+                proc = await asyncio.create_subprocess_exec(
+                    sys.executable, "-m", "gcs", "logs", "download", "1", "--connect", f"udpin:127.0.0.1:{udp_port}",
+                    "--out", str(tmp_path), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+                )  # fmt: skip
+                out, err = await asyncio.wait_for(proc.communicate(), 120)
+                assert proc.returncode == 0, err.decode()
+                outputs.append(out.decode())
+            return outputs, sim.logs.finished[0]
+
+    monkeypatch.setattr("gcs.sim.logserver.LOG_TIME_UTC", 0)  # a vehicle without the date: no GPS
+    outputs, log = asyncio.run(download())
+    assert (tmp_path / "log1.bin").read_bytes() == earlier
+    assert (tmp_path / "log1-2.bin").read_bytes() == log
+    assert all(f"-> {tmp_path / 'log1-2.bin'}\n" in out for out in outputs), outputs
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log1-2.bin", "log1.bin"]

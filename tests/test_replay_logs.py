@@ -63,7 +63,7 @@ def test_low_rate_tlog_is_flagged_unreliable(logs_dir, capsys):
     notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("gcs replay: note: ")]
     assert len(notes) == 1 and "below the 50 Hz needed" in notes[0] and "not a fair comparison" in notes[0], notes
     assert main(["replay", str(logs_dir / "px4-flight-sample.ulg"), "--fast"]) == 0
-    assert "gcs replay: note:" not in capsys.readouterr().err
+    assert "Hz needed" not in capsys.readouterr().err  # its note is of the GPS it lacks, none of a rate
 
 
 def _instance(record) -> int:
@@ -352,3 +352,46 @@ def test_a_paced_replay_goes_past_a_damaged_timestamp(logs_dir, tmp_path):
     path.write_bytes(bytes(data))
     _, speed = _replay_cli(str(path), "--speed", "50", "-e", "dcm")
     assert 35 <= speed <= 51, speed
+
+
+def test_a_tlog_without_raw_imu_says_so_rather_than_a_rate(logs_dir, tmp_path, capsys):
+    """The first 1000 bytes of the hop's tlog (heartbeats, no IMU message): the table is empty and
+    the note read "raw IMU at 0.0 Hz, below the 50 Hz needed ... request RAW_IMU at 50 Hz or
+    more", as if a slow IMU had been logged."""
+    path = tmp_path / "no-imu.tlog"
+    path.write_bytes((logs_dir / "arducopter-sitl-hop.tlog").read_bytes()[:1000])
+    assert main(["replay", "--fast", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 2  # the table's header, the timing line
+    note = (
+        f"gcs replay: note: {path} holds no raw IMU samples: the estimators had nothing to run on (the table is empty)"
+    )
+    assert note in err.splitlines() and "0.0 Hz" not in err
+
+
+def test_replay_and_report_say_what_the_log_lacks_as_estimate_does(logs_dir, tmp_path, capsys):
+    """The PX4 log has no GPS topic: `gcs estimate` noted "no GPS aiding", but `gcs replay` and
+    `gcs report` of the same log said nothing, and their errors went unexplained."""
+    log = str(logs_dir / "px4-flight-sample.ulg")
+    assert main(["estimate", log, "-e", "dcm", "--out", str(tmp_path / "est.csv")]) == 0
+    notes = [line.split("note: ", 1)[1] for line in capsys.readouterr().err.splitlines() if " note: " in line]
+    assert f"{log}: no sensor_gps or vehicle_gps_position topic: no GPS aiding" in notes
+    assert main(["replay", "--fast", log]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert all(f"gcs replay: note: {note}" in err for note in notes)
+    assert main(["report", log, "--out", str(tmp_path / "px4.html")]) == 0
+    page = (tmp_path / "px4.html").read_text()
+    assert all(f"<td>note</td><td>{note}</td>" in page for note in notes)
+
+
+def test_a_ulogs_logging_dropouts_are_noted_as_pyulog_counts_them(logs_dir):
+    """PX4's logger lost data four times in the sample flight ('O' messages: 119 ms, pyulog and
+    Flight Review show them); replay, report and estimate said nothing of the gaps."""
+    path = logs_dir / "px4-flight-sample.ulg"
+    dropouts = [d.duration for d in ULog(str(path)).dropouts]
+    assert len(dropouts) == 4
+    source = open_source(path)
+    (note,) = [n for n in source.notes if "dropouts" in n]
+    assert note.startswith(
+        f"{path}: 4 logging dropouts, {sum(dropouts)} ms of data lost (the longest {max(dropouts)} ms"
+    )

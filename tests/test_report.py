@@ -17,6 +17,7 @@ import numpy as np
 import pyarrow.compute as pc
 import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
+import pytest
 from pymavlink import mavutil
 
 from gcs.commands.cli import main
@@ -134,3 +135,22 @@ def test_export_of_a_tlog_carries_each_record_wall_time(logs_dir, tmp_path):
     offsets = np.subtract(dcm["wall_time"], dcm["t"])
     onboard_offset = np.median(np.subtract(onboard["wall_time"], onboard["t"]))
     assert np.ptp(offsets) < 1.0 and abs(np.median(offsets) - onboard_offset) < 0.04, (np.ptp(offsets), onboard_offset)
+
+
+@pytest.mark.parametrize(
+    "argv", [["report"], ["export"], ["export", "--format", "mat"]], ids=["report", "export-csv", "export-mat"]
+)
+def test_an_out_that_is_the_flight_log_itself_is_refused_and_the_log_kept(
+    logs_dir, tmp_path, monkeypatch, argv, capsys
+):
+    """`gcs report flight.bin --out flight.bin` (a slip of the shell history) replaced the flight
+    log with its own report: the recording was gone. The same file by another name (./x, a link)
+    too."""
+    log = tmp_path / "flight.bin"
+    log.write_bytes((logs_dir / "ardupilot-fragment.bin").read_bytes())
+    (tmp_path / "link.bin").symlink_to(log)
+    monkeypatch.chdir(tmp_path)
+    for out in ("flight.bin", "./flight.bin", "link.bin"):
+        assert main([argv[0], "flight.bin", *argv[1:], "--out", out]) == 2
+        assert capsys.readouterr().err == f"gcs {argv[0]}: error: --out {out} is the input itself; give another file\n"
+    assert log.read_bytes() == (logs_dir / "ardupilot-fragment.bin").read_bytes()

@@ -229,6 +229,26 @@ def test_a_malformed_meta_json_does_not_stop_start_up(tmp_path, bad):
         assert (damaged / layout.META).read_bytes() == bad
 
 
+def test_a_session_whose_meta_json_is_unreadable_is_listed_as_damaged_not_open(tmp_path):
+    """`gcs sessions` showed a session with a garbled meta.json as "open (recording, or left by a
+    crash)", the state the next start recovers, but recovery cannot mend it and replay and report
+    refuse it: the engineer waited for a recovery that never came. It is listed as damaged, why."""
+    damaged = tmp_path / "2026-01-01_00-00-00_x"
+    damaged.mkdir()
+    (damaged / layout.META).write_bytes(b'{"start": 1767225600, "end"')  # cut by a failing card
+    listing = subprocess.run(
+        [PY, "-m", "gcs", "sessions", "--dir", str(tmp_path)], capture_output=True, text=True, timeout=60
+    )
+    assert listing.returncode == 0, listing.stderr
+    row = listing.stdout.splitlines()[1]
+    assert row.startswith(damaged.name) and "open" not in row
+    assert row.endswith(
+        f"damaged: {damaged / layout.META}: unreadable meta.json (Expecting ':' delimiter: line 1 column 28 (char 27))"
+    )
+    (info,) = layout.list_sessions(tmp_path)
+    assert info.error is not None and info.error in row
+
+
 def test_links_inside_a_session_folder_are_never_followed(tmp_path, logs_dir):
     """A session folder from a stick may link to any file of this machine: replay, the event reader
     and crash recovery refuse the link with one line, and never read or append to its target."""

@@ -21,13 +21,18 @@ from gcs.sessions import layout
 from gcs.sessions.sources import KINDS
 
 
-def find_flights(items: Iterable[str]) -> list[str]:
-    """Files, session folders, folders of them and globs → the flights, each once, in order. A
-    folder that is not a session contributes its sessions and logs (not recursively); anything
-    else named is kept, so that a file that cannot be read is reported, not silently dropped."""
+def find_flights(items: Iterable[str]) -> tuple[list[str], list[str]]:
+    """Files, session folders, folders of them and globs → the flights, each once, in order, and
+    the items that gave none (a glob matching nothing, a folder with no session or log: an SD card
+    not mounted, a mistyped folder), for the command to name: they were dropped without a word and
+    the dataset silently lacked a day of flights. A folder that is not a session contributes its
+    sessions and logs (not recursively); anything else named is kept, so that a file that cannot be
+    read is reported, not silently dropped."""
     found: list[str] = []
+    empty: list[str] = []
     for item in items:
         matches = sorted(glob.glob(item)) if glob.has_magic(item) else [item]
+        before = len(found)
         for path in matches:
             folder = Path(path)
             if folder.is_dir() and not layout.is_session(folder):
@@ -38,7 +43,23 @@ def find_flights(items: Iterable[str]) -> list[str]:
                 ]
             else:
                 found.append(path)
-    return list(dict.fromkeys(found))
+        if len(found) == before:
+            empty.append(item)
+    return list(dict.fromkeys(found)), empty
+
+
+def no_flight_lines(command: str, empty: list[str]) -> list[str]:
+    """One stderr line per item that gave no flight (find_flights)."""
+    kinds = ", ".join(KINDS)
+    return [
+        f"gcs {command}: warning: {item}: "
+        + (
+            "matches no file"
+            if glob.has_magic(item) and not glob.glob(item)
+            else f"no session folder or {kinds} file there"
+        )
+        for item in empty
+    ]
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ def cluster_error(exc: OSError, args: argparse.Namespace) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.ulg files, folders of them, globs"
+        "logs", nargs="+", metavar="LOGS", help="session folders, .tlog/.bin/.log/.ulg files, folders of them, globs"
     )
     parser.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder (created; added to)")
     parser.add_argument(
@@ -70,7 +70,7 @@ def _line(result: FlightResult) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from gcs.batch.cluster import connect  # noqa: PLC0415 - Dask loads only when a batch runs
-    from gcs.batch.run import find_flights, run_batch  # noqa: PLC0415
+    from gcs.batch.run import find_flights, no_flight_lines, run_batch  # noqa: PLC0415
 
     try:
         names, gains = selection(args.estimator, args.gain)
@@ -80,7 +80,9 @@ def run(args: argparse.Namespace) -> int:
     if workers := workers_error(args):
         print(f"gcs batch: error: {workers}", file=sys.stderr)
         return 2
-    flights = find_flights(args.logs)
+    flights, empty = find_flights(args.logs)
+    for line in no_flight_lines("batch", empty):
+        print(line, file=sys.stderr)
     if not flights:
         print("gcs batch: error: no flights found in " + " ".join(args.logs), file=sys.stderr)
         return 2

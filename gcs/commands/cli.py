@@ -24,7 +24,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("gcs.commands.sim", "run the built-in simulated vehicle over UDP, TCP or a serial pseudo-terminal"),
     "estimate": (
         "gcs.commands.estimate",
-        "run an attitude estimator over a .tlog, DataFlash .bin, PX4 .ulg or CSV and write its output CSV",
+        "run an attitude estimator over a .tlog, DataFlash .bin or text .log, PX4 .ulg or CSV and write its output CSV",
     ),
     "serve": (
         "gcs.commands.serve",
@@ -33,7 +33,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sessions": ("gcs.commands.sessions", "list recorded sessions with start, duration, size and vehicle"),
     "replay": (
         "gcs.commands.replay",
-        "replay a session, .tlog, .bin or .ulg through the estimators (play at any speed)",
+        "replay a session, .tlog, .bin, .log or .ulg through the estimators (play at any speed)",
     ),
     "export": (
         "gcs.commands.export",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -15,9 +16,13 @@ from gcs.logs.logfile import InputError
 from gcs.mavlink.params import float32
 
 
-def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int:
+def run_reporting_errors(command: str, out: str, work: Callable[[], str], source: str | None = None) -> int:
     """Run work() (it returns what to tell the user); bad input (InputError names file, offset,
-    field) or an unwritable output becomes one line on stderr and exit code 2, never a traceback."""
+    field) or an unwritable output becomes one line on stderr and exit code 2, never a traceback.
+    An `out` that is the `source` read (the flight log itself) is refused before anything runs."""
+    if source is not None and same_file(source, out):
+        print(f"gcs {command}: error: --out {out} is the input itself; give another file", file=sys.stderr)
+        return 2
     try:
         done = work()
     except InputError as exc:
@@ -28,6 +33,12 @@ def run_reporting_errors(command: str, out: str, work: Callable[[], str]) -> int
         return 2
     print(done, file=sys.stderr)
     return 0
+
+
+def same_file(source: str, out: str) -> bool:
+    """Whether writing `out` would replace the file `source` (the same path, ./x for x, a link):
+    `gcs report flight.bin --out flight.bin` replaced the flight log with its report."""
+    return os.path.isfile(source) and os.path.isfile(out) and os.path.samefile(source, out)
 
 
 def os_error_line(exc: OSError, path: str | None = None) -> str:

@@ -4,7 +4,7 @@ Contract (other tools call this; keep it stable):
     gcs estimate INPUT --estimator NAME [--preset P] [--gain NAME=VALUE ...] [--imu N] --out OUT.csv
     gcs estimate INPUT --preset-file FILE.toml [--gain NAME=VALUE ...] --out OUT.csv
     gcs estimate --list
-INPUT is a .tlog, a DataFlash .bin, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
+INPUT is a .tlog, a DataFlash .bin or text .log, a ULog .ulg or a CSV (see gcs.logs.readers); --imu picks the
 IMU instance (default 0, the first). OUT has the header t,qw,qx,qy,qz,roll,pitch,yaw and one row
 per IMU sample; q rotates sensor/body → NED and the angles are Z-Y-X in degrees. Before the
 filter is valid the row holds its current (initial) attitude. Bad input or arguments: one line on
@@ -29,7 +29,7 @@ from typing import TextIO
 
 from tqdm import tqdm
 
-from gcs.commands.common import load_preset_file
+from gcs.commands.common import load_preset_file, same_file
 from gcs.core.declination import VehicleDeclination
 from gcs.core.estimation import GainChange, run_estimator
 from gcs.core.estimators import registry
@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("INPUT", args.input), ("--estimator", name), ("--out", args.out)):
         if not value:
             return _fail(f"{flag} is required (or use --list)")
-    if os.path.isfile(args.input) and os.path.isfile(args.out) and os.path.samefile(args.input, args.out):
+    if same_file(args.input, args.out):
         # a CSV in, a CSV out: the estimates replaced the samples they were made from
         return _fail(f"--out {args.out} is INPUT itself; give another file")
     try:

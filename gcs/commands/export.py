@@ -11,7 +11,9 @@ from gcs.sessions.export import FORMATS, UNITS, export
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("session", help="a session folder (or a .tlog, .bin, .ulg run through the estimators first)")
+    parser.add_argument(
+        "session", help="a session folder (or a .tlog, .bin, .log, .ulg run through the estimators first)"
+    )
     parser.add_argument(
         "--format",
         choices=FORMATS,
@@ -32,4 +34,4 @@ def run(args: argparse.Namespace) -> int:
         count = export(args.session, args.format, out)
         return f"{out}: {count} {UNITS[args.format]}"
 
-    return run_reporting_errors("export", out, work)
+    return run_reporting_errors("export", out, work, source=args.session)

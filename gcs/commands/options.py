@@ -135,6 +135,11 @@ def station_config(args: argparse.Namespace):
         raise ValueError("--baud 0: give a rate such as 57600, or 'auto' (0 would hang up the serial line)")
     check_numbers(args)
     for address in addresses:
+        if address.kind == "serial" and os.path.isfile(address.path):  # a log given as a link
+            raise ValueError(
+                f"{address.path}: a file, not a serial device: only a .tlog is replayed as a link; "
+                f"`gcs replay {address.path}` replays a .bin, .log or .ulg"
+            )
         if address.kind == "serial" and address.path:
             probe_serial(address.path, 57600 if baud == "auto" else baud)
         if address.kind == "tlog" and not os.path.isfile(address.path):  # a replay never reappears: no retrying

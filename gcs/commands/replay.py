@@ -23,7 +23,7 @@ from gcs.sessions.sources import ReplaySource, open_source
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a session folder, or a .tlog, DataFlash .bin or PX4 .ulg file")
+    parser.add_argument("path", help="a session folder, or a .tlog, DataFlash .bin or text .log, or PX4 .ulg file")
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1 = real time)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
@@ -94,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if source.damage:
         print(f"damage: {source.damage}", file=sys.stderr)
+    for note in source.notes:  # as `gcs estimate` says them: what explains a heading's errors
+        print(f"gcs replay: note: {note}", file=sys.stderr)
     slow = imu_rate_note(source)
     if slow:
         print(f"gcs replay: note: {slow}", file=sys.stderr)
@@ -104,7 +106,9 @@ def imu_rate_note(source: ReplaySource) -> str | None:
     """What makes the table above no fair comparison, as the live status and `gcs report` say it:
     the log's raw IMU (its mean rate) too slow for a ground-side estimator to follow the motion."""
     t = source.table.imu[:, 0]
-    rate = imu_rate_of(len(t), len(t), float(t[0]), float(t[-1])) if len(t) else 0.0
+    if not len(t):  # the 0.0 Hz of the rule below, with its advice, read as if some IMU had come
+        return f"{source.path} holds no raw IMU samples: the estimators had nothing to run on (the table is empty)"
+    rate = imu_rate_of(len(t), len(t), float(t[0]), float(t[-1]))
     reliable, reason = reliability(rate, MIN_IMU_RATE)
     return None if reliable else f"{reason} (the errors above are not a fair comparison)"
 

@@ -9,7 +9,7 @@ from gcs.sessions.report import write_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="a session folder, or a .tlog, .bin or .ulg file")
+    parser.add_argument("path", help="a session folder, or a .tlog, .bin, .log or .ulg file")
     parser.add_argument("--out", required=True, help="the HTML file to write")
 
 
@@ -18,4 +18,4 @@ def run(args: argparse.Namespace) -> int:
         write_report(args.path, args.out, progress_bar("report"))
         return f"wrote {args.out}"
 
-    return run_reporting_errors("report", args.out, work)
+    return run_reporting_errors("report", args.out, work, source=args.path)

@@ -1,5 +1,6 @@
 """`gcs sessions`: the recorded sessions, oldest first. Nothing is ever deleted by gcs; sessions
-a crash left open are shown as such (the next `gcs status`/server start recovers them)."""
+a crash left open are shown as such (the next `gcs status`/server start recovers them), and one
+whose meta.json cannot be read as damaged, with why (no recovery mends that)."""
 
 from __future__ import annotations
 
@@ -30,7 +31,13 @@ def format_table(sessions) -> str:
     for s in sessions:
         start = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(s.start)) if s.start else "?"
         duration = f"{s.duration_s:.1f} s" if s.duration_s is not None else "-"
-        state = "open (recording, or left by a crash)" if s.open else ("recovered" if s.recovered else "closed")
+        state = (
+            f"damaged: {s.error}"
+            if s.error
+            else "open (recording, or left by a crash)"
+            if s.open
+            else ("recovered" if s.recovered else "closed")
+        )
         lines.append(
             f"{s.name:<48}{start:<21}{duration:>10}{format_size(s.size_bytes):>11}  {s.vehicle or '?':<24}{state}"
         )

@@ -31,6 +31,11 @@ def run(args: argparse.Namespace) -> int:
     config = station_config_or_report(args, "status")
     if config is None:
         return 2
+    if config.record_dir and any(parse_address(a).kind == "tlog" for a in links_of(args)):
+        # the report then said only "recording  off", as if --record had been ignored
+        print(
+            "gcs status: note: --record: a replayed .tlog is not recorded again (it is the recording)", file=sys.stderr
+        )
     snapshots = asyncio.run(_collect(config, links_of(args), args.duration))
     first = snapshots[0]
     if args.json:  # the first vehicle's snapshot, as with one vehicle, and every vehicle's in "vehicles"
@@ -116,6 +121,7 @@ def format_report(snap: StationSnapshot) -> str:
         if row.reason:
             lines.append(f"  {'':<16} {row.reason}")
     lines += format_radio(snap)
+    lines += format_outputs(snap)
     others = {k: v for k, v in stats.rates_hz.items() if k not in streams.messages}
     if others:
         lines.append("  other: " + ", ".join(f"{k} {v:.1f} Hz" for k, v in others.items()))
@@ -136,6 +142,17 @@ def format_report(snap: StationSnapshot) -> str:
     lines.append("events")
     lines += [f"  {e.kind}: {e.detail}" for e in link.events]
     return "\n".join(lines)
+
+
+def format_outputs(snap: StationSnapshot) -> list[str]:
+    """Where `--out` forwarded the packets and how many went each way: the report never said,
+    so a ground station fed through one could not be told from one the output never reached
+    (a TCP peer not listening is retried, unopened, for the whole run)."""
+    return [
+        f"forward    {o.address}  {'open' if o.open else 'NOT OPEN (see events)'}  "
+        f"{o.packets_out} packets sent, {o.packets_in} received"
+        for o in snap.outputs
+    ]
 
 
 def format_radio(snap: StationSnapshot) -> list[str]:

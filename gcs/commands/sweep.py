@@ -60,7 +60,7 @@ def report(result: SweepResult) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from gcs.batch.cluster import connect  # noqa: PLC0415 - Dask loads only when a sweep runs
-    from gcs.batch.run import find_flights  # noqa: PLC0415
+    from gcs.batch.run import find_flights, no_flight_lines  # noqa: PLC0415
     from gcs.batch.sweep import sweep  # noqa: PLC0415
 
     try:
@@ -71,8 +71,11 @@ def run(args: argparse.Namespace) -> int:
     if workers := workers_error(args):
         print(f"gcs sweep: error: {workers}", file=sys.stderr)
         return 2
-    holdout = find_flights(args.holdout)
-    flights = [f for f in find_flights(args.logs) if f not in holdout]
+    holdout, empty_holdout = find_flights(args.holdout)
+    found, empty = find_flights(args.logs)
+    flights = [f for f in found if f not in holdout]
+    for line in no_flight_lines("sweep", empty + empty_holdout):
+        print(line, file=sys.stderr)
     if not flights or args.trials < 1:
         print("gcs sweep: error: no flights to tune on, or --trials < 1", file=sys.stderr)
         return 2

@@ -36,6 +36,7 @@ from gcs.core.estimation import GainChange
 from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample, mgauss_to_gauss, ms_to_s, ms_to_usec, usec_to_s
 from gcs.logs.dataflash_format import DataflashContents, RecordFormat, field_text, read_dataflash, scaled
+from gcs.logs.dataflash_text import TextImage, text_image
 from gcs.logs.input_table import InputTable, gain_columns
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import converted
@@ -173,14 +174,25 @@ class DataflashLog(LogFile):
 
     def columns(self) -> InputTable:
         """The inputs as an input table, decoded on whole columns; reports as LogFile says."""
-        contents = read_dataflash(self.path, COLUMNS)
-        if contents.damage:
-            first, more = contents.damage[0], len(contents.damage) - 1
-            self.damage = f"{self.path}: offset {first.offset}: {first.cause}"
-            self.damage += f" ({more} more damaged places)" if more else ""
+        contents = self._contents()
+        places = self._places(contents)
+        if places:
+            self.damage = f"{self.path}: {places[0]}"
+            self.damage += f" ({len(places) - 1} more damaged places)" if len(places) > 1 else ""
         self.vehicle, self.firmware = _vehicle(contents)
         streams = self._streams(contents)
         return _Merged(self, streams).table()
+
+    def _contents(self) -> DataflashContents:
+        return read_dataflash(self.path, COLUMNS)
+
+    def _where(self, offset: int) -> str:
+        """Where byte `offset` of the records is, as the user finds it in the file."""
+        return f"offset {offset}"
+
+    def _places(self, contents: DataflashContents) -> list[str]:
+        """Each damaged place, first first: where, and what was found and done."""
+        return [f"{self._where(d.offset)}: {d.cause}" for d in contents.damage]
 
     def _streams(self, contents: DataflashContents) -> dict[str, Records]:
         """Every wanted type's records, the untimed GPS ones of 3.1 stamped with the time of the
@@ -223,11 +235,13 @@ class DataflashLog(LogFile):
             *others, last = map(str, imu_instances)
             has = f"{', '.join(others)} and {last}" if others else last
             many = "s" if others else ""
-            raise InputError(f"{self.path}: offset 0: no IMU instance {self.imu}; the log has IMU instance{many} {has}")
+            raise InputError(
+                f"{self.path}: {self._where(0)}: no IMU instance {self.imu}; the log has IMU instance{many} {has}"
+            )
         if not any(name in used for name in IMU_TYPES):
             found = f"instances in the log: {', '.join(map(str, imu_instances))}" if imu_instances else "none"
-            where = contents.damage[0] if contents.damage else None
-            at = f"offset {contents.end}" if where is None else f"offset {where.offset}: {where.cause};"
+            places = self._places(contents)
+            at = f"{self._where(contents.end)}:" if not places else f"{places[0]};"
             raise InputError(
                 f"{self.path}: {at} no IMU records of instance {self.imu} ({found}); is this a DataFlash log?"
             )
@@ -357,3 +371,21 @@ class _Merged:
             if change is not None:
                 gains.append((slot, change))
         return gains
+
+
+class DataflashTextLog(DataflashLog):
+    """A DataFlash text log (.log, gcs.logs.dataflash_text): its records read as a .bin's, every
+    place named by its line."""
+
+    _image: TextImage
+
+    def _contents(self) -> DataflashContents:
+        self._image = text_image(self.path, COLUMNS)
+        return read_dataflash(self.path, COLUMNS, self._image.buf)
+
+    def _where(self, offset: int) -> str:
+        return f"line {self._image.line_at(offset)}"
+
+    def _places(self, contents: DataflashContents) -> list[str]:
+        found = [(self._image.line_at(d.offset), d.cause) for d in contents.damage]
+        return [f"line {line}: {cause}" for line, cause in sorted(self._image.damage + found, key=lambda p: p[0])]

@@ -186,12 +186,15 @@ def _windows(
     return windows[offsets + 3].view(dtype).reshape(-1)
 
 
-def read_dataflash(path: str, wanted: Mapping[str, Collection[str]]) -> DataflashContents:
+def read_dataflash(
+    path: str, wanted: Mapping[str, Collection[str]], buf: npt.NDArray[np.uint8] | None = None
+) -> DataflashContents:
     """The record types named in `wanted` (each with the columns it must have, else its FMT is
-    refused: see record_format) and the damage of the .bin at path; InputError when it cannot be
-    read or holds no DataFlash record."""
+    refused: see record_format) and the damage of the .bin at path (or of `buf`, the records of
+    a text log: gcs.logs.dataflash_text); InputError when it cannot be read or holds no DataFlash
+    record."""
     try:
-        buf = np.fromfile(path, dtype=np.uint8)
+        buf = np.fromfile(path, dtype=np.uint8) if buf is None else buf
     except OSError as exc:
         raise InputError(f"{path}: offset 0: cannot read ({exc.strerror})") from None
     lengths = np.zeros(256, dtype=np.int64)

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable
 from gcs.core.estimation import GainChange
 from gcs.core.samples import AttitudeSample, GpsSample, ImuSample
 from gcs.logs.csvfile import read_csv
-from gcs.logs.dataflash import DataflashLog
+from gcs.logs.dataflash import DataflashLog, DataflashTextLog
 from gcs.logs.logfile import InputError
 from gcs.logs.tlog import read_tlog
 from gcs.logs.ulog import UlogFile
@@ -26,6 +26,7 @@ READERS: dict[str, Callable[[str, int], Iterable[Sample]]] = {
     ".csv": read_csv,
     ".tlog": read_tlog,
     ".bin": DataflashLog,
+    ".log": DataflashTextLog,
     ".ulg": UlogFile,
 }
 

@@ -164,6 +164,12 @@ class UlogFile(LogFile):
             self.damage += f" ({more} more damaged places)" if more else ""
         self.vehicle = ulog_label(contents.info, contents.initial_parameters)
         self.firmware = _firmware(contents.info)
+        if contents.dropouts:  # pyulog and Flight Review show them; the samples have gaps there
+            offset, longest = max(contents.dropouts, key=lambda d: d[1])
+            self.notes.append(
+                f"{self.path}: {len(contents.dropouts)} logging dropouts, {sum(ms for _, ms in contents.dropouts)} ms "
+                f"of data lost (the longest {longest} ms at offset {offset})"
+            )
         topics = {name: columns_of(rows) for (name, multi_id), rows in contents.topics.items() if multi_id == 0}
         imus = sorted(m for name, m in contents.topics if name == IMU_TOPIC)
         if self.imu not in imus:

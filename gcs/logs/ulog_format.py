@@ -97,7 +97,8 @@ class Damage:
 class UlogContents:
     """What `read_ulog` found. `topics[(name, multi_id)]`: every data row of that topic in file
     order (structured, pyulog's field names); `changed_parameters`: (timestamp µs, name, value);
-    `info`: the information messages ('I': sys_name, ver_hw, ver_sw ..., uint32_t ones in decimal)."""
+    `info`: the information messages ('I': sys_name, ver_hw, ver_sw ..., uint32_t ones in decimal);
+    `dropouts`: where the logger lost data and for how long."""
 
     start_us: int
     topics: dict[tuple[str, int], npt.NDArray[np.void]] = field(default_factory=dict)
@@ -105,6 +106,8 @@ class UlogContents:
     changed_parameters: list[tuple[int, str, float]] = field(default_factory=list)
     info: dict[str, str] = field(default_factory=dict)
     damage: list[Damage] = field(default_factory=list)
+    #: the logger's dropouts ('O': it lost data, its buffer full): (offset, duration ms)
+    dropouts: list[tuple[int, int]] = field(default_factory=list)
 
 
 def _text(payload: bytes) -> str:
@@ -264,6 +267,8 @@ def read_ulog(path: str, wanted: Collection[str]) -> UlogContents:
                 info = _info(payload)
                 if info is not None:
                     contents.info.setdefault(*info)
+            elif kind == "O":
+                contents.dropouts.append((at, struct.unpack_from("<H", payload)[0]))
             elif kind == "A":
                 multi_id, msg_id = struct.unpack_from("<BH", payload)
                 subscriptions.append((at, msg_id, _text(payload[3:]), multi_id))

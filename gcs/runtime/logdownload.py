@@ -3,8 +3,9 @@
 The file is written beside its target while it comes in: NAME.partial holds the bytes at their
 offsets and NAME.partial.json which chunks are in (saved every `save_interval`), so a download
 cut by a link drop resumes where it stopped on the next run. When every chunk is in, the log is
-written whole to NAME (gcs.sessions.export.write_beside: a temporary file renamed) and the partial
-files are removed. Progress (bytes, rate, re-requests) is a frozen snapshot, for the CLI and the API.
+written whole to NAME (gcs.sessions.export.write_beside: a temporary file renamed; NAME-2.bin, ...
+when another log is already there) and the partial files are removed. Progress (bytes, rate,
+re-requests) is a frozen snapshot, for the CLI and the API.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ class LogDownloader:
                         on_progress(progress)
                     if not transfer.complete:
                         await asyncio.to_thread(partial.save, bytes(transfer.data), bytes(transfer.have))
-            await asyncio.to_thread(partial.finish, transfer)
+            target = await asyncio.to_thread(partial.finish, transfer)
         except LogDownloadError as exc:
             self.progress = replace(_progress(progress, transfer, resumed, time.monotonic() - started), state="failed")
             self.progress = replace(self.progress, error=str(exc))
@@ -164,7 +165,8 @@ class LogDownloader:
         finally:
             sub.close()
             self.link.send(mavlink.MAVLink_log_request_end_message(*self._target()))
-        self.progress = replace(_progress(progress, transfer, resumed, time.monotonic() - started), state="done")
+        done = _progress(progress, transfer, resumed, time.monotonic() - started)
+        self.progress = replace(done, state="done", path=str(target))
         if on_progress is not None:
             on_progress(self.progress)
         return target
@@ -223,7 +225,22 @@ class PartialLog:
         record = {"log": self._identity(), "have": base64.b64encode(have).decode()}
         write_beside(self.progress_path, lambda tmp: tmp.write_text(json.dumps(record)))
 
-    def finish(self, transfer: LogTransfer) -> None:
-        write_beside(self.target, lambda tmp: tmp.write_bytes(transfer.data))
+    def finish(self, transfer: LogTransfer) -> Path:
+        """The whole log written, the partial files removed; the path it was written to."""
+        target = free_name(self.target, bytes(transfer.data))
+        write_beside(target, lambda tmp: tmp.write_bytes(transfer.data))
         for path in (self.data_path, self.progress_path):
             path.unlink(missing_ok=True)
+        return target
+
+
+def free_name(target: Path, data: bytes) -> Path:
+    """target, or when another log is already there, the first of NAME-2.bin, NAME-3.bin, ...
+    that is free or holds these very bytes. A vehicle without a clock names its logs by id alone
+    (log1.bin) and the ids start again at 1 once its logs are erased: the next day's log 1
+    replaced the earlier flight's file."""
+    candidate, n = target, 1
+    while candidate.exists() and not (candidate.is_file() and candidate.read_bytes() == data):
+        n += 1
+        candidate = target.with_name(f"{target.stem}-{n}{target.suffix}")
+    return candidate

@@ -118,6 +118,9 @@ def write_beside(target: Path, write: Callable[[Path], T], tmp: Path | None = No
     except OSError as exc:
         if exc.filename == str(tmp):  # name the file the user asked for, not the temporary one
             exc.filename = str(target)
+        elif exc.filename is None and exc.errno and str(tmp) in str(exc.strerror):
+            # pyarrow's: "Failed to open local file '.x.csv.123-ab.tmp'. Detail: [errno 13] ..."
+            raise OSError(exc.errno, os.strerror(exc.errno), str(target)) from None
         raise
     finally:
         if tmp.is_dir():

@@ -146,6 +146,8 @@ class SessionInfo:
     vehicle: str | None
     open: bool
     recovered: bool
+    #: why meta.json cannot be read, None when it can: such a session is no recording still open
+    error: str | None = None
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -165,6 +167,7 @@ def session_info(folder: Path) -> SessionInfo:
         vehicle=meta.get("vehicle", {}).get("label") if isinstance(meta.get("vehicle"), dict) else None,
         open=end is None,
         recovered=bool(meta.get("recovered")),
+        error=meta.get("error"),
     )
 
 

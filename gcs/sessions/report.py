@@ -1,7 +1,7 @@
 """A self-contained HTML flight-test report of a session or any replayable log.
 
 The source is replayed through every estimator (for a session this reproduces the live
-numbers). The page holds: what was replayed (vehicle, duration, damage), the attitude of every
+numbers). The page holds: what was replayed (vehicle, duration, damage, what a log lacks), the attitude of every
 source, each estimator's error against the best reference (truth if the log has it, else the
 onboard estimate), an RMS / max table per estimator, reference and axis, a session's gain
 changes, notes and events (its events.jsonl), and the message rates and packet loss. Every
@@ -312,6 +312,7 @@ def render(
         ["duration", f"{source.duration:.1f} s"],
         ["IMU samples", pipeline.imu_samples],
         ["damage", source.damage or "none"],
+        *(["note", note] for note in source.notes),
     ]
     if meta:  # a session's, or a bare tlog's vehicle (named from its HEARTBEAT): what is known
         vehicle = meta.get("vehicle") or {}

@@ -29,7 +29,7 @@ from gcs.core.estimation import AttitudePoint, EstimationInput, EstimationPipeli
 from gcs.core.estimators import registry
 from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.plausibility import attitude_rows_accepted
-from gcs.logs.dataflash import DataflashLog
+from gcs.logs.dataflash import DataflashLog, DataflashTextLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
 from gcs.logs.logfile import InputError, LogFile
 from gcs.logs.ulog import UlogFile
@@ -91,6 +91,8 @@ class ReplaySource:
     framing: FramingCounters | None = None  # tlogs: packets, CRC errors, loss by sequence number
     packet_file: str | None = None  # the tlog the frames' packet offsets point into
     key: SourceKey | None = None
+    #: what a .bin, .log or .ulg lacks (no MAG records: heading from the gyro only ...), LogFile.notes
+    notes: list[str] = field(default_factory=list)
 
     @property
     def duration(self) -> float:
@@ -230,6 +232,7 @@ class _Decoded:
     #: and its firmware's version, as a session's meta names them
     vehicle: str | None = None
     firmware: str | None = None
+    notes: list[str] = field(default_factory=list)
 
     def meta(self) -> dict:
         """What a session's meta.json would say of the vehicle, for a bare log: only what it said."""
@@ -330,7 +333,14 @@ def _decode_log(path: str) -> _Decoded:
     table = log.columns()
     span = None if log.first_us is None or log.last_us is None else (log.first_us / 1e6, log.last_us / 1e6)
     return _Decoded(
-        sample_frames(table), table, dict(log.counts), log.damage, span=span, vehicle=log.vehicle, firmware=log.firmware
+        sample_frames(table),
+        table,
+        dict(log.counts),
+        log.damage,
+        span=span,
+        vehicle=log.vehicle,
+        firmware=log.firmware,
+        notes=list(log.notes),
     )
 
 
@@ -349,9 +359,9 @@ def sample_frames(table: InputTable) -> Frames:
     return Frames(t[samples], None, np.zeros(len(samples), dtype=np.bool_), input_end.astype(np.int64))
 
 
-KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
+KINDS = {".tlog": "tlog", ".bin": "dataflash", ".log": "dataflash", ".ulg": "ulog"}
 #: Log files replayed sample by sample (a .tlog is replayed packet by packet).
-LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".ulg": UlogFile}
+LOG_FILES: dict[str, type[LogFile]] = {".bin": DataflashLog, ".log": DataflashTextLog, ".ulg": UlogFile}
 
 
 def decoded_file(path: str | os.PathLike) -> Path:
@@ -392,7 +402,7 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
     kind = KINDS.get(os.path.splitext(path)[1].lower())
     if kind is None:
         raise InputError(
-            f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin or .ulg"
+            f"{path}: cannot replay {os.path.splitext(path)[1]!r}; give a session folder, .tlog, .bin, .log or .ulg"
         )
     if kind == "tlog":
         d = _decode_tlog(path, {}, [])
@@ -411,4 +421,6 @@ def open_source(path: str | os.PathLike) -> ReplaySource:
             key=key,
         )
     d = _decode_log(path)
-    return ReplaySource(path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=d.meta(), key=key)
+    return ReplaySource(
+        path, kind, d.frames, d.table, d.counts, d.span, d.damage, meta=d.meta(), key=key, notes=d.notes
+    )

@@ -69,7 +69,7 @@ async def list_recorded(station: StationDep) -> list[dict[str, Any]]:
 
 @router.get("/logs")
 async def list_logs(station: StationDep) -> list[dict[str, Any]]:
-    """Log files from other tools (.tlog, .bin, .ulg) in the recording folder: replay and what-if
+    """Log files from other tools (.tlog, .bin, .log, .ulg) in the recording folder: replay and what-if
     sources, by name, beside the recorded sessions."""
     root = station.recording_root
     if not root.is_dir():
