@@ -140,10 +140,10 @@ class Fleet:
     async def start(self) -> None:
         self._started = True
         self.first.launch()
+        for i, output in enumerate(self.outputs):  # first: a replayed .tlog's link waits for them
+            self.supervisor.start(f"output {i + 1}", output.run())
         for i, link in enumerate(self.links):
             self.supervisor.start("link" if i == 0 else f"link {i + 1}", link.run())
-        for i, output in enumerate(self.outputs):
-            self.supervisor.start(f"output {i + 1}", output.run())
 
     async def stop(self) -> None:
         """The links first (nothing arrives while the cores finish), then every core."""

@@ -11,6 +11,7 @@ system (0) or one not heard yet.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Sequence
 
 from gcs.mavlink.framing import MavlinkDecoder
@@ -30,13 +31,20 @@ class Output:
         self._transport: Transport | None = None
         self._datagram = self.address.kind in ("udpin", "udpout")
         self._heard_on: dict[int, Link] = {}  # sysid -> the link it was last heard on
+        #: set once its first open has been tried (opened or refused): a replayed .tlog waits for
+        #: it, which at --speed 0 was read to its end before the output opened, forwarding nothing
+        self.tried = asyncio.Event()
 
     async def run(self) -> None:
         for link in self.links:
             link.outputs.append(self)
         try:
             await keep_open(
-                lambda: make_transport(self.address), self._from_peer, self.links[0]._event, self._set_transport
+                lambda: make_transport(self.address),
+                self._from_peer,
+                self.links[0]._event,
+                self._set_transport,
+                on_refused=lambda _: self.tried.set(),
             )
         finally:
             for link in self.links:
@@ -63,6 +71,8 @@ class Output:
 
     def _set_transport(self, transport: Transport | None) -> None:
         self._transport = transport
+        if transport is not None:
+            self.tried.set()
 
     def snapshot(self) -> OutputSnapshot:
         return OutputSnapshot(str(self.address), self._transport is not None, self.packets_out, self.packets_in)

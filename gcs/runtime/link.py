@@ -42,6 +42,8 @@ AUTO_BAUDS = (57600, 115200, 921600, 500000, 230400, 38400, 19200, 9600)
 _DECODE, _READ_IMU = 1, 2
 
 GCS_SYSID = 255
+#: s a replayed .tlog waits for its forwarding outputs' first open (a TCP peer may not answer)
+OUTPUTS_WAIT = 5.0
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190, as ground stations use
 
 
@@ -191,6 +193,8 @@ class Link:
         try:
             if self.address.kind == "serial" and self.baud == "auto":
                 await self._detect_baud()
+            if self.address.kind == "tlog":
+                await self._outputs_tried()
             await keep_open(
                 self._make_transport,
                 self._on_data,
@@ -267,6 +271,15 @@ class Link:
             self.packet_sent.emit(packet)
         finally:
             self.addressed = None
+
+    async def _outputs_tried(self) -> None:
+        """Until each forwarding output has tried to open (at most OUTPUTS_WAIT s): a replayed file
+        loses nothing by waiting, and at --speed 0 it was read to its end first, forwarding nothing."""
+        waits = [asyncio.ensure_future(output.tried.wait()) for output in self.outputs]
+        if waits:
+            _, pending = await asyncio.wait(waits, timeout=OUTPUTS_WAIT)
+            for wait in pending:
+                wait.cancel()
 
     def follow_renamed(self, old: int, new: int) -> None:
         """Vehicle `old` took the system id `new` (its MAV_SYSID written, gcs.runtime.fleet): follow

@@ -182,6 +182,9 @@ class Station:
         if self.estimation is not None:
             self.estimation.subscribe()  # sees what the recorder sees, from the same message on
         run = self.supervisor.start
+        if self._owns_link:  # first: a replayed .tlog's link waits for them
+            for i, output in enumerate(self.outputs):
+                run(f"output {i + 1}", output.run())
         run("link", self.link.run())
         run("vehicle", self.vehicle.run())
         run("params", self.params.run())
@@ -189,12 +192,8 @@ class Station:
         # them), nor for a replayed .tlog (a file is no vehicle: nothing is sent to it, Link.send_raw)
         address = self.link.address
         negotiates = self.config.request_streams and address.framing != "ascii" and address.kind != "tlog"
-        if negotiates:  # ask the firmware version
+        if negotiates:  # ask the firmware version, and the streams
             run("firmware", request_version(self.link, lambda: self.vehicle.firmware is not None))
-        if self._owns_link:
-            for i, output in enumerate(self.outputs):
-                run(f"output {i + 1}", output.run())
-        if negotiates:
             run("streams", self.streams.run())
             run("radio", self.radio.run())
         if self.estimation is not None:
