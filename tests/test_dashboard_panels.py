@@ -5,6 +5,7 @@ the page's clicks reach the simulated vehicle's parameter table and the recordin
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
 import os
 
@@ -278,14 +279,13 @@ def test_a_write_without_echo_can_be_reverted(udp_port, artifacts_dir):
     asyncio.run(asyncio.wait_for(unechoed_scenario(udp_port, artifacts_dir), 240))
 
 
-async def unechoed_scenario(udp_port: int, artifacts_dir) -> None:
-    """The vehicle takes a write and its echo is lost (every PARAM_VALUE dropped, as by a radio
-    that loses the downlink): the page says the write's result is unknown, the row's value is
-    unknown and "Revert all" is offered, which puts the pre-flight value back. The old page
-    showed the old value as current, the row unchanged and "Revert all" disabled, with the new
-    gain on the vehicle."""
-    errors: list[str] = []
-    row, current = "tr.tune-edit[data-param=ATC_RAT_RLL_P]", "#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur"
+ROW, CURRENT = "tr.tune-edit[data-param=ATC_RAT_RLL_P]", "#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur"
+
+
+@contextlib.asynccontextmanager
+async def tuning_tab(udp_port: int, errors: list[str]):
+    """A station, the pixhawk simulator and a page on the Tuning tab with the parameters downloaded:
+    (the simulator, the page)."""
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
         running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad") as sim,
@@ -294,43 +294,54 @@ async def unechoed_scenario(udp_port: int, artifacts_dir) -> None:
         await server.start()
         try:
             await wait_for(lambda: station.link.target_system is not None, 30, "the vehicle's heartbeat")
-            start = sim.params["ATC_RAT_RLL_P"]
             async with async_playwright() as pw:
                 browser, page = await open_page(pw, server.url, errors)
                 await page.click("#tabs button[data-tab=tuning]")
                 await page.locator("#param-download-btn").click(timeout=30_000)
                 await page.wait_for_function(
-                    f"(document.querySelector('{current}')?.textContent || '–') !== '–'", timeout=30_000
+                    f"(document.querySelector('{CURRENT}')?.textContent || '–') !== '–'", timeout=30_000
                 )
-                assert await page.is_disabled("#tuning-revert")
-                sim.param_drop = 1.0
-                new = round(start + 0.01, 4)
-                await set_number(page, f"{row} input[type=number]", new)
-                await page.wait_for_selector(f"{row} td.result.timeout", timeout=30_000)
-                assert "the value on the vehicle is unknown" in await page.text_content(f"{row} td.result")
-                assert abs(sim.params["ATC_RAT_RLL_P"] - new) < 1e-6  # the vehicle took it
-                try:
-                    await page.wait_for_function("!document.querySelector('#tuning-revert').disabled", timeout=20_000)
-                except PlaywrightTimeout:
-                    shown = await page.text_content(current)
-                    raise AssertionError(f"Revert all stays disabled; the page shows {shown!r} as current") from None
-                assert (await page.text_content(current)).startswith("?"), await page.text_content(current)
-                await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning-unechoed.png"))
-
-                sim.param_drop = 0.0
-                await page.click("#tuning-revert")
-                await page.wait_for_function(
-                    "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=30_000
-                )
-                assert abs(sim.params["ATC_RAT_RLL_P"] - start) < 1e-6
-                await page.wait_for_function(
-                    f"Math.abs(Number(document.querySelector('{current}').textContent) - {start}) < 1e-5"
-                    " && document.querySelector('#tuning-revert').disabled",
-                    timeout=20_000,
-                )
+                yield sim, page
                 await browser.close()
         finally:
             await server.stop()
+
+
+async def unechoed_scenario(udp_port: int, artifacts_dir) -> None:
+    """The vehicle takes a write and its echo is lost (every PARAM_VALUE dropped, as by a radio
+    that loses the downlink): the page says the write's result is unknown, the row's value is
+    unknown and "Revert all" is offered, which puts the pre-flight value back. The old page
+    showed the old value as current, the row unchanged and "Revert all" disabled, with the new
+    gain on the vehicle."""
+    errors: list[str] = []
+    async with tuning_tab(udp_port, errors) as (sim, page):
+        start = sim.params["ATC_RAT_RLL_P"]
+        assert await page.is_disabled("#tuning-revert")
+        sim.param_drop = 1.0
+        new = round(start + 0.01, 4)
+        await set_number(page, f"{ROW} input[type=number]", new)
+        await page.wait_for_selector(f"{ROW} td.result.timeout", timeout=30_000)
+        assert "the value on the vehicle is unknown" in await page.text_content(f"{ROW} td.result")
+        assert abs(sim.params["ATC_RAT_RLL_P"] - new) < 1e-6  # the vehicle took it
+        try:
+            await page.wait_for_function("!document.querySelector('#tuning-revert').disabled", timeout=20_000)
+        except PlaywrightTimeout:
+            shown = await page.text_content(CURRENT)
+            raise AssertionError(f"Revert all stays disabled; the page shows {shown!r} as current") from None
+        assert (await page.text_content(CURRENT)).startswith("?"), await page.text_content(CURRENT)
+        await page.locator("#tab-tuning").screenshot(path=str(artifacts_dir / "panel-tuning-unechoed.png"))
+
+        sim.param_drop = 0.0
+        await page.click("#tuning-revert")
+        await page.wait_for_function(
+            "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=30_000
+        )
+        assert abs(sim.params["ATC_RAT_RLL_P"] - start) < 1e-6
+        await page.wait_for_function(
+            f"Math.abs(Number(document.querySelector('{CURRENT}').textContent) - {start}) < 1e-5"
+            " && document.querySelector('#tuning-revert').disabled",
+            timeout=20_000,
+        )
     assert unexpected_errors(errors, (504,)) == [], errors
 
 
@@ -345,56 +356,36 @@ async def revert_queued_scenario(udp_port: int) -> None:
     pre-flight value. The queued value was written after the revert, which the page had
     reported "reverted and verified"."""
     errors: list[str] = []
-    row, current = "tr.tune-edit[data-param=ATC_RAT_RLL_P]", "#tuning-table tr.tune[data-param=ATC_RAT_RLL_P] td.cur"
-    async with (
-        running_station(f"udpin:127.0.0.1:{udp_port}") as station,
-        running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad") as sim,
-    ):
-        server = DashboardServer(station, port=0, viser=False)
-        await server.start()
-        try:
-            await wait_for(lambda: station.link.target_system is not None, 30, "the vehicle's heartbeat")
-            start = sim.params["ATC_RAT_RLL_P"]
-            async with async_playwright() as pw:
-                browser, page = await open_page(pw, server.url, errors)
-                puts: list[str] = []
-                page.on("request", lambda r: r.method == "PUT" and puts.append(r.post_data))
-                await page.click("#tabs button[data-tab=tuning]")
-                await page.locator("#param-download-btn").click(timeout=30_000)
-                await page.wait_for_function(
-                    f"(document.querySelector('{current}')?.textContent || '–') !== '–'", timeout=30_000
-                )
-                # a change to revert (Revert all is offered only then)
-                pitch = sim.params["ATC_RAT_PIT_P"]
-                pitch_box = "tr.tune-edit[data-param=ATC_RAT_PIT_P] input[type=number]"
-                await set_number(page, pitch_box, round(pitch + 0.01, 4))
-                await page.wait_for_selector(
-                    "tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=30_000
-                )
-                await page.wait_for_function("!document.querySelector('#tuning-revert').disabled", timeout=20_000)
-                puts.clear()
-                sim.param_drop = 1.0  # the next write waits for its echo (1 s a try)
-                slider = page.locator(f"{row} input[type=range]")
-                await slider.focus()
-                await page.keyboard.press("ArrowRight")
-                await page.wait_for_selector(f"{row} td.result.pending", timeout=20_000)
-                for _ in range(4):
-                    await page.keyboard.press("ArrowRight")
-                await page.click("#tuning-revert")
-                await wait_for(lambda: len(puts) == 1, 20, "the first write sent")
-                sim.param_drop = 0.0  # its next try is echoed, then the revert's write
-                await page.wait_for_function(
-                    "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=30_000
-                )
-                message = await page.text_content("#tuning-message")
-                assert "not sent: ATC_RAT_RLL_P = 0.14" in message, message
-                await page.wait_for_function(
-                    f"!document.querySelector('{row} td.result').className.includes('pending')", timeout=20_000
-                )
-                assert len(puts) == 1, puts
-                assert abs(sim.params["ATC_RAT_RLL_P"] - start) < 1e-6
-                assert abs(sim.params["ATC_RAT_PIT_P"] - pitch) < 1e-6
-                await browser.close()
-        finally:
-            await server.stop()
+    async with tuning_tab(udp_port, errors) as (sim, page):
+        start = sim.params["ATC_RAT_RLL_P"]
+        puts: list[str] = []
+        page.on("request", lambda r: r.method == "PUT" and puts.append(r.post_data))
+        # a change to revert (Revert all is offered only then)
+        pitch = sim.params["ATC_RAT_PIT_P"]
+        pitch_box = "tr.tune-edit[data-param=ATC_RAT_PIT_P] input[type=number]"
+        await set_number(page, pitch_box, round(pitch + 0.01, 4))
+        await page.wait_for_selector("tr.tune-edit[data-param=ATC_RAT_PIT_P] td.result.verified", timeout=30_000)
+        await page.wait_for_function("!document.querySelector('#tuning-revert').disabled", timeout=20_000)
+        puts.clear()
+        sim.param_drop = 1.0  # the next write waits for its echo (1 s a try)
+        slider = page.locator(f"{ROW} input[type=range]")
+        await slider.focus()
+        await page.keyboard.press("ArrowRight")
+        await page.wait_for_selector(f"{ROW} td.result.pending", timeout=20_000)
+        for _ in range(4):
+            await page.keyboard.press("ArrowRight")
+        await page.click("#tuning-revert")
+        await wait_for(lambda: len(puts) == 1, 20, "the first write sent")
+        sim.param_drop = 0.0  # its next try is echoed, then the revert's write
+        await page.wait_for_function(
+            "document.querySelector('#tuning-message').textContent.includes('reverted')", timeout=30_000
+        )
+        message = await page.text_content("#tuning-message")
+        assert "not sent: ATC_RAT_RLL_P = 0.14" in message, message
+        await page.wait_for_function(
+            f"!document.querySelector('{ROW} td.result').className.includes('pending')", timeout=20_000
+        )
+        assert len(puts) == 1, puts
+        assert abs(sim.params["ATC_RAT_RLL_P"] - start) < 1e-6
+        assert abs(sim.params["ATC_RAT_PIT_P"] - pitch) < 1e-6
     assert errors == [], errors
