@@ -41,6 +41,12 @@ class RateLimited(TuningRefused):
     """A write refused only because it came too soon; the same write may succeed later."""
 
 
+class StaleValue(TuningRefused):
+    """A write based on a value the parameter no longer has: another page, a script or the vehicle
+    changed it since the writer last looked. Written anyway, a slider on a page that had not yet
+    seen another page's write put the old value back (within the step limit)."""
+
+
 class ProfileError(ValueError):
     """A tuning profile file that is not valid; the message names the file and the entry."""
 
@@ -258,8 +264,10 @@ class TuningSession:
         self.table_snapshot = self.params.values()
         self.started = time.time()
 
-    async def set(self, name: str, value: float, client: str) -> Param:
-        """A verified write of one profile parameter, or TuningRefused / ParamError saying why not."""
+    async def set(self, name: str, value: float, client: str, expected: float | None = None) -> Param:
+        """A verified write of one profile parameter, or TuningRefused / ParamError saying why not.
+        `expected`: the value the writer saw and chose `value` from (a page's slider is centred on
+        it); when the vehicle's value is another now, StaleValue and nothing is written."""
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
         link = self.params.link
         if link.state != LinkState.CONNECTED:
@@ -274,6 +282,11 @@ class TuningSession:
             # the vehicle's value, not the table's: after a write it took without echo, a step
             # from the table's older value moved the gain by up to twice the largest step
             known = await self.params.read(name)
+        if expected is not None and not same_value(known.value, expected):
+            raise StaleValue(
+                f"{name}: not written: it is {format_value(known.value)} now, not the {format_value(expected)} "
+                f"this write was based on (changed by another page, a script or the vehicle); look again and retry"
+            )
         self.profile.check(name, value, known.value)
         self.limiter.take(name)
         self.written.add(name)  # even if the write fails: the vehicle may have taken it

@@ -31,6 +31,7 @@ function onMessage(msg) {
   if (msg.type === "points") ingestFrame(msg);
   else if (msg.type === "gain") showGain(msg.estimator, msg.gain, msg.new);
   else if (msg.type === "preset") showPreset(msg.estimator, msg.preset);
+  else if (msg.type === "param value") document.dispatchEvent(new CustomEvent("gcs:param", { detail: msg }));  // panels.js
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
 

@@ -34,6 +34,17 @@ function oneAtATime(refresh) {
   let pending = null;
   return () => { pending ??= refresh().finally(() => { pending = null; }); return pending; };
 }
+// A refresh that, asked while one is on its way, runs once more after it: that one may carry an
+// answer from before what the caller just learnt of.
+function andAgain(refresh) {
+  let pending = null, again = false;
+  const run = () => {
+    if (pending) { again = true; return pending; }
+    pending = refresh().finally(() => { pending = null; if (again) { again = false; run(); } });
+    return pending;
+  };
+  return run;
+}
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
 const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, sessions: [], whatif: null });
 
@@ -156,6 +167,7 @@ function tuningRow(table, row) {
 
 const WRITE_RESULT = {
   409: ["mismatch", "the vehicle stored another value"],
+  412: ["stale", "changed elsewhere"],
   422: ["refused", "refused"],
   429: ["ratelimited", "rate-limited"],
   504: ["timeout", "no answer from the vehicle"],
@@ -186,7 +198,9 @@ async function queueWrite(name, value) {
 async function writeParam(name, value) {
   const r = tuningRows[name];
   r.result.className = "result pending"; r.result.textContent = `writing ${num(value)}…`;
-  const res = await call("PUT", `/api/tuning/${encodeURIComponent(name)}`, { value });
+  // the value this write was chosen from: the server refuses it (412) if the gain holds another now
+  // (another page's write this page had not yet shown), rather than put the old value back
+  const res = await call("PUT", `/api/tuning/${encodeURIComponent(name)}`, { value, expected: r.spec?.current ?? null });
   let text, kind;
   if (res.ok) {
     kind = "verified";
@@ -418,6 +432,10 @@ async function initPanels() {
   $("param-download-btn").addEventListener("click", startDownload);
   $("tuning-revert").addEventListener("click", revertAll);
   $("tuning-refresh").addEventListener("click", refreshTuning);
+  // a tuned gain's new value, whoever wrote it (pushed over /ws/live by dashboard.js): shown now,
+  // not at the next poll, so that a slider here moves from it
+  const tuningNow = andAgain(refreshTuning);
+  document.addEventListener("gcs:param", (e) => { if (panelState.tab === "tuning" && tuningRows[e.detail.name]) tuningNow(); });
   $("rec-start").addEventListener("click", () => recordingAction("/api/recording/start", undefined, "recording started"));
   $("rec-stop").addEventListener("click", () => recordingAction("/api/recording/stop", undefined, "recording stopped; the session is in the list below"));
   $("rec-note-btn").addEventListener("click", async () => {
