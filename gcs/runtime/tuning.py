@@ -269,13 +269,7 @@ class TuningSession:
         `expected`: the value the writer saw and chose `value` from (a page's slider is centred on
         it); when the vehicle's value is another now, StaleValue and nothing is written."""
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
-        link = self.params.link
-        if link.state != LinkState.CONNECTED:
-            # ParamClient waits up to 10 s for the link: the gain then changed whenever it came
-            # back, seconds after the click, the page saying "writing…" all along
-            raise TuningRefused(
-                f"{name}: not written: the link to the vehicle is {link.state}; try again when it is back"
-            )
+        self._connected(f"{name}: not written")
         await self.start()
         known = self.params.table.get(name)
         if known is None or self._unechoed(name, known):
@@ -305,10 +299,12 @@ class TuningSession:
     async def revert(self, client: str) -> list[Param]:
         """Write back the pre-flight value of every profile parameter that differs from it now (or
         that this session wrote), each verified. Raises ParamError listing those that failed,
-        after trying them all: a ParamTimeout when the vehicle answered none of them (a link that
-        went down is no refusal: the REST answer was 422, "refused", for it)."""
+        after trying them all: a ParamTimeout when the vehicle answered none of them (a timeout
+        is no refusal: the REST answer was 422, "refused", for it). While the link is not
+        connected, TuningRefused at once (and for each write left when it goes during the revert)."""
         if self.started is None:
             return []
+        self._connected("not reverted, nothing written")
         restored: list[Param] = []
         failed: list[ParamError] = []
         for name, value in self.preflight.items():
@@ -316,6 +312,7 @@ class TuningSession:
             if name not in self.written and known is not None and same_value(known.value, value):
                 continue
             try:
+                self._connected(f"{name}: not written")  # a link lost during the revert
                 restored.append(await self._write(name, value, client))
                 self.written.discard(name)
             except ParamError as exc:
@@ -324,6 +321,14 @@ class TuningSession:
             kind = ParamTimeout if all(isinstance(exc, ParamTimeout) for exc in failed) else ParamError
             raise kind(f"revert incomplete ({len(restored)} restored): " + "; ".join(map(str, failed)))
         return restored
+
+    def _connected(self, what: str) -> None:
+        """TuningRefused saying `what` while the link is not connected. ParamClient waits up to 10 s
+        for the link: a write then changed the gain whenever it came back, seconds after the click,
+        the page saying "writing…" all along, and a revert waited 10 s per parameter to fail."""
+        link = self.params.link
+        if link.state != LinkState.CONNECTED:
+            raise TuningRefused(f"{what}: the link to the vehicle is {link.state}; try again when it is back")
 
     def _unechoed(self, name: str, known: Param) -> bool:
         """Is the table's entry for name still the one it had when a write of it got no echo?"""
