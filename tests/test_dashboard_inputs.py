@@ -409,3 +409,50 @@ async def zoom_says_live(page) -> None:
     await page.click("#pause")
     await page.wait_for_function("gcsPlots.view === null", polling=POLL_MS, timeout=20_000)
     assert await page.text_content("#pause") == "pause"
+
+
+def test_a_plain_text_refusal_shows_its_reason(udp_port):
+    asyncio.run(asyncio.wait_for(plain_refusal_scenario(udp_port), 240))
+
+
+async def plain_refusal_scenario(udp_port: int) -> None:
+    """The request guard's refusals are plain text, not FastAPI's JSON: a note from another origin
+    (the page's request sent on with another site's Origin, the server's answer given back to the
+    page) and a gain write are refused, and the page shows the server's reason for each. The old
+    page showed "HTTP 403" and "403"."""
+    errors: list[str] = []
+    async with (
+        running_station(f"udpin:127.0.0.1:{udp_port}") as station,  # no vehicle needed
+        dashboard(station, viser=False) as server,
+        async_playwright() as pw,
+    ):
+        browser = await launch_chromium(pw)
+        page = await open_page(browser, errors)
+        await open_dashboard(page, server.url, PANELS_READY)
+        await page.click("#tabs button[data-tab=sessions]")
+        message = page.locator("#rec-message")
+
+        async def foreign(route) -> None:  # sent by Playwright's own client (Chromium sets Origin itself)
+            answer = await route.fetch(headers={**route.request.headers, "origin": "http://elsewhere.example"})
+            await route.fulfill(response=answer)
+
+        await page.route("**/api/recording/note", foreign)
+        await page.fill("#rec-note", "gusty")
+        await page.click("#rec-note-btn")
+        await message.filter(has_text="✗").wait_for(timeout=20_000)
+        assert await message.text_content() == "✗ refused: requests from another web page's origin are not accepted"
+        # ... and a gain write (dashboard.js's requests), refused the same way
+        await page.route("**/api/estimators/dcm/gains/*", foreign)
+        await page.click("#tabs button[data-tab=live]")
+        box = page.locator(GAIN_BOX)
+        await box.fill("1")
+        await box.press("Tab")
+        why = page.locator(
+            "#gains details:has(summary[data-estimator=dcm]) .gain:has(input[data-gain=mag_dip_tol]) .why"
+        )
+        await why.filter(has_text="✗").wait_for(timeout=20_000)
+        assert "✗ 1 refused: refused: requests from another web page's origin are not accepted; kept" in (
+            await why.text_content()
+        )
+        await browser.close()
+    assert [e for e in errors if "status of 403" not in e] == [], errors

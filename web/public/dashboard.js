@@ -12,8 +12,8 @@ async function api(method, path, body, timeoutMs) {
   const headers = { "Content-Type": "application/json" };
   const signal = timeoutMs ? AbortSignal.timeout(timeoutMs) : undefined;
   const res = await fetch(vehicleUrl(path), { method, headers, signal, body: body === undefined ? undefined : JSON.stringify(body) });
-  const data = await res.json().catch(() => ({}));
-  if (!res.ok) throw new Error(typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail || res.status));
+  const { data, message } = await readAnswer(res);
+  if (!res.ok) throw new Error(message);
   return data;
 }
 

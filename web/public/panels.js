@@ -1,22 +1,15 @@
 // The side panels besides the live view: vehicle tuning (/api/tuning, /api/params), recording and
 // sessions (/api/recording, /api/sessions, export and replay links) and what-if
-// (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js.
+// (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js,
+// readAnswer from answer.js.
 "use strict";
 
-// One request, never throwing: {ok, status, data, message} (message: the server's detail).
+// One request, never throwing: {ok, status, data, message} (message: the server's reason, readAnswer).
 async function call(method, path, body) {
   const headers = { "Content-Type": "application/json" };
   try {
     const res = await fetch(vehicleUrl(path), { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
-    const data = await res.json().catch(() => ({}));
-    let message = "";
-    if (!res.ok) {
-      const d = data.detail;
-      message = typeof d === "string" ? d
-        : Array.isArray(d) ? d.map((x) => `${(x.loc || []).slice(1).join(".")}: ${x.msg}`).join("; ")
-        : `HTTP ${res.status}`;
-    }
-    return { ok: res.ok, status: res.status, data, message };
+    return { ok: res.ok, status: res.status, ...(await readAnswer(res)) };
   } catch (e) {
     return { ok: false, status: 0, data: {}, message: `server unreachable (${e.message})` };
   }
