@@ -456,3 +456,36 @@ async def plain_refusal_scenario(udp_port: int) -> None:
         )
         await browser.close()
     assert [e for e in errors if "status of 403" not in e] == [], errors
+
+
+def test_the_3d_view_follows_a_new_viser_port(udp_port, tcp_port):
+    asyncio.run(asyncio.wait_for(viser_port_scenario(udp_port, tcp_port), 240))
+
+
+async def viser_port_scenario(udp_port: int, port: int) -> None:
+    """The station's server restarted under an open page on the same port, its 3-D view on another
+    (its old one taken, say): the page's 3-D frame follows the port /api/status publishes. The old
+    page kept the first port it was given, the frame on a server that is gone."""
+    errors: list[str] = []
+    first, second = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    src = "document.getElementById('pose').getAttribute('src') || ''"
+    async with running_station(f"udpin:127.0.0.1:{udp_port}") as station, async_playwright() as pw:
+        server = DashboardServer(station, port=port, viser_port=first)
+        await server.start()
+        try:
+            browser = await launch_chromium(pw)
+            page = await open_page(browser, errors)
+            await open_dashboard(page, server.url, f"({src}).includes(':{first}/')")
+        finally:
+            await server.stop()
+        server = DashboardServer(station, port=port, viser_port=second, token=server.token)
+        await server.start()
+        try:
+            try:
+                await page.wait_for_function(f"({src}).includes(':{second}/')", polling=POLL_MS, timeout=30_000)
+            except PlaywrightTimeout:
+                raise AssertionError(f"the 3-D frame shows {await page.evaluate(src)!r}") from None
+            await browser.close()
+        finally:
+            await server.stop()
+    assert [e for e in errors if "ERR_CONNECTION_REFUSED" not in e] == [], errors
