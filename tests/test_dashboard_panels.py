@@ -426,7 +426,6 @@ async def two_pages_scenario(udp_port: int) -> None:
 
         await other.evaluate("gcsWs.onclose = null; gcsWs.close()")  # B hears no more
         second = round(start + 0.02, 4)
-        await page.wait_for_selector(f"{ROW} td.result.pending", state="detached", timeout=30_000)
         await set_number(page, f"{ROW} input[type=number]", second)
         await page.wait_for_function(f"document.querySelector('{ROW} td.result').textContent.includes('→ {second}')")
         assert abs(sim.params["ATC_RAT_RLL_P"] - second) < 1e-6
