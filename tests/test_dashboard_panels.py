@@ -11,7 +11,7 @@ import os
 
 import pyarrow.parquet as pq
 import pytest
-from live import CHROMIUM, CHROMIUM_ARGS, running_sim, running_station, sim_process, wait_for
+from live import CHROMIUM, CHROMIUM_ARGS, PANELS_READY, running_sim, running_station, sim_process, wait_for
 from playwright.async_api import TimeoutError as PlaywrightTimeout
 from playwright.async_api import async_playwright
 
@@ -285,7 +285,7 @@ ROW, CURRENT = "tr.tune-edit[data-param=ATC_RAT_RLL_P]", "#tuning-table tr.tune[
 @contextlib.asynccontextmanager
 async def tuning_tab(udp_port: int, errors: list[str]):
     """A station, the pixhawk simulator and a page on the Tuning tab with the parameters downloaded:
-    (the simulator, the page)."""
+    (the simulator, the page, the start-up URL with the token)."""
     async with (
         running_station(f"udpin:127.0.0.1:{udp_port}") as station,
         running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad") as sim,
@@ -301,7 +301,7 @@ async def tuning_tab(udp_port: int, errors: list[str]):
                 await page.wait_for_function(
                     f"(document.querySelector('{CURRENT}')?.textContent || '–') !== '–'", timeout=30_000
                 )
-                yield sim, page
+                yield sim, page, server.url
                 await browser.close()
         finally:
             await server.stop()
@@ -314,7 +314,7 @@ async def unechoed_scenario(udp_port: int, artifacts_dir) -> None:
     showed the old value as current, the row unchanged and "Revert all" disabled, with the new
     gain on the vehicle."""
     errors: list[str] = []
-    async with tuning_tab(udp_port, errors) as (sim, page):
+    async with tuning_tab(udp_port, errors) as (sim, page, _):
         start = sim.params["ATC_RAT_RLL_P"]
         assert await page.is_disabled("#tuning-revert")
         sim.param_drop = 1.0
@@ -356,7 +356,7 @@ async def revert_queued_scenario(udp_port: int) -> None:
     pre-flight value. The queued value was written after the revert, which the page had
     reported "reverted and verified"."""
     errors: list[str] = []
-    async with tuning_tab(udp_port, errors) as (sim, page):
+    async with tuning_tab(udp_port, errors) as (sim, page, _):
         start = sim.params["ATC_RAT_RLL_P"]
         puts: list[str] = []
         page.on("request", lambda r: r.method == "PUT" and puts.append(r.post_data))
@@ -389,3 +389,52 @@ async def revert_queued_scenario(udp_port: int) -> None:
         assert abs(sim.params["ATC_RAT_RLL_P"] - start) < 1e-6
         assert abs(sim.params["ATC_RAT_PIT_P"] - pitch) < 1e-6
     assert errors == [], errors
+
+
+# ---- two pages on the Tuning tab -------------------------------------------------------------
+def test_a_second_tuning_page_follows_and_cannot_undo_a_write(udp_port):
+    asyncio.run(asyncio.wait_for(two_pages_scenario(udp_port), 240))
+
+
+async def two_pages_scenario(udp_port: int) -> None:
+    """Page B's timers are paused (no poll of its own runs): it shows page A's write at once, pushed
+    over /ws/live. With its WebSocket closed it no longer hears, and a slider move there, made from
+    the value it last saw, is refused ("not written") instead of putting that value back. The old
+    page B showed A's write only at its 5-s poll, and its slider move undid it."""
+    errors: list[str] = []
+    async with tuning_tab(udp_port, errors) as (sim, page, url):
+        start = sim.params["ATC_RAT_RLL_P"]
+        other = await page.context.browser.new_page(viewport={"width": 1500, "height": 1000})
+        other.on("pageerror", lambda e: errors.append(str(e)))
+        await other.clock.install()
+        await other.goto(url)
+        await other.wait_for_function(PANELS_READY)
+        await other.click("#tabs button[data-tab=tuning]")
+        await other.wait_for_function(f"(document.querySelector('{CURRENT}')?.textContent || '–') !== '–'")
+        await other.clock.pause_at(await other.evaluate("Date.now() + 1"))
+
+        first = round(start + 0.01, 4)
+        await set_number(page, f"{ROW} input[type=number]", first)
+        await page.wait_for_selector(f"{ROW} td.result.verified", timeout=30_000)
+        shows = f"Math.abs(Number(document.querySelector('{CURRENT}').textContent) - %s) < 1e-5"
+        try:
+            await other.wait_for_function(shows % first, timeout=20_000)
+        except PlaywrightTimeout:
+            raise AssertionError(f"page B still shows {await other.text_content(CURRENT)!r}") from None
+        lo, hi = await other.locator(f"{ROW} input[type=range]").evaluate("el => [Number(el.min), Number(el.max)]")
+        assert abs((lo + hi) / 2 - first) < 1e-5, (lo, hi)  # its slider moves from the new value
+
+        await other.evaluate("gcsWs.onclose = null; gcsWs.close()")  # B hears no more
+        second = round(start + 0.02, 4)
+        await set_number(page, f"{ROW} input[type=number]", second)
+        await page.wait_for_function(f"document.querySelector('{ROW} td.result').textContent.includes('→ {second}')")
+        assert abs(sim.params["ATC_RAT_RLL_P"] - second) < 1e-6
+        await other.locator(f"{ROW} input[type=range]").evaluate(
+            f"el => {{ el.value = {start}; el.dispatchEvent(new Event('change', {{bubbles: true}})); }}"
+        )
+        await other.wait_for_selector(f"{ROW} td.result.stale, {ROW} td.result.verified", timeout=30_000)
+        text = await other.text_content(f"{ROW} td.result")
+        assert "changed elsewhere" in text and f"it is {second} now" in text, text
+        assert abs(sim.params["ATC_RAT_RLL_P"] - second) < 1e-6  # A's write stands
+        await other.wait_for_function(shows % second, timeout=20_000)  # and B shows it now
+    assert unexpected_errors(errors, (412,)) == [], errors

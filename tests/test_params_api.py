@@ -4,6 +4,7 @@ the token is required for every change when the server is reachable from other m
 from __future__ import annotations
 
 import asyncio
+import time
 
 import httpx
 from conftest import free_port
@@ -120,9 +121,11 @@ def test_a_loopback_server_needs_the_token_too():
 
 
 def test_a_revert_the_vehicle_never_answers_is_a_timeout_not_a_refusal():
-    """The vehicle gone after a tuning write (its link lost): POST /api/tuning/revert answered 422,
-    the code of a value the vehicle or the profile refused, and the page said "refused" for writes
-    that got no answer at all. Now 504, "no answer from the vehicle"."""
+    """A vehicle that takes no write (every PARAM_VALUE lost) after a tuning write: POST
+    /api/tuning/revert answered 422, the code of a value the vehicle or the profile refused, and
+    the page said "refused" for writes that got no answer at all. Now 504, "no answer from the
+    vehicle". With the link lost, though, nothing is sent: the revert is refused at once (422,
+    saying so); it waited 10 s per changed parameter for a heartbeat, then answered 504."""
 
     async def scenario():
         port = free_port()
@@ -130,16 +133,25 @@ def test_a_revert_the_vehicle_never_answers_is_a_timeout_not_a_refusal():
             app, client = await _client(station, TOKEN)
             auth = {TOKEN_HEADER: TOKEN}
             async with client:
-                async with running_sim(f"udpout:127.0.0.1:{port}", profile="apm25"):
+                async with running_sim(f"udpout:127.0.0.1:{port}", profile="apm25") as sim:
                     assert await station.link.wait_connected(10)
                     await client.post("/api/params/download", headers=auth)
                     await wait_for(lambda: station.params.complete, 20, "the download")
                     wrote = await client.put("/api/tuning/RATE_RLL_P", json={"value": 0.16}, headers=auth)
                     assert wrote.status_code == 200, wrote.text
+                    sim.param_drop = 1.0
+                    unanswered = await client.post("/api/tuning/revert", headers=auth)
                 await wait_for(lambda: station.link.state == LinkState.LOST, 10, "the vehicle lost")
-                return await client.post("/api/tuning/revert", headers=auth)
+                asked = time.monotonic()
+                lost = await client.post("/api/tuning/revert", headers=auth)
+                return unanswered, lost, time.monotonic() - asked
 
-    reverted = asyncio.run(asyncio.wait_for(scenario(), 90))
-    assert reverted.status_code == 504, reverted.text
-    detail = reverted.json()["detail"]
-    assert detail.startswith("revert incomplete (0 restored): no heartbeat from a vehicle on udpin:"), detail
+    unanswered, lost, took = asyncio.run(asyncio.wait_for(scenario(), 90))
+    assert unanswered.status_code == 504, unanswered.text
+    detail = unanswered.json()["detail"]
+    assert detail.startswith("revert incomplete (0 restored): RATE_RLL_P: no echo after 3 writes"), detail
+    assert lost.status_code == 422, lost.text
+    assert lost.json()["detail"] == (
+        "not reverted, nothing written: the link to the vehicle is lost; try again when it is back"
+    )
+    assert took < 2.0, took

@@ -110,6 +110,27 @@ def test_ardupilot_write_is_verified_and_logged():
     asyncio.run(asyncio.wait_for(scenario(), 30))
 
 
+def test_a_value_the_vehicle_reports_changed_is_an_event():
+    """A parameter the vehicle reports with a new value, whoever changed it (here the vehicle
+    itself, as an autotune or a compass calibration does), is a "param value" event: the server
+    pushes it to every page (a second Tuning tab showed it only at its next poll). One the same
+    as before is none, so a download of the whole table makes no events."""
+
+    async def scenario():
+        async with station_and_sim("apm25") as (station, sim):
+            params = station.params
+            before = (await params.read("RATE_RLL_P")).value
+            await params.read("RATE_PIT_P")
+            sim.params["RATE_RLL_P"] = 0.16
+            await params.read("RATE_RLL_P")
+            return before, [e.as_dict() for e in station.events.recent if e.kind == "param value"]
+
+    before, events = asyncio.run(asyncio.wait_for(scenario(), 30))
+    assert [(e["client"], e["name"], e["old"], e["new"]) for e in events] == [
+        ("vehicle", "RATE_RLL_P", before, pytest.approx(0.16))
+    ]
+
+
 def test_vehicle_storing_another_value_is_an_error_not_silence():
     async def scenario():
         async with station_and_sim("pixhawk", param_clamp={"ATC_RAT_RLL_P": 0.15}) as (station, sim):

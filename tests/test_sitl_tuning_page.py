@@ -95,22 +95,28 @@ def test_a_write_while_the_link_is_lost_is_refused_at_once(sitl):  # noqa: F811
 
 
 async def lost_link_scenario(port: int) -> None:
-    """SITL stopped (SIGSTOP: the link lost, the vehicle's socket kept): a gain write is refused
-    at once, saying why, and nothing reaches the vehicle when it is back. The write waited up to
-    10 s for a heartbeat and was made whenever the link came back, seconds after the click."""
+    """SITL stopped (SIGSTOP: the link lost, the vehicle's socket kept): a gain write and "Revert
+    all" are refused at once, saying why, and nothing reaches the vehicle when it is back. The
+    write waited up to 10 s for a heartbeat and was made whenever the link came back, seconds
+    after the click; the revert waited 10 s per changed parameter, then failed with a 504."""
     async with running_station(f"tcp:127.0.0.1:{port}") as station, served_api(station) as api:
         await wait_for(lambda: station.link.target_system is not None, 60, "SITL's heartbeat")
         assert (await api.post("/api/params/download")).status_code == 202
         await wait_for(lambda: station.params.complete, 120, "the parameter table")
         tuning = (await api.get("/api/tuning")).json()
-        start = next(p["current"] for p in tuning["params"] if p["name"] == "ATC_RAT_RLL_P")
+        start = {p["name"]: p["current"] for p in tuning["params"]}
+        changed = {name: round(start[name] + 0.01, 4) for name in ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P")}
+        for name, value in changed.items():  # two changes for the revert
+            assert (await api.put(f"/api/tuning/{name}", json={"value": value})).status_code == 200
         pid = PROCESSES[port].pid
         os.kill(pid, signal.SIGSTOP)
         try:
             await wait_for(lambda: station.link.state == "lost", 30, "the link lost")
-            value = {"value": round(start + 0.01, 4)}
+            value = {"value": round(changed["ATC_RAT_RLL_P"] + 0.01, 4)}
             write = asyncio.create_task(api.put("/api/tuning/ATC_RAT_RLL_P", json=value, timeout=60))
             await wait_for(write.done, 5, "the write's answer while the link is lost")
+            revert = asyncio.create_task(api.post("/api/tuning/revert", timeout=60))
+            await wait_for(revert.done, 5, "the revert's answer while the link is lost")
         finally:
             os.kill(pid, signal.SIGCONT)
         answer = write.result()
@@ -119,5 +125,12 @@ async def lost_link_scenario(port: int) -> None:
             answer.json()["detail"]
             == "ATC_RAT_RLL_P: not written: the link to the vehicle is lost; try again when it is back"
         )
+        answer = revert.result()
+        assert answer.status_code == 422, answer.text
+        assert (
+            answer.json()["detail"]
+            == "not reverted, nothing written: the link to the vehicle is lost; try again when it is back"
+        )
         await wait_for(lambda: station.link.state == "connected", 30, "the link back")
-        assert (await station.params.read("ATC_RAT_RLL_P")).value == pytest.approx(start)
+        for name, value in changed.items():
+            assert (await station.params.read(name)).value == pytest.approx(value)

@@ -84,7 +84,10 @@ class ParamClient:
     """The parameter table of the link's vehicle and the protocol to read and write it.
 
     Run `run()` as a task (Station does); then `download()`, `read()`, `set()`.
-    `events`: where every write is recorded (kind "param": name, old, new, asked, verified).
+    `events`: where every write is recorded (kind "param": name, old, new, asked, verified), and
+    every new value the vehicle reports of a parameter already known (kind "param value": name,
+    old, new), whoever changed it: this station, another ground station behind a forwarding
+    output, or the vehicle itself. Pages follow these to show a value as soon as it changes.
     """
 
     def __init__(
@@ -183,6 +186,8 @@ class ParamClient:
             index = known.index
         param = Param(name, decode(raw, msg.param_type, self.bytewise), msg.param_type, index)
         self.table[name] = param
+        if known is not None and not same_value(known.value, param.value):
+            self.events.record("param value", "vehicle", name=name, old=known.value, new=param.value)
         if msg.param_index != _NO_INDEX:
             self.count = msg.param_count
             if index is not None and self._progress["state"] == "downloading":

@@ -41,6 +41,12 @@ class RateLimited(TuningRefused):
     """A write refused only because it came too soon; the same write may succeed later."""
 
 
+class StaleValue(TuningRefused):
+    """A write based on a value the parameter no longer has: another page, a script or the vehicle
+    changed it since the writer last looked. Written anyway, a slider on a page that had not yet
+    seen another page's write put the old value back (within the step limit)."""
+
+
 class ProfileError(ValueError):
     """A tuning profile file that is not valid; the message names the file and the entry."""
 
@@ -258,22 +264,23 @@ class TuningSession:
         self.table_snapshot = self.params.values()
         self.started = time.time()
 
-    async def set(self, name: str, value: float, client: str) -> Param:
-        """A verified write of one profile parameter, or TuningRefused / ParamError saying why not."""
+    async def set(self, name: str, value: float, client: str, expected: float | None = None) -> Param:
+        """A verified write of one profile parameter, or TuningRefused / ParamError saying why not.
+        `expected`: the value the writer saw and chose `value` from (a page's slider is centred on
+        it); when the vehicle's value is another now, StaleValue and nothing is written."""
         self.profile.spec(name)  # refuse other parameters before touching the vehicle
-        link = self.params.link
-        if link.state != LinkState.CONNECTED:
-            # ParamClient waits up to 10 s for the link: the gain then changed whenever it came
-            # back, seconds after the click, the page saying "writing…" all along
-            raise TuningRefused(
-                f"{name}: not written: the link to the vehicle is {link.state}; try again when it is back"
-            )
+        self._connected(f"{name}: not written")
         await self.start()
         known = self.params.table.get(name)
         if known is None or self._unechoed(name, known):
             # the vehicle's value, not the table's: after a write it took without echo, a step
             # from the table's older value moved the gain by up to twice the largest step
             known = await self.params.read(name)
+        if expected is not None and not same_value(known.value, expected):
+            raise StaleValue(
+                f"{name}: not written: it is {format_value(known.value)} now, not the {format_value(expected)} "
+                f"this write was based on (changed by another page, a script or the vehicle); look again and retry"
+            )
         self.profile.check(name, value, known.value)
         self.limiter.take(name)
         self.written.add(name)  # even if the write fails: the vehicle may have taken it
@@ -292,10 +299,12 @@ class TuningSession:
     async def revert(self, client: str) -> list[Param]:
         """Write back the pre-flight value of every profile parameter that differs from it now (or
         that this session wrote), each verified. Raises ParamError listing those that failed,
-        after trying them all: a ParamTimeout when the vehicle answered none of them (a link that
-        went down is no refusal: the REST answer was 422, "refused", for it)."""
+        after trying them all: a ParamTimeout when the vehicle answered none of them (a timeout
+        is no refusal: the REST answer was 422, "refused", for it). While the link is not
+        connected, TuningRefused at once (and for each write left when it goes during the revert)."""
         if self.started is None:
             return []
+        self._connected("not reverted, nothing written")
         restored: list[Param] = []
         failed: list[ParamError] = []
         for name, value in self.preflight.items():
@@ -303,6 +312,7 @@ class TuningSession:
             if name not in self.written and known is not None and same_value(known.value, value):
                 continue
             try:
+                self._connected(f"{name}: not written")  # a link lost during the revert
                 restored.append(await self._write(name, value, client))
                 self.written.discard(name)
             except ParamError as exc:
@@ -311,6 +321,14 @@ class TuningSession:
             kind = ParamTimeout if all(isinstance(exc, ParamTimeout) for exc in failed) else ParamError
             raise kind(f"revert incomplete ({len(restored)} restored): " + "; ".join(map(str, failed)))
         return restored
+
+    def _connected(self, what: str) -> None:
+        """TuningRefused saying `what` while the link is not connected. ParamClient waits up to 10 s
+        for the link: a write then changed the gain whenever it came back, seconds after the click,
+        the page saying "writing…" all along, and a revert waited 10 s per parameter to fail."""
+        link = self.params.link
+        if link.state != LinkState.CONNECTED:
+            raise TuningRefused(f"{what}: the link to the vehicle is {link.state}; try again when it is back")
 
     def _unechoed(self, name: str, known: Param) -> bool:
         """Is the table's entry for name still the one it had when a write of it got no echo?"""

@@ -126,7 +126,13 @@ def follow(station: StationFacade, hub: LiveHub) -> None:
     station.events.recorded.connect(lambda event: forward_gain_event(hub, event))
 
 
+#: Events every page hears of at once: a gain change or a reset to a preset, whichever UI made it,
+#: and a new value of a vehicle parameter, whoever wrote it (a second Tuning tab learnt of another
+#: page's write only at its next poll, up to 5 s later, and could write the old value back).
+FORWARDED = ("gain", "preset", "param value")
+
+
 def forward_gain_event(hub: LiveHub, event: Event) -> None:
-    """Every page learns of a gain change or a reset to a preset, whichever UI made it."""
-    if event.kind in ("gain", "preset"):
+    """Every page learns of the FORWARDED events, in order with the points."""
+    if event.kind in FORWARDED:
         hub.broadcast({"type": event.kind, **event.as_dict()})

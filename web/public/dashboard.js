@@ -12,8 +12,8 @@ async function api(method, path, body, timeoutMs) {
   const headers = { "Content-Type": "application/json" };
   const signal = timeoutMs ? AbortSignal.timeout(timeoutMs) : undefined;
   const res = await fetch(vehicleUrl(path), { method, headers, signal, body: body === undefined ? undefined : JSON.stringify(body) });
-  const data = await res.json().catch(() => ({}));
-  if (!res.ok) throw new Error(typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail || res.status));
+  const { data, message } = await readAnswer(res);
+  if (!res.ok) throw new Error(message);
   return data;
 }
 
@@ -31,6 +31,7 @@ function onMessage(msg) {
   if (msg.type === "points") ingestFrame(msg);
   else if (msg.type === "gain") showGain(msg.estimator, msg.gain, msg.new);
   else if (msg.type === "preset") showPreset(msg.estimator, msg.preset);
+  else if (msg.type === "param value") document.dispatchEvent(new CustomEvent("gcs:param", { detail: msg }));  // panels.js
   else if (msg.type === "client") { gcsStats.client = msg; gcsStats.dropped = msg.dropped_points; }
 }
 
@@ -115,12 +116,16 @@ function showStatus(s) {
   $("streams").innerHTML = `<table><tr><th>stream (${l.stream_method || "?"})</th><th>requested Hz</th><th>achieved Hz</th></tr>${rows.join("")}`
     + `<tr><th>estimator</th><th>IMU rate</th><th>health</th></tr>${est.join("")}</table>`
     + `<div class="note">lag +20 ms = estimator 20 ms behind onboard ATTITUDE (negative: ahead) · declination ${dec}</div>`;
-  const frame = $("pose");
-  if (s.viser_port && !frame.src) {
-    const software = softwareWebGL();
-    frame.src = `${location.protocol}//${location.hostname}:${s.viser_port}/${software ? "?fixedDpr=0.5" : ""}`;
+  // The 3-D view follows the port the server publishes now: a station restarted with another
+  // viser port (a new `gcs serve`, its old one taken) left the frame on the old, dead one.
+  const frame = $("pose"), port = s.viser_port ? String(s.viser_port) : "";
+  if (port !== (frame.dataset.port ?? "")) {
+    frame.dataset.port = port;
+    const software = port && softwareWebGL();
+    if (port) frame.src = `${location.protocol}//${location.hostname}:${port}/${software ? "?fixedDpr=0.5" : ""}`;
+    else frame.src = "about:blank";  // served without the 3-D view now
     // viser's own notice of it is hidden (gcs.server.scene): it covered a third of the view
-    if (software) $("pose-renderer").textContent = "Drawn without GPU acceleration (software WebGL), at half resolution.";
+    $("pose-renderer").textContent = software ? "Drawn without GPU acceleration (software WebGL), at half resolution." : "";
   }
   if (!s.authorised) {  // as the side panels' controls: a gain moved here could only be refused (401)
     $("gain-note").textContent = "Read-only: open the URL printed at start-up (with ?token=) to change gains.";

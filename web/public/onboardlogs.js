@@ -23,10 +23,19 @@
     }
   }
 
+  // A failed request (a 5xx, a network blip) is said once, after the last progress shown, and the
+  // following goes on: it stopped for good at the first one, the page frozen on a part-done download.
+  let failing = false;
   const poll = oneAtATime(async () => {
     const r = await call("GET", "/api/onboard-logs");
-    if (r.ok) show(r.data.progress);
-    if (!r.ok || !["listing", "downloading"].includes(r.data.progress.state)) {
+    if (!r.ok) {
+      if (!failing) status.textContent += ` · ${r.message}; still following`;
+      failing = true;
+      return;
+    }
+    failing = false;
+    show(r.data.progress);
+    if (!["listing", "downloading"].includes(r.data.progress.state)) {
       clearInterval(timer);
       timer = null;
       button.disabled = !canChange();  // a read-only page follows a download, it never starts one

@@ -1,22 +1,15 @@
 // The side panels besides the live view: vehicle tuning (/api/tuning, /api/params), recording and
 // sessions (/api/recording, /api/sessions, export and replay links) and what-if
-// (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js.
+// (/api/whatif), test protocols (/api/protocol). Uses api(), $, fmt and escapeHtml from dashboard.js,
+// readAnswer from answer.js.
 "use strict";
 
-// One request, never throwing: {ok, status, data, message} (message: the server's detail).
+// One request, never throwing: {ok, status, data, message} (message: the server's reason, readAnswer).
 async function call(method, path, body) {
   const headers = { "Content-Type": "application/json" };
   try {
     const res = await fetch(vehicleUrl(path), { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
-    const data = await res.json().catch(() => ({}));
-    let message = "";
-    if (!res.ok) {
-      const d = data.detail;
-      message = typeof d === "string" ? d
-        : Array.isArray(d) ? d.map((x) => `${(x.loc || []).slice(1).join(".")}: ${x.msg}`).join("; ")
-        : `HTTP ${res.status}`;
-    }
-    return { ok: res.ok, status: res.status, data, message };
+    return { ok: res.ok, status: res.status, ...(await readAnswer(res)) };
   } catch (e) {
     return { ok: false, status: 0, data: {}, message: `server unreachable (${e.message})` };
   }
@@ -33,6 +26,17 @@ function bytes(n) {
 function oneAtATime(refresh) {
   let pending = null;
   return () => { pending ??= refresh().finally(() => { pending = null; }); return pending; };
+}
+// A refresh that, asked while one is on its way, runs once more after it: that one may carry an
+// answer from before what the caller just learnt of.
+function andAgain(refresh) {
+  let pending = null, again = false;
+  const run = () => {
+    if (pending) { again = true; return pending; }
+    pending = refresh().finally(() => { pending = null; if (again) { again = false; run(); } });
+    return pending;
+  };
+  return run;
 }
 function say(id, text, kind = "") { const el = $(id); el.textContent = text; el.className = `message ${kind}`; }
 const panelState = (window.gcsPanels = { tab: "live", authorised: false, tuning: null, sessions: [], whatif: null });
@@ -156,6 +160,7 @@ function tuningRow(table, row) {
 
 const WRITE_RESULT = {
   409: ["mismatch", "the vehicle stored another value"],
+  412: ["stale", "changed elsewhere"],
   422: ["refused", "refused"],
   429: ["ratelimited", "rate-limited"],
   504: ["timeout", "no answer from the vehicle"],
@@ -186,7 +191,9 @@ async function queueWrite(name, value) {
 async function writeParam(name, value) {
   const r = tuningRows[name];
   r.result.className = "result pending"; r.result.textContent = `writing ${num(value)}…`;
-  const res = await call("PUT", `/api/tuning/${encodeURIComponent(name)}`, { value });
+  // the value this write was chosen from: the server refuses it (412) if the gain holds another now
+  // (another page's write this page had not yet shown), rather than put the old value back
+  const res = await call("PUT", `/api/tuning/${encodeURIComponent(name)}`, { value, expected: r.spec?.current ?? null });
   let text, kind;
   if (res.ok) {
     kind = "verified";
@@ -418,6 +425,10 @@ async function initPanels() {
   $("param-download-btn").addEventListener("click", startDownload);
   $("tuning-revert").addEventListener("click", revertAll);
   $("tuning-refresh").addEventListener("click", refreshTuning);
+  // a tuned gain's new value, whoever wrote it (pushed over /ws/live by dashboard.js): shown now,
+  // not at the next poll, so that a slider here moves from it
+  const tuningNow = andAgain(refreshTuning);
+  document.addEventListener("gcs:param", (e) => { if (panelState.tab === "tuning" && tuningRows[e.detail.name]) tuningNow(); });
   $("rec-start").addEventListener("click", () => recordingAction("/api/recording/start", undefined, "recording started"));
   $("rec-stop").addEventListener("click", () => recordingAction("/api/recording/stop", undefined, "recording stopped; the session is in the list below"));
   $("rec-note-btn").addEventListener("click", async () => {

@@ -118,9 +118,9 @@ async function load(params) {
   $("replay-title").textContent = `${source}: computing the replay in the worker process…`;
   gcsReplay.state = "loading";
   const res = await fetch(`/api/replay?${params}`);
-  const body = await res.json().catch(() => ({}));
+  const { data: body, message } = await readAnswer(res);
   if (!res.ok) {
-    gcsReplay.state = "error"; gcsReplay.error = typeof body.detail === "string" ? body.detail : `HTTP ${res.status}`;
+    gcsReplay.state = "error"; gcsReplay.error = message;
     $("replay-title").textContent = source; say(`✗ ${gcsReplay.error}`, "error");
     return;
   }

@@ -4,7 +4,8 @@ GET  /api/params            the table as known now and the download progress
 POST /api/params/download   start a full download (token)
 GET  /api/tuning            the tuning profile: limits, current and pre-flight value of each gain
                             (opens the session with the token; without it, reads an open one)
-PUT  /api/tuning/{name}     write one gain, checked against the profile and verified (token)
+PUT  /api/tuning/{name}     write one gain, checked against the profile and verified (token);
+                            with `expected`, only if the gain still holds that value
 POST /api/tuning/revert     put back every pre-flight value, verified (token)
 
 The tuning session (pre-flight snapshot, profile detected from the table) is opened by the
@@ -23,7 +24,14 @@ from pydantic import Field
 
 from gcs.mavlink.params import ParamError
 from gcs.runtime.params import ParamMismatch, ParamTimeout, UnknownParam
-from gcs.runtime.tuning import ProfileError, RateLimited, TuningRefused, TuningSession, TuningSnapshot
+from gcs.runtime.tuning import (
+    ProfileError,
+    RateLimited,
+    StaleValue,
+    TuningRefused,
+    TuningSession,
+    TuningSnapshot,
+)
 from gcs.server.deps import TOKEN, ClientDep, StationDep, is_authorised
 from gcs.server.models import Body
 from gcs.server.ratelimit import rate_limited
@@ -33,12 +41,19 @@ router = APIRouter(tags=["params"])
 
 class TunedValue(Body):
     value: float = Field(allow_inf_nan=False)
+    expected: float | None = Field(
+        default=None,
+        allow_inf_nan=False,
+        description="the value the writer last saw; if the parameter holds another now, 412 and nothing is written",
+    )
 
 
 def http_error(exc: Exception) -> HTTPException:
     """The status that tells a client what to do about each failure."""
     code = (
-        status.HTTP_429_TOO_MANY_REQUESTS
+        status.HTTP_412_PRECONDITION_FAILED
+        if isinstance(exc, StaleValue)
+        else status.HTTP_429_TOO_MANY_REQUESTS
         if isinstance(exc, RateLimited)
         else status.HTTP_422_UNPROCESSABLE_CONTENT
         if isinstance(exc, TuningRefused)
@@ -112,6 +127,7 @@ async def get_tuning(station: StationDep, request: Request) -> TuningSnapshot:
     responses={
         404: {"description": "unknown parameter"},
         409: {"description": "the vehicle stored another value"},
+        412: {"description": "not written: the parameter no longer holds `expected`"},
         422: {"description": "refused: not in the profile, out of bounds or too large a step"},
         429: {"description": "too soon after the previous write"},
         504: {"description": "the vehicle did not answer"},
@@ -120,7 +136,7 @@ async def get_tuning(station: StationDep, request: Request) -> TuningSnapshot:
 async def put_tuned(name: str, body: TunedValue, session: TuningDep, client: ClientDep) -> dict:
     old = session.params.table[name].value if name in session.params.table else None
     try:
-        stored = await session.set(name, body.value, client)
+        stored = await session.set(name, body.value, client, body.expected)
     except ParamError as exc:
         raise http_error(exc) from None
     return {"name": name, "old": old, "new": stored.value, "verified": True, "preflight": session.preflight.get(name)}

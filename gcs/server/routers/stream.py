@@ -6,7 +6,8 @@ estimator's error against onboard and truth), and a reconnecting page's gap (`si
 Messages on /ws/live:
 * binary: one message per client per send, every frame queued for it since the last one
   (`gcs.server.wire`: points as float arrays per source, vehicle seconds and degrees; a gain
-  change as a JSON frame `{"type":"gain",...}`, the event log record, in order with the points);
+  change as a JSON frame `{"type":"gain",...}`, the event log record, in order with the points;
+  likewise a reset to a preset and a vehicle parameter's new value, `{"type":"param value",...}`);
 * text, JSON: `{"type":"hello","client":ID,"history_s":S}` once, and
   `{"type":"client",...}`, this client's counters (sent, dropped), about once a second.
 """
