@@ -112,3 +112,41 @@ def test_a_ground_stations_heartbeats_are_not_counted_as_a_vehicles_packets(udp_
     stats = asyncio.run(scenario())
     assert stats.packets == 30 and stats.packets_lost == 29
     assert stats.loss_fraction == round(29 / 59, 5)
+
+
+def test_a_vehicles_packets_before_its_first_heartbeat_are_its_own(udp_port):
+    """A stream that starts with 3 ATTITUDE before the first HEARTBEAT (a vehicle heard mid-stream)
+    counted 30 packets of its 33 in `gcs status` and the page: the view counted from its bind, so
+    the loss % (over sequence numbers the link saw from the first packet) was over too few. Vehicle
+    2 also skips one sequence number among its first three."""
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{udp_port}", estimate=False, request_streams=False))
+        await fleet.start()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        beat = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mavlink.MAV_STATE_STANDBY, 3
+        )
+        attitude = mavlink.MAVLink_attitude_message(1000, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+        try:
+            await wait_for(lambda: fleet.links[0].is_open, 10, "the station's socket")
+            for sysid in (1, 2):
+                encoder = Encoder(sysid, 1)
+                for i in range(3):
+                    sock.sendto(encoder.encode(attitude), ("127.0.0.1", udp_port))
+                    if sysid == 2 and i == 0:
+                        encoder.mav.seq = (encoder.mav.seq + 1) % 256  # one lost before its heartbeat
+                    await asyncio.sleep(0.01)
+                for _ in range(30):
+                    sock.sendto(encoder.encode(beat), ("127.0.0.1", udp_port))
+                    await asyncio.sleep(0.01)
+            await wait_for(lambda: fleet.links[0].stats.framing.packets >= 66, 10, "all 66 packets")
+            return {s: fleet.vehicle(s).publish().link.stats for s in (1, 2)}  # type: ignore[union-attr]
+        finally:
+            sock.close()
+            await fleet.stop()
+
+    stats = asyncio.run(scenario())
+    assert stats[1].packets == 33 and stats[1].packets_lost == 0
+    assert stats[2].packets == 33 and stats[2].packets_lost == 1
+    assert stats[2].loss_fraction == round(1 / 34, 5)

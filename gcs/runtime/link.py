@@ -286,6 +286,12 @@ class Link:
         it as that system, its heartbeats going on as its own."""
         if old in self.vehicles_heard:
             self.vehicles_heard[new] = self.vehicles_heard.pop(old)
+        by_system = self.stats.by_system
+        if old in by_system:  # its packets under both ids are one vehicle's
+            counts = by_system.pop(old)
+            for msg_type, n in by_system.pop(new, {}).items():
+                counts[msg_type] = counts.get(msg_type, 0) + n
+            by_system[new] = counts
         if self.target_system == old:
             self.target_system = new
             self._event("state", f"the vehicle is system {new} now (was {old})")
@@ -353,7 +359,7 @@ class Link:
         which the link reads before publishing it as it did per message: what a state change
         sets off (a request sent, the recorder's drain before it records the send) sees every
         message before the heartbeat published, and who reads which type is asked again after."""
-        counts = self.stats.counts
+        counts, by_system = self.stats.counts, self.stats.by_system
         signing, outputs, bus, name = self.signing, self.outputs, self.bus, self.name
         decoded = self._read_modes()
         pending: list[Message] = []
@@ -362,6 +368,10 @@ class Link:
                 self._refuse_unsigned(msg_type, why)
                 continue
             counts[msg_type] = counts.get(msg_type, 0) + 1
+            own = by_system.get(sysid)
+            if own is None:
+                own = by_system[sysid] = {}
+            own[msg_type] = own.get(msg_type, 0) + 1
             msg = imu = None
             read = decoded.get(msg_type)
             if read is None:
