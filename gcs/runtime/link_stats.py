@@ -25,6 +25,13 @@ class LinkStats:
     window: float = 5.0  # s over which rates are measured
     _history: deque = field(default_factory=deque, repr=False)
 
+    def follow(self, counts: dict[str, int]) -> None:
+        """Count from `counts` (kept up to date elsewhere: a vehicle's system's on a shared link):
+        the rates start again, their history being of other counts."""
+        if counts is not self.counts:
+            self.counts = counts
+            self._history.clear()
+
     def sample(self, now: float) -> None:
         """Remember the totals at `now` (host monotonic s); call about once a second."""
         self._history.append((now, self.bytes_in, dict(self.counts)))

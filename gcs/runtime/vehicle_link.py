@@ -73,20 +73,28 @@ class VehicleLink(Link):
         self.stats.framing = link.stats.framing
         self.stats.nonfinite = link.stats.nonfinite
         self.signing = link.signing
+        self._follow_counts()
+
+    def _follow_counts(self) -> None:
+        """Its per-type counts (and so its rates) are its system's on the link (`LinkStats.by_system`,
+        from its first packet on); before it is bound, the link's. Counted as delivered, they
+        held every other system's messages that reach each vehicle (another ground station's, a
+        companion's): a GCS's heartbeats doubled the vehicle's HEARTBEAT rate."""
+        stats, target = self._shown.stats, self.target_system
+        self.stats.follow(stats.counts if target is None else stats.by_system.setdefault(target, {}))
 
     # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
     def deliver(self, item: Message) -> None:
         self.deliver_many([item])
 
     def deliver_many(self, items: list[Message]) -> None:
-        """This vehicle's messages of one wake-up, in order: counted, its heartbeats read (what
-        came before one is published first, as per message), published in one call."""
+        """This vehicle's messages of one wake-up, in order: their bytes counted (per type, the
+        link counts them: `_show`), its heartbeats read (what came before one is published first,
+        as per message), published in one call."""
         stats, bus, target = self.stats, self.bus, self.target_system
-        counts = stats.counts
         start = 0
         for i, item in enumerate(items):
             stats.bytes_in += len(item.raw)
-            counts[item.type] = counts.get(item.type, 0) + 1  # stats.count, inline (every packet)
             if item.type == "HEARTBEAT" and item.sysid == target:
                 if i > start:
                     bus.publish_many(items[start:i])
@@ -133,6 +141,7 @@ class VehicleLink(Link):
         """Its loss under the old id stays its own (its packets do: `Link.follow_renamed`)."""
         self._lost_renamed += sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == old)
         super().follow_renamed(old, new)
+        self._follow_counts()
 
     # ---- the rest of Link's surface ---------------------------------------------------------------
     async def run(self) -> None:
@@ -179,7 +188,7 @@ class VehicleLink(Link):
         if target is None:
             return stats
         lost = self._lost_renamed + sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == target)
-        packets = sum(self._shown.stats.by_system.get(target, {}).values())
+        packets = sum(self.stats.counts.values())  # its system's (`_follow_counts`)
         total = packets + lost
         return dataclasses.replace(
             stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0
