@@ -32,6 +32,7 @@ from gcs.runtime.bus import Message, MessageBus
 from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import LinkNote, LinkSnapshot
+from gcs.runtime.sysid_change import FirstPacket
 from gcs.transport.address import Address, parse_address
 from gcs.transport.pipes import BatchCallback, DataCallback, Transport, make_transport
 
@@ -161,6 +162,10 @@ class Link:
         #: the last transport that closed by itself: (host monotonic s, "ADDRESS closed: why")
         self.transport_gone: tuple[float, str] | None = None
         self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
+        #: sysid → its first packet here: a new id going on with a vehicle's stream (gcs.runtime.sysid_change)
+        self.first_packets: dict[int, FirstPacket] = {}
+        #: (autopilot, MAV_TYPE) of the followed vehicle's last heartbeat
+        self.vehicle_kind: tuple[int, int] | None = None
         self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         #: MAVLink 2 signing (gcs.mavlink.signing): what we send is signed, what arrives checked
@@ -370,7 +375,7 @@ class Link:
             counts[msg_type] = counts.get(msg_type, 0) + 1
             own = by_system.get(sysid)
             if own is None:
-                own = by_system[sysid] = {}
+                own = self._first_packet(raw, sysid, compid, now)
             own[msg_type] = own.get(msg_type, 0) + 1
             msg = imu = None
             read = decoded.get(msg_type)
@@ -402,6 +407,22 @@ class Link:
         if pending:
             bus.publish_many(pending)
 
+    def _first_packet(self, raw: bytes, sysid: int, compid: int, now: float) -> dict[str, int]:
+        """A system's first packet here: remembered (`first_packets`); its counts, new."""
+        by_system = self.stats.by_system
+        seq = raw[4] if raw[0] == MARKER_V2 else raw[2]
+        before = {s: sum(counts.values()) for s, counts in by_system.items()}
+        self.first_packets[sysid] = FirstPacket(now, seq, compid, before)
+        own: dict[str, int] = {}
+        by_system[sysid] = own
+        return own
+
+    def last_sequence(self, sysid: int, compid: int) -> int | None:
+        """The last sequence number of (sysid, compid) since the transport opened (None: none,
+        or text lines)."""
+        decoder = self.decoder
+        return decoder.last_sequence((sysid, compid)) if isinstance(decoder, MavlinkDecoder) else None
+
     def _reject(self, msg_type: str, field: str) -> None:
         """A message with a non-finite value where the station needs a number goes nowhere;
         the first of each type is also a link event, so the status page says what arrived."""
@@ -426,6 +447,7 @@ class Link:
             self.target_system, self.target_component = sysid, compid
         elif (sysid, compid) != (self.target_system, self.target_component):
             return
+        self.vehicle_kind = (msg.autopilot, msg.type)
         if version != self.vehicle_mavlink:
             self.vehicle_mavlink = version
             self._encoder.mavlink1 = version == 1 and self.signing is None
