@@ -7,6 +7,7 @@ loopback, nobody listening, then a vehicle."""
 from __future__ import annotations
 
 import asyncio
+import socket
 
 from live import served_api, wait_for
 
@@ -49,4 +50,40 @@ def test_a_link_that_cannot_open_names_why_until_it_opens(tcp_port):
     assert refused.link.open_error == why
     assert status["link"]["open_error"] == why
     assert f"state waiting ({why}; retrying)" in format_report(refused)
+    assert opened.link.open_error is None
+
+
+def test_a_tcp_host_that_drops_the_dial_is_given_up_on_and_redialled():
+    """A `tcp:` host that never answers the dial (a firewall dropping SYNs, a board off behind a
+    router): the open waited for the kernel's ~2 min of SYN retries, with no reason shown and no
+    retry. Here a real listener on loopback whose accept queue is full drops every SYN; once it
+    has room, the redial opens."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(0)
+    port = listener.getsockname()[1]
+    filler = socket.create_connection(("127.0.0.1", port))  # the queue's one place: later SYNs dropped
+    address = f"tcp:127.0.0.1:{port}"
+
+    async def scenario():
+        fleet = Fleet(StationConfig(connect=address, estimate=False))
+        await fleet.start()
+        try:
+            core = fleet.first
+            await wait_for(lambda: core.publish().link.open_error is not None, 10, "the dial given up")
+            dropped = core.publish()
+            listener.accept()[0].close()  # room in the queue: the next dial is answered
+            await wait_for(lambda: fleet.links[0].is_open, 15, "the redial")
+            return dropped, core.publish()
+        finally:
+            await fleet.stop()
+
+    try:
+        dropped, opened = asyncio.run(scenario())
+    finally:
+        filler.close()
+        listener.close()
+    why = f"cannot open {address}: no answer within 5 s (connection timed out)"
+    assert dropped.link.open_error == why
+    assert f"state waiting ({why}; retrying)" in format_report(dropped)
     assert opened.link.open_error is None

@@ -85,6 +85,10 @@ class MavlinkDecoder:
         self._last_seq.clear()
         self._gaps.clear()
 
+    def last_sequence(self, key: tuple[int, int]) -> int | None:
+        """Sender `key`'s last sequence number on this stream (None: none since it began)."""
+        return self._last_seq.get(key)
+
     def restart_sequence(self, key: tuple[int, int], since: float) -> int:
         """Sender `key` rebooted: its sequence numbers started again, on a link that stayed open
         (a UDP port), so the jump from the old boot's number to the new one's was counted as an

@@ -18,7 +18,8 @@ A vehicle whose system id is written (ArduPilot's MAV_SYSID / SYSID_THISMAV, by 
 another ground station) answers as the new id at once, and its echo, a PARAM_VALUE of that
 parameter equal to its sender's id, is the first thing heard from it: its core follows it under
 the new id (`_renamed`) rather than a second core starting beside the first, which was left
-"lost" for ever.
+"lost" for ever. With that echo lost, the new id's stream going on from the vehicle's (its
+sequence numbers, the vehicle silent since) tells it (gcs.runtime.sysid_change).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from gcs.runtime.link import Link
 from gcs.runtime.signal import Signal
 from gcs.runtime.station import Station, StationConfig, signing_of
 from gcs.runtime.supervisor import Supervisor
+from gcs.runtime.sysid_change import continues
 from gcs.runtime.vehicle_link import VehicleLink
 
 
@@ -193,6 +195,8 @@ class Fleet:
         if (renamed := self._renamed(index, item)) is not None:
             renamed.deliver(item)
             return
+        if self._may_be_renamed(index, item):
+            return  # a vehicle here renamed, maybe: a later heartbeat tells (gcs.runtime.sysid_change)
         takes_first = self._unbound is not None and self._unbound_system in (None, item.sysid)
         if self.single and (not takes_first or self.sysid not in (None, item.sysid)):
             self._ignored.add((index, item.sysid))
@@ -232,7 +236,9 @@ class Fleet:
         it under that id (its view returned; None when none is). Told by a PARAM_VALUE from a
         system not served here saying its own system id is its sender's (the echo of the write:
         the vehicle whose core is writing it, else the only one there with that component id), or
-        by a new system's first heartbeat while a core on this link writes that id (its echo lost)."""
+        by a new system's first heartbeat while a core on this link writes that id (its echo lost),
+        or whose stream goes on from a vehicle's here (`_continued`: another station's write, its
+        echo lost)."""
         msg, new = item.msg, item.sysid
         if msg is None or self.vehicle(new) is not None:
             return None
@@ -242,7 +248,9 @@ class Fleet:
         here = [(i, e) for i, e in enumerate(self._entries) if _view(e.station) in self._on_link[index]]
         same = [(i, e) for i, e in here if e.compid == item.compid and e.sysid != new]
         writing = [(i, e) for i, e in same if e.station.params.renaming_to == new]
-        chosen = (writing or same) if echo else writing
+        chosen = (
+            (writing or same) if echo else (writing or [(i, e) for i, e in same if self._continued(index, e, item)])
+        )
         if len(chosen) != 1:
             return None  # none, or two vehicles with that component id here, neither writing it
         i, entry = chosen[0]
@@ -260,6 +268,26 @@ class Fleet:
         address = str(link.address)
         entry.station.events.record("vehicle", "fleet", event="system id changed", old=old, new=new, link=address)
         return view
+
+    def _may_be_renamed(self, index: int, item: Message) -> bool:
+        """The new system of heartbeat `item` may go on with a vehicle's stream on link `index`, not
+        yet known (`_continued` undecided for some vehicle)."""
+        here = [e for e in self._entries if _view(e.station) in self._on_link[index]]
+        return any(self._continued(index, e, item) is None for e in here if e.compid == item.compid)
+
+    def _continued(self, index: int, entry: VehicleEntry, item: Message) -> bool | None:
+        """Whether the new system of heartbeat `item` goes on with `entry`'s vehicle's stream on link
+        `index` (its id changed by another station, the echo lost: gcs.runtime.sysid_change);
+        None: not known yet."""
+        link, view, old = self.links[index], _view(entry.station), entry.sysid
+        first = link.first_packets.get(item.sysid)
+        if old is None or first is None or first.compid != entry.compid:
+            return False
+        if view.vehicle_kind != (item.msg.autopilot, item.msg.type):
+            return False
+        packets = sum(link.stats.by_system.get(old, {}).values())
+        last_seq = link.last_sequence(old, first.compid)
+        return continues(first, old, packets, last_seq, view.last_heartbeat, link.heartbeat_timeout, item.host_time)
 
 
 def _view(core: Station) -> VehicleLink:

@@ -15,7 +15,8 @@ import asyncio
 from collections.abc import Sequence
 
 from gcs.mavlink.framing import MavlinkDecoder
-from gcs.runtime.link import Link, keep_open
+from gcs.runtime.keep_open import keep_open
+from gcs.runtime.link import Link
 from gcs.runtime.snapshots import OutputSnapshot
 from gcs.transport.address import Address, parse_address
 from gcs.transport.pipes import Transport, make_transport

@@ -13,7 +13,6 @@ when packets return: never a restart.
 from __future__ import annotations
 
 import asyncio
-import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -28,15 +27,15 @@ from gcs.mavlink.framing import Frame, MavlinkDecoder
 from gcs.mavlink.identity import is_vehicle_heartbeat
 from gcs.mavlink.imu_packets import IMU_PACKET_TYPES, imu_packet
 from gcs.mavlink.signing import Signing
+from gcs.runtime.baud import AUTO_BAUDS, detect_baud
 from gcs.runtime.bus import Message, MessageBus
+from gcs.runtime.keep_open import keep_open
 from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.signal import Signal
 from gcs.runtime.snapshots import LinkNote, LinkSnapshot
+from gcs.runtime.sysid_change import FirstPacket
 from gcs.transport.address import Address, parse_address
-from gcs.transport.pipes import BatchCallback, DataCallback, Transport, make_transport
-
-#: Baud rates tried by `baud="auto"`, most likely first (telemetry radio, then USB/companion).
-AUTO_BAUDS = (57600, 115200, 921600, 500000, 230400, 38400, 19200, 9600)
+from gcs.transport.pipes import Transport, make_transport
 
 #: how the receive path reads a type some part reads (`Link._decoded`; 0: it is not read)
 _DECODE, _READ_IMU = 1, 2
@@ -61,63 +60,6 @@ class LinkEvent:
     wall_time: float
     kind: str  # "state", "transport", "baud", "error", "rejected"
     detail: str
-
-
-async def keep_open(
-    make: Callable[[], Transport],
-    on_data: DataCallback,
-    on_event: Callable[[str, str], None],
-    on_open: Callable[[Transport | None], None],
-    first_backoff: float = 0.5,
-    max_backoff: float = 5.0,
-    on_batch: BatchCallback | None = None,
-    on_refused: Callable[[str | None], None] | None = None,
-) -> None:
-    """Open a transport and reopen it whenever it closes, with exponential backoff.
-    Returns when a transport that cannot be reopened (a replayed file) has ended.
-    `on_batch`: a wake-up's datagrams in one call (gcs.transport.pipes). `on_refused`: why it
-    cannot open ("cannot open ADDRESS: Connection refused") at the first failure, None once open."""
-    backoff = first_backoff
-    failing = False
-    while True:
-        transport = make()
-        try:
-            await transport.open(on_data, on_batch)
-        except OSError as exc:
-            if not failing:
-                why = f"cannot open {transport.address}: {open_error(exc)}"
-                on_event("transport", f"{why}; retrying")
-                if on_refused is not None:
-                    on_refused(why)
-            failing = True
-            await asyncio.sleep(backoff)
-            backoff = min(backoff * 2, max_backoff)
-            continue
-        failing = False
-        backoff = first_backoff
-        if on_refused is not None:
-            on_refused(None)
-        on_open(transport)
-        on_event("transport", f"opened {transport.address}")
-        try:
-            await transport.wait_closed()
-        finally:
-            transport.close()
-            on_open(None)
-        why = f": {transport.close_reason}" if transport.close_reason else ""
-        on_event("transport", f"closed {transport.address}{why}")
-        if not transport.reconnectable:
-            return
-        await asyncio.sleep(backoff)
-
-
-def open_error(exc: OSError) -> str:
-    """Why a transport did not open, once: the reason an errno names ("No such file or directory",
-    "Permission denied", "Connection refused"), else the error's own words. The whole error read
-    "[Errno 2] cannot open serial port /dev/ttyUSB0: ..." after the line's own "cannot open ADDRESS"."""
-    if isinstance(exc.errno, int) and exc.errno > 0:
-        return os.strerror(exc.errno)
-    return exc.strerror or str(exc)
 
 
 class Link:
@@ -161,6 +103,10 @@ class Link:
         #: the last transport that closed by itself: (host monotonic s, "ADDRESS closed: why")
         self.transport_gone: tuple[float, str] | None = None
         self.vehicles_heard: dict[int, int] = {}  # sysid -> MAVLink version of each vehicle heard here
+        #: sysid → its first packet here: a new id going on with a vehicle's stream (gcs.runtime.sysid_change)
+        self.first_packets: dict[int, FirstPacket] = {}
+        #: (autopilot, MAV_TYPE) of the followed vehicle's last heartbeat
+        self.vehicle_kind: tuple[int, int] | None = None
         self.addressed: int | None = None  # while packet_sent runs: the one system it is for, if any
         self._encoder = Encoder(GCS_SYSID, GCS_COMPID, mavlink1=True)
         #: MAVLink 2 signing (gcs.mavlink.signing): what we send is signed, what arrives checked
@@ -286,6 +232,12 @@ class Link:
         it as that system, its heartbeats going on as its own."""
         if old in self.vehicles_heard:
             self.vehicles_heard[new] = self.vehicles_heard.pop(old)
+        by_system = self.stats.by_system
+        if old in by_system:  # its packets under both ids are one vehicle's
+            counts = by_system.pop(old)
+            for msg_type, n in by_system.pop(new, {}).items():
+                counts[msg_type] = counts.get(msg_type, 0) + n
+            by_system[new] = counts
         if self.target_system == old:
             self.target_system = new
             self._event("state", f"the vehicle is system {new} now (was {old})")
@@ -353,7 +305,7 @@ class Link:
         which the link reads before publishing it as it did per message: what a state change
         sets off (a request sent, the recorder's drain before it records the send) sees every
         message before the heartbeat published, and who reads which type is asked again after."""
-        counts = self.stats.counts
+        counts, by_system = self.stats.counts, self.stats.by_system
         signing, outputs, bus, name = self.signing, self.outputs, self.bus, self.name
         decoded = self._read_modes()
         pending: list[Message] = []
@@ -362,6 +314,10 @@ class Link:
                 self._refuse_unsigned(msg_type, why)
                 continue
             counts[msg_type] = counts.get(msg_type, 0) + 1
+            own = by_system.get(sysid)
+            if own is None:
+                own = self._first_packet(raw, sysid, compid, now)
+            own[msg_type] = own.get(msg_type, 0) + 1
             msg = imu = None
             read = decoded.get(msg_type)
             if read is None:
@@ -392,6 +348,22 @@ class Link:
         if pending:
             bus.publish_many(pending)
 
+    def _first_packet(self, raw: bytes, sysid: int, compid: int, now: float) -> dict[str, int]:
+        """A system's first packet here: remembered (`first_packets`); its counts, new."""
+        by_system = self.stats.by_system
+        seq = raw[4] if raw[0] == MARKER_V2 else raw[2]
+        before = {s: sum(counts.values()) for s, counts in by_system.items()}
+        self.first_packets[sysid] = FirstPacket(now, seq, compid, before)
+        own: dict[str, int] = {}
+        by_system[sysid] = own
+        return own
+
+    def last_sequence(self, sysid: int, compid: int) -> int | None:
+        """The last sequence number of (sysid, compid) since the transport opened (None: none,
+        or text lines)."""
+        decoder = self.decoder
+        return decoder.last_sequence((sysid, compid)) if isinstance(decoder, MavlinkDecoder) else None
+
     def _reject(self, msg_type: str, field: str) -> None:
         """A message with a non-finite value where the station needs a number goes nowhere;
         the first of each type is also a link event, so the status page says what arrived."""
@@ -416,6 +388,7 @@ class Link:
             self.target_system, self.target_component = sysid, compid
         elif (sysid, compid) != (self.target_system, self.target_component):
             return
+        self.vehicle_kind = (msg.autopilot, msg.type)
         if version != self.vehicle_mavlink:
             self.vehicle_mavlink = version
             self._encoder.mavlink1 = version == 1 and self.signing is None
@@ -580,29 +553,7 @@ class Link:
         self.events.append(event)
         self.noted.emit(event)
 
-    async def _detect_baud(self, listen: float = 1.5) -> None:
-        """Try the usual baud rates until one yields a valid MAVLink packet; keep that one."""
-        while True:
-            for baud in AUTO_BAUDS:
-                decoder = self._new_decoder()
-                transport = make_transport(self.address, baud=baud)
-
-                def deliver(data: bytes, decoder: MavlinkDecoder | AsciiAttitudeDecoder = decoder) -> None:
-                    decoder.frames(data)
-
-                try:
-                    await transport.open(deliver)
-                except OSError as exc:
-                    self._event("transport", f"baud detection: cannot open {self.address}: {exc}")
-                    break
-                try:
-                    deadline = time.monotonic() + listen
-                    while time.monotonic() < deadline and decoder.counters.packets == 0:
-                        await asyncio.sleep(0.05)
-                finally:
-                    transport.close()
-                if decoder.counters.packets:
-                    self.baud = baud
-                    self._event("baud", f"detected {baud} baud on {self.address}")
-                    return
-            await asyncio.sleep(1.0)
+    async def _detect_baud(self) -> None:
+        """Keep the first of the usual baud rates that yields a valid packet (gcs.runtime.baud)."""
+        self.baud = await detect_baud(self.address, self._new_decoder, self._event)
+        self._event("baud", f"detected {self.baud} baud on {self.address}")

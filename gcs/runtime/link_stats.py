@@ -13,6 +13,9 @@ from gcs.runtime.snapshots import LinkCounters
 @dataclass
 class LinkStats:
     counts: dict[str, int] = field(default_factory=dict)  # packets received per message type
+    #: sysid → its packets per message type, from its first packet on: a vehicle's own figures on a
+    #: link it shares (gcs.runtime.vehicle_link), its packets before its first heartbeat included
+    by_system: dict[int, dict[str, int]] = field(default_factory=dict)
     nonfinite: dict[str, int] = field(default_factory=dict)  # packets refused for a non-finite value, per type
     kernel_drops: int = 0  # datagrams the kernel dropped before we read them (SO_RXQ_OVFL), this link
     bytes_in: int = 0
@@ -22,8 +25,12 @@ class LinkStats:
     window: float = 5.0  # s over which rates are measured
     _history: deque = field(default_factory=deque, repr=False)
 
-    def count(self, msg_type: str) -> None:
-        self.counts[msg_type] = self.counts.get(msg_type, 0) + 1
+    def follow(self, counts: dict[str, int]) -> None:
+        """Count from `counts` (kept up to date elsewhere: a vehicle's system's on a shared link):
+        the rates start again, their history being of other counts."""
+        if counts is not self.counts:
+            self.counts = counts
+            self._history.clear()
 
     def sample(self, now: float) -> None:
         """Remember the totals at `now` (host monotonic s); call about once a second."""

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from gcs.mavlink.command_ack import answers
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.identity import ARDUPILOT_SYSID_PARAMS
 from gcs.mavlink.params import (
@@ -33,7 +34,7 @@ from gcs.mavlink.params import (
 )
 from gcs.runtime.bus import MessageBus, Subscription
 from gcs.runtime.events import EventLog
-from gcs.runtime.link import Link
+from gcs.runtime.link import GCS_COMPID, GCS_SYSID, Link
 from gcs.runtime.vehicle import VehicleState
 from gcs.runtime.vehicle_link import VehicleLink
 
@@ -167,7 +168,13 @@ class ParamClient:
                     self._version_answer.set()
                 elif (
                     item.type == "COMMAND_ACK"
-                    and item.msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE
+                    and answers(
+                        item.msg,
+                        (item.sysid, item.compid),
+                        mavlink.MAV_CMD_REQUEST_MESSAGE,
+                        self._target(),
+                        (GCS_SYSID, GCS_COMPID),
+                    )
                     and item.msg.result != mavlink.MAV_RESULT_ACCEPTED
                 ):
                     self._version_answer.set()

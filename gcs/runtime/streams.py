@@ -31,10 +31,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from gcs.mavlink.command_ack import answers
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.params import param_name
 from gcs.mavlink.statustext import CHUNK_CHARS
-from gcs.runtime.link import Link, LinkState
+from gcs.runtime.link import GCS_COMPID, GCS_SYSID, Link, LinkState
 from gcs.runtime.snapshots import StreamRate, StreamsSnapshot
 
 SET_MESSAGE_INTERVAL = "SET_MESSAGE_INTERVAL"
@@ -327,10 +328,10 @@ class StreamRequester:
         command = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
         for _ in range(attempts):
             replies.drain()
+            to = (self.link.target_system or 1, self.link.target_component or 1)
             self.link.send(
                 mavlink.MAVLink_command_long_message(
-                    self.link.target_system or 1,
-                    self.link.target_component or 1,
+                    *to,
                     command,
                     0,
                     MESSAGE_IDS[name],
@@ -347,7 +348,9 @@ class StreamRequester:
             self._arrived.discard(name)
             deadline = time.monotonic() + self.ack_timeout
             while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
-                if item.type == "COMMAND_ACK" and item.msg.command == command:
+                if item.type == "COMMAND_ACK" and answers(
+                    item.msg, (item.sysid, item.compid), command, to, (GCS_SYSID, GCS_COMPID)
+                ):
                     result = enum_result(item.msg.result)
                     if name in self.negotiated:
                         self.negotiated[name].ack = result

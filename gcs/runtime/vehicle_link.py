@@ -32,9 +32,8 @@ class VehicleLink(Link):
         super().__init__(link.address, bus=MessageBus(), heartbeat_timeout=link.heartbeat_timeout, name=link.name)
         self.link: Link | None = None
         self._pace: Callable[[], float] | None = None  # `pace_reads`: asked of the link it is heard on
-        #: packets from this vehicle's own system (its autopilot and its other components), the
-        #: ones its loss is counted over; what else reaches it (a GCS, a radio) is in stats.counts
-        self.own_packets = 0
+        #: packets its system lost by sequence number under the ids it had before (`follow_renamed`)
+        self._lost_renamed = 0
         self._shown = link
         self._show(link)
 
@@ -74,29 +73,33 @@ class VehicleLink(Link):
         self.stats.framing = link.stats.framing
         self.stats.nonfinite = link.stats.nonfinite
         self.signing = link.signing
+        self._follow_counts()
+
+    def _follow_counts(self) -> None:
+        """Its per-type counts (and so its rates) are its system's on the link (`LinkStats.by_system`,
+        from its first packet on); before it is bound, the link's. Counted as delivered, they
+        held every other system's messages that reach each vehicle (another ground station's, a
+        companion's): a GCS's heartbeats doubled the vehicle's HEARTBEAT rate."""
+        stats, target = self._shown.stats, self.target_system
+        self.stats.follow(stats.counts if target is None else stats.by_system.setdefault(target, {}))
 
     # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
     def deliver(self, item: Message) -> None:
         self.deliver_many([item])
 
     def deliver_many(self, items: list[Message]) -> None:
-        """This vehicle's messages of one wake-up, in order: counted, its heartbeats read (what
-        came before one is published first, as per message), published in one call."""
+        """This vehicle's messages of one wake-up, in order: their bytes counted (per type, the
+        link counts them: `_show`), its heartbeats read (what came before one is published first,
+        as per message), published in one call."""
         stats, bus, target = self.stats, self.bus, self.target_system
-        counts = stats.counts
-        start = own = 0
+        start = 0
         for i, item in enumerate(items):
             stats.bytes_in += len(item.raw)
-            counts[item.type] = counts.get(item.type, 0) + 1  # stats.count, inline (every packet)
-            if item.sysid != target:
-                continue
-            own += 1
-            if item.type == "HEARTBEAT":
+            if item.type == "HEARTBEAT" and item.sysid == target:
                 if i > start:
                     bus.publish_many(items[start:i])
                     start = i
                 self._on_heartbeat(item.msg, item.sysid, item.compid, item.host_time)
-        self.own_packets += own
         bus.publish_many(items[start:] if start else items)
 
     # ---- send path: through the link the vehicle was heard on ---------------------------------
@@ -134,6 +137,12 @@ class VehicleLink(Link):
     def _gone(self) -> tuple[float, str] | None:
         return self._shown.transport_gone
 
+    def follow_renamed(self, old: int, new: int) -> None:
+        """Its loss under the old id stays its own (its packets do: `Link.follow_renamed`)."""
+        self._lost_renamed += sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == old)
+        super().follow_renamed(old, new)
+        self._follow_counts()
+
     # ---- the rest of Link's surface ---------------------------------------------------------------
     async def run(self) -> None:
         """The state watchdog and rate sampling; the transport is the link's."""
@@ -167,15 +176,19 @@ class VehicleLink(Link):
         )
 
     def _own_loss(self, stats: LinkCounters) -> LinkCounters:
-        """`stats` with the packets received from this vehicle and those lost by sequence number
-        from its system only. The link's framing counts every sender's packets and gaps; shown
-        beside each vehicle on a shared link, the sums read as that vehicle's (a copter on a clean
-        route showed the loss of a plane behind a lossy radio, and each vehicle the packets of
-        both). Before a vehicle is bound, the link's own figures stand."""
-        if self.target_system is None:
+        """`stats` with the packets received from this vehicle's system (its autopilot and its
+        other components) and those lost by sequence number from it only. The link's framing
+        counts every sender's packets and gaps; shown beside each vehicle on a shared link, the
+        sums read as that vehicle's (a copter on a clean route showed the loss of a plane behind a
+        lossy radio, and each vehicle the packets of both). Its packets are the link's count for
+        its system from the first one on: counted from its first heartbeat, a stream heard from
+        the middle left out what came before it, over which the loss was counted. Before a
+        vehicle is bound, the link's own figures stand."""
+        target = self.target_system
+        if target is None:
             return stats
-        lost = sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == self.target_system)
-        packets = self.own_packets
+        lost = self._lost_renamed + sum(n for (sysid, _), n in self.stats.framing.lost.items() if sysid == target)
+        packets = sum(self.stats.counts.values())  # its system's (`_follow_counts`)
         total = packets + lost
         return dataclasses.replace(
             stats, packets=packets, packets_lost=lost, loss_fraction=round(lost / total, 5) if total else 0.0

@@ -35,6 +35,11 @@ DataCallback = Callable[[bytes], None]
 #: The datagrams one wake-up read, in arrival order (never empty).
 BatchCallback = Callable[[list[bytes]], None]
 
+#: Seconds a `tcp:` dial waits for the server's answer: a host that drops SYNs (a firewall, a
+#: board switched off behind a router that keeps its address) otherwise held the open for the
+#: kernel's ~2 min of retries, with no word of why and no retry. A lost SYN is resent after 1 and
+#: 3 s, so a slow but live path still answers within it.
+TCP_CONNECT_TIMEOUT = 5.0
 #: Bytes a TCP peer may leave unread before further writes to it are dropped.
 TCP_WRITE_LIMIT = 1 << 20
 #: UDP receive buffer asked of the kernel: at 400 Hz of telemetry the default ~208 KB fills in
@@ -320,9 +325,15 @@ class TcpClientTransport(Transport):
     async def open(self, on_data: DataCallback, on_batch: BatchCallback | None = None) -> None:
         loop = asyncio.get_running_loop()
         self._new_closed_future()
-        _, self._protocol = await loop.create_connection(
-            lambda: _StreamProtocol(on_data, self._lost), self.address.host, self.address.port
-        )
+        try:
+            async with asyncio.timeout(TCP_CONNECT_TIMEOUT):
+                _, self._protocol = await loop.create_connection(
+                    lambda: _StreamProtocol(on_data, self._lost), self.address.host, self.address.port
+                )
+        except TimeoutError as exc:  # the OSError the link's retry names: "cannot open ...: <this>"
+            if exc.errno is not None:  # the kernel's own timeout, first
+                raise
+            raise OSError(f"no answer within {TCP_CONNECT_TIMEOUT:g} s (connection timed out)") from None
 
     def _lost(self, protocol: _StreamProtocol) -> None:
         if self._closed is not None and not self._closed.done():  # not closed by us
