@@ -132,7 +132,7 @@ def _by_key(table) -> dict:
 def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(batch, flights):
     assert dataset.done_flights(batch) == {dataset.flight_id(p) for p in flights["good"]}
     assert len(flights["good"]) + len(flights["bad"]) >= 8
-    failures = dataset.read_failures(batch).to_pylist()
+    failures = dataset.read_failures(batch).table.to_pylist()
     assert [f["flight"] for f in failures] == [dataset.flight_id(flights["bad"][0])]
     assert "junk.bin" in failures[0]["reason"]
     summary = dataset.read_table(batch, "summary").to_pylist()
@@ -215,7 +215,7 @@ def test_local_cluster_gives_the_same_dataset(batch, flights, tmp_path):
     one = dataset.flight_id(flights["sessions"][0])
     ours, theirs = (pq.read_table(dataset.flight_dir(d, one) / "attitude.parquet") for d in (out, batch))
     assert ours.num_rows > 1000 and ours.drop_columns(["wall_time"]).equals(theirs.drop_columns(["wall_time"]))
-    assert dataset.read_failures(out).to_pylist() == dataset.read_failures(batch).to_pylist()
+    assert dataset.read_failures(out).table.to_pylist() == dataset.read_failures(batch).table.to_pylist()
 
 
 #: A batch writer in its own process: it holds its partition's temporary folder as write_flight
@@ -330,7 +330,7 @@ def test_a_failures_file_is_no_executable(tmp_path):
     dataset.write_failure(tmp_path, "junk.tlog-1234abcd", "junk.tlog", "junk.tlog: offset 0: not a log")
     (failure,) = (tmp_path / dataset.FAILURES).iterdir()
     assert failure.stat().st_mode & 0o111 == 0, oct(failure.stat().st_mode)
-    assert dataset.read_failures(tmp_path).to_pylist()[0]["reason"] == "junk.tlog: offset 0: not a log"
+    assert dataset.read_failures(tmp_path).table.to_pylist()[0]["reason"] == "junk.tlog: offset 0: not a log"
 
 
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
@@ -500,7 +500,7 @@ def test_a_flight_whose_log_is_gone_is_still_on_the_fleet_report(tmp_path, logs_
     gone = logs / "ardupilot-fragment.bin"
     gone.unlink()
     done = _cli("fleet", "report", str(out), "--out", str(page), "--worst", "2")
-    assert "wrote" in done.stderr and "(2 flights)" in done.stderr
+    assert "wrote" in done.stderr and "(2 flights, 0 skipped)" in done.stderr
     text = page.read_text()
     assert f"{dataset.flight_id(gone)} (no report: {gone}: no such file or session folder)" in text
     kept = dataset.flight_id(logs / "arducopter-sitl-hop.tlog")
