@@ -29,6 +29,7 @@ from gcs.commands.cli import build_parser, main
 from gcs.commands.serve import presets_or_report
 from gcs.core.estimators import registry
 from gcs.core.gains import PresetFile
+from gcs.mavlink.sampling import IMU_TYPES
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.app import create_app
@@ -424,6 +425,19 @@ def test_a_run_whose_every_flight_failed_exits_1(tmp_path, scheduler):
         code = main(["batch", str(junk), "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler])
     assert code == 1, (out.getvalue(), err.getvalue()[-2000:])
     assert "0 flights written, 1 failed" in out.getvalue() and "junk.bin" in err.getvalue()
+
+
+def test_a_flight_without_imu_is_a_failure_row_as_replay_refuses_it(tmp_path, hop_without_imu, scheduler):
+    """The hop's tlog without its IMU messages: `gcs batch` wrote it as a flight of 0 IMU samples
+    and no error row (exit 0), where `gcs replay` and `gcs estimate` refuse it. It is a failure
+    row with their reason."""
+    path = hop_without_imu
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["batch", str(path), "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler])
+    assert code == 1 and "0 flights written, 1 failed" in out.getvalue(), err.getvalue()[-2000:]
+    why = f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES)}) in the log: nothing to estimate from"
+    assert [r["reason"] for r in dataset.read_failures(tmp_path / "ds").table.to_pylist()] == [why]
 
 
 def test_a_glob_or_folder_that_gives_no_flight_is_named(tmp_path, logs_dir, scheduler):
