@@ -433,7 +433,7 @@ def test_sigterm_stops_a_command_started_with_sigint_ignored():
 def test_tlog_stamps_never_go_backwards_with_sent_and_received_packets(udp_port, tmp_path):
     async def scenario() -> Path:
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station,
             sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
         ):
             await wait_for(lambda: station.recorder.packets["sent"] >= 8, 90, "packets sent to the vehicle")
