@@ -1,5 +1,5 @@
 """Shared fixtures: paths to the real data in ../shared/data, the hop flight in both DataFlash
-generations, free ports."""
+generations and as a tlog without IMU, free ports."""
 
 from __future__ import annotations
 
@@ -10,6 +10,9 @@ import pytest
 from dataflash_writer import hop_in_both_formats
 
 from gcs.core.estimators import registry
+from gcs.mavlink.framing import MavlinkDecoder
+from gcs.mavlink.sampling import IMU_TYPES
+from gcs.mavlink.tlog import read_tlog_records
 from gcs.sim.dataflash import DataflashWriter
 from gcs.transport.address import free_port
 
@@ -60,3 +63,15 @@ def hop_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, DataflashW
 def artifacts_dir() -> Path:
     ARTIFACTS.mkdir(exist_ok=True)
     return ARTIFACTS
+
+
+@pytest.fixture(scope="session")
+def hop_without_imu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The hop's tlog with every IMU message left out (88 s of everything else), records as they were."""
+    path = tmp_path_factory.mktemp("no-imu") / "no-imu.tlog"
+    decoder, kept = MavlinkDecoder(), []
+    for _, usec, packet in read_tlog_records(LOGS / "arducopter-sitl-hop.tlog").records():
+        if not {kind for _, kind, _, _ in decoder.frames(packet, final=True)} & set(IMU_TYPES):
+            kept.append(usec.to_bytes(8, "big") + packet)
+    path.write_bytes(b"".join(kept))
+    return path

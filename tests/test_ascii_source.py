@@ -49,7 +49,7 @@ async def _scenario(tmp_path):
     firmware = AsciiFirmware(SimVehicle(profile="apm25", script="bench", speed=2.0), rate_hz=25.0, malformed=0.02)
     served = asyncio.create_task(firmware.run(f"pty:{pty}"))
     await wait_for(pty.exists, 10, "the pseudo-terminal")
-    station = Station(StationConfig(connect=f"ascii:{pty}", record_dir=str(tmp_path / "sessions")))
+    station = Station(StationConfig(connect=f"ascii:{pty}", sessions_dir=str(tmp_path / "sessions"), record=True))
     await station.start()
     # lines printed before the station opened the port are not read (the pty has no reader yet)
     await wait_for(lambda: station.link.stats.framing.packets > 0, 20, "the first line", poll=0.01)

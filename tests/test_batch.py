@@ -29,6 +29,7 @@ from gcs.commands.cli import build_parser, main
 from gcs.commands.serve import presets_or_report
 from gcs.core.estimators import registry
 from gcs.core.gains import PresetFile
+from gcs.mavlink.sampling import IMU_TYPES
 from gcs.runtime.replay import ReplaySession
 from gcs.runtime.station import Station, StationConfig
 from gcs.server.app import create_app
@@ -132,7 +133,7 @@ def _by_key(table) -> dict:
 def test_every_good_flight_is_in_the_dataset_and_the_bad_one_is_a_failure_row(batch, flights):
     assert dataset.done_flights(batch) == {dataset.flight_id(p) for p in flights["good"]}
     assert len(flights["good"]) + len(flights["bad"]) >= 8
-    failures = dataset.read_failures(batch).to_pylist()
+    failures = dataset.read_failures(batch).table.to_pylist()
     assert [f["flight"] for f in failures] == [dataset.flight_id(flights["bad"][0])]
     assert "junk.bin" in failures[0]["reason"]
     summary = dataset.read_table(batch, "summary").to_pylist()
@@ -215,7 +216,7 @@ def test_local_cluster_gives_the_same_dataset(batch, flights, tmp_path):
     one = dataset.flight_id(flights["sessions"][0])
     ours, theirs = (pq.read_table(dataset.flight_dir(d, one) / "attitude.parquet") for d in (out, batch))
     assert ours.num_rows > 1000 and ours.drop_columns(["wall_time"]).equals(theirs.drop_columns(["wall_time"]))
-    assert dataset.read_failures(out).to_pylist() == dataset.read_failures(batch).to_pylist()
+    assert dataset.read_failures(out).table.to_pylist() == dataset.read_failures(batch).table.to_pylist()
 
 
 #: A batch writer in its own process: it holds its partition's temporary folder as write_flight
@@ -330,7 +331,7 @@ def test_a_failures_file_is_no_executable(tmp_path):
     dataset.write_failure(tmp_path, "junk.tlog-1234abcd", "junk.tlog", "junk.tlog: offset 0: not a log")
     (failure,) = (tmp_path / dataset.FAILURES).iterdir()
     assert failure.stat().st_mode & 0o111 == 0, oct(failure.stat().st_mode)
-    assert dataset.read_failures(tmp_path).to_pylist()[0]["reason"] == "junk.tlog: offset 0: not a log"
+    assert dataset.read_failures(tmp_path).table.to_pylist()[0]["reason"] == "junk.tlog: offset 0: not a log"
 
 
 def test_next_batch_removes_what_a_killed_writer_left_never_a_live_ones(flights, scheduler, tmp_path):
@@ -426,6 +427,19 @@ def test_a_run_whose_every_flight_failed_exits_1(tmp_path, scheduler):
     assert "0 flights written, 1 failed" in out.getvalue() and "junk.bin" in err.getvalue()
 
 
+def test_a_flight_without_imu_is_a_failure_row_as_replay_refuses_it(tmp_path, hop_without_imu, scheduler):
+    """The hop's tlog without its IMU messages: `gcs batch` wrote it as a flight of 0 IMU samples
+    and no error row (exit 0), where `gcs replay` and `gcs estimate` refuse it. It is a failure
+    row with their reason."""
+    path = hop_without_imu
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["batch", str(path), "--out", str(tmp_path / "ds"), "-e", "dcm", "--scheduler", scheduler])
+    assert code == 1 and "0 flights written, 1 failed" in out.getvalue(), err.getvalue()[-2000:]
+    why = f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES)}) in the log: nothing to estimate from"
+    assert [r["reason"] for r in dataset.read_failures(tmp_path / "ds").table.to_pylist()] == [why]
+
+
 def test_a_glob_or_folder_that_gives_no_flight_is_named(tmp_path, logs_dir, scheduler):
     """`gcs batch /media/sd/LOGS/*.BIN day2/ --out fleet` with the card not mounted: the glob
     matched nothing and was dropped without a word, as was a folder holding no log, and the run
@@ -500,7 +514,7 @@ def test_a_flight_whose_log_is_gone_is_still_on_the_fleet_report(tmp_path, logs_
     gone = logs / "ardupilot-fragment.bin"
     gone.unlink()
     done = _cli("fleet", "report", str(out), "--out", str(page), "--worst", "2")
-    assert "wrote" in done.stderr and "(2 flights)" in done.stderr
+    assert "wrote" in done.stderr and "(2 flights, 0 skipped)" in done.stderr
     text = page.read_text()
     assert f"{dataset.flight_id(gone)} (no report: {gone}: no such file or session folder)" in text
     kept = dataset.flight_id(logs / "arducopter-sitl-hop.tlog")

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from live import running_station, sim_process, stop_process, wait_for
 
+from gcs.batch import dataset
 from gcs.commands.cli import build_parser
 from gcs.commands.common import tidy
 from gcs.logs.readers import READERS
@@ -432,7 +433,7 @@ def test_sigterm_stops_a_command_started_with_sigint_ignored():
 def test_tlog_stamps_never_go_backwards_with_sent_and_received_packets(udp_port, tmp_path):
     async def scenario() -> Path:
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station,
             sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
         ):
             await wait_for(lambda: station.recorder.packets["sent"] >= 8, 90, "packets sent to the vehicle")
@@ -548,37 +549,53 @@ def test_a_batch_or_sweep_on_no_local_workers_is_refused_at_once(argv, tmp_path)
     assert done.stderr.strip().splitlines() == [expected], done.stderr
 
 
-def test_a_fleet_report_of_a_damaged_dataset_is_one_line_naming_the_file(tmp_path):
-    """A dataset copied off a full card or cut in an interrupted copy: a flight's summary.parquet
-    cut to 0 bytes or a failure's file overwritten was a pyarrow ArrowInvalid traceback from
-    `gcs fleet report` (found by the audit); flipped bytes gave a line that ran onto a second."""
-    junk = tmp_path / "junk.tlog"
-    junk.write_bytes(b"not a log")
+def test_a_fleet_report_skips_a_flight_whose_file_is_damaged_and_reports_the_rest(tmp_path):
+    """A dataset copied off a full card or cut in an interrupted copy: one flight's summary.parquet
+    cut, overwritten with flipped bytes or not Parquet at all, or a failure's file overwritten,
+    failed `gcs fleet report` whole (exit 2, no page) for the fleet. That flight is skipped with
+    one line naming its file, the page holds the others and lists it, and the exit status is 1."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("a.bin", "b.bin"):
+        (logs / name).write_bytes((LOGS / "ardupilot-fragment.bin").read_bytes())
+    (logs / "junk.tlog").write_bytes(b"not a log")
     fleet = tmp_path / "fleet"
     built = subprocess.run(
-        GCS + ["batch", str(LOGS / "ardupilot-fragment.bin"), str(junk), "--out", str(fleet), "-e", "dcm"],
+        GCS + ["batch", str(logs), "--out", str(fleet), "-e", "dcm", "--workers", "1"],
         capture_output=True,
         text=True,
         timeout=300,
     )
     assert built.returncode == 0, built.stderr
-    (summary,) = fleet.glob("flights/*/summary.parquet")
+    summary = fleet / "flights" / f"flight={dataset.flight_id(logs / 'a.bin')}" / "summary.parquet"
     (failure,) = fleet.glob("failures/*.parquet")
     data = summary.read_bytes()
     flipped = bytes(b ^ 0x55 if 50 < k < len(data) - 50 else b for k, b in enumerate(data))
-    for damaged, content, named in (
-        (summary, b"", fleet),
-        (summary, flipped, fleet),
-        (failure, b"junk\n", failure),
+    for damaged, content, flights in (
+        (summary, b"", 1),
+        (summary, data[: len(data) // 2], 1),
+        (summary, flipped, 1),
+        (summary, b"junk\n" * 100, 1),
+        (failure, b"junk\n", 2),
     ):
         kept = damaged.read_bytes()
         damaged.write_bytes(content)
         page = tmp_path / "fleet.html"
-        done = subprocess.run(GCS + ["fleet", "report", str(fleet), "--out", str(page)], capture_output=True, text=True)
+        done = subprocess.run(
+            GCS + ["fleet", "report", str(fleet), "--out", str(page)], capture_output=True, text=True, timeout=300
+        )
         damaged.write_bytes(kept)
-        assert done.returncode == 2 and not page.exists(), done.stderr
-        (line,) = done.stderr.strip().splitlines()
-        assert line.startswith(f"gcs fleet report: error: {named}: unreadable "), line
+        assert done.returncode == 1, done.stderr
+        skipped, wrote = done.stderr.strip().splitlines()
+        flight = damaged.parent.name if damaged is summary else damaged.stem
+        assert skipped.startswith(f"skipped {flight.removeprefix('flight=')}: {damaged}: "), skipped
+        assert wrote == f"wrote {page} ({flights} flights, 1 skipped)"
+        text = page.read_text()
+        assert "<h2>Skipped: a file of theirs in the dataset cannot be read</h2>" in text
+        assert dataset.flight_id(logs / "b.bin") in text
+        page.unlink()
+    done = subprocess.run(GCS + ["fleet", "report", str(fleet), "--out", str(page)], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stderr.strip() == f"wrote {page} (2 flights, 0 skipped)", done.stderr
 
 
 def test_an_estimate_whose_out_is_its_input_is_refused(tmp_path):

@@ -358,7 +358,7 @@ async def onboard_log_scenario(udp_port: int, tmp_path) -> None:
     )
     try:
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station,
             dashboard(station, viser=False) as server,
             async_playwright() as pw,
         ):

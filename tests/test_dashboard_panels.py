@@ -155,7 +155,7 @@ def test_sessions_panel(udp_port, tmp_path, artifacts_dir, logs_dir):
 
 async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> None:
     errors: list[str] = []
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station:
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         try:

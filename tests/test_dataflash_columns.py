@@ -15,6 +15,7 @@ from conftest import DATA, LOGS
 from dataflash_reference import DfreaderLog
 from pymavlink.DFReader import DFReader_binary
 from pyulog_reference import assert_same_samples
+from test_dataflash_text import as_text
 
 from gcs.commands.cli import main
 from gcs.core.estimators import registry
@@ -359,3 +360,35 @@ def test_an_fmt_redefining_a_type_is_refused_and_the_first_holds(hop_logs, tmp_p
         reader.damage
         == f"{path}: offset {at}: FMT redefining type {data[imu_fmt + 3]} refused; its first definition holds"
     )
+
+
+@pytest.mark.parametrize("suffix", [".bin", ".log"])
+def test_two_types_holding_one_imu_instance_name_the_byte_offset_or_line(hop_logs, tmp_path, suffix, capsys):
+    """IMU instance 0 logged half as IMU and half as IMU2 (a type defined as IMU is, with its `I`
+    field): refused in one line naming where IMU2's first record is. It named the record's index
+    among the file's records as its byte offset ("offset 4658" for a record at byte 149 951), in
+    a text log too, whose places are lines."""
+    folder, _ = hop_logs
+    data = bytearray((folder / "new.bin").read_bytes())
+    starts = record_starts(bytes(data))
+    imu_fmt = fmt_record(bytes(data), b"IMU")
+    unused = next(k for k in range(1, 128) if all(data[s + 2] != k for s, _ in starts))
+    imu2 = bytearray(data[imu_fmt : imu_fmt + 89])
+    imu2[3], imu2[5:9] = unused, b"IMU2"
+    first = [k for k, (s, _) in enumerate(starts) if data[s + 2] == data[imu_fmt + 3] and data[s + 3 + 8] == 0]
+    moved = first[len(first) // 2 :]
+    for k in moved:
+        data[starts[k][0] + 2] = unused
+    binary = tmp_path / "imu2.bin"
+    binary.write_bytes(bytes(imu2) + bytes(data))  # the new FMT first: every record one further on
+    index, offset = moved[0] + 1, starts[moved[0]][0] + 89
+    path = binary
+    if suffix == ".log":
+        path = tmp_path / "imu2.log"
+        as_text(binary, path)
+    out = tmp_path / "out.csv"
+    assert main(["estimate", str(path), "-e", "dcm", "--out", str(out)]) == 2
+    at = f"offset {offset}" if suffix == ".bin" else f"line {index + 1}"  # one record a line
+    error = f"gcs estimate: error: {path}: {at}: IMU, IMU2 records hold the same instance"
+    assert capsys.readouterr().err.splitlines() == [error]
+    assert not out.exists()

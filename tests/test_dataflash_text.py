@@ -94,3 +94,39 @@ def test_a_log_that_is_no_dataflash_text_log_is_one_line(tmp_path, capsys, conte
         code, _, err = _run(argv, capsys)
         assert code == 2 and expected in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def apm2_dump(binary: Path, text: Path, records: int = 200) -> None:
+    """The first IMU and ATT records of a real .bin as the CLI log dump of APM 2.x firmware printed
+    them before logs carried FMT lines (ArduCopter 2.x Log.pde: the firmware banner and free RAM,
+    then "RAW, " six floats, gyro rad/s and accel m/s², printed with two decimals, "ATT, " the
+    centidegree integers; neither with a time), ending with the packet count."""
+    log = DFReader_binary(str(binary))
+    lines = ["", "ArduCopter V2.8.1", "Free RAM: 1024"]
+    while len(lines) < records + 3 and (m := log.recv_match(type=["IMU", "ATT"])) is not None:
+        if m.get_type() == "IMU":
+            values = [m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ]
+            lines.append("RAW, " + "".join(f"{v:.2f}, " for v in values) + " ")
+        else:
+            angles = [m.DesRoll, m.Roll, m.DesPitch, m.Pitch, m.DesYaw, m.Yaw]
+            lines.append("ATT, " + ", ".join(str(round(a * 100)) for a in angles))
+    lines.append(f"Number of packets read: {records}")
+    text.write_text("\n".join(lines) + "\n")
+
+
+def test_a_log_of_firmware_before_fmt_lines_is_refused_naming_what_it_lacks(logs_dir, tmp_path, capsys):
+    """APM 2.x firmware's dump of fixed-format records (no FMT line, no time in its RAW and ATT
+    records) was refused as "not a DataFlash text log", as if it were some other program's file.
+    It is refused naming its first record and what is missing, and what to read instead."""
+    path = tmp_path / "apm2.log"
+    apm2_dump(logs_dir / "arducopter-sitl-hop.BIN", path)
+    first = next(n for n, line in enumerate(path.read_text().splitlines(), start=1) if line.startswith("RAW, "))
+    expected = (
+        f"{path}: line {first}: RAW record of a log with no FMT lines (APM 2.x firmware's fixed formats, IMU "
+        "records without time; no conversion adds them): cannot be read, use the flight's .tlog"
+    )
+    out = tmp_path / "x.csv"
+    for argv in (["replay", "--fast", str(path)], ["estimate", str(path), "-e", "dcm", "--out", str(out)]):
+        code, _, err = _run(argv, capsys)
+        assert code == 2 and err.splitlines() == [f"gcs {argv[0]}: error: {expected}"], err
+    assert not out.exists()

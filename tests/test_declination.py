@@ -146,7 +146,7 @@ def test_live_station_uses_the_wmm_records_it_and_replays_identically(tmp_path):
     port = free_port()
 
     async def fly():
-        async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)) as station:
+        async with running_station(f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True) as station:
             inputs = station.estimation.inputs
             async with running_sim(
                 f"udpout:127.0.0.1:{port}", profile="pixhawk", script="bench", speed=2.0, publish_declination=False

@@ -105,7 +105,7 @@ def test_a_stopped_session_holds_the_estimates_of_every_input_it_recorded(tmp_pa
     live attitude it holds then cover the same samples."""
 
     async def scenario():
-        async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station:
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station:
             estimation = station.estimation
             assert estimation is not None
             estimation.pace(lambda: 5.0)  # far longer than the test: what arrives after the first turn waits

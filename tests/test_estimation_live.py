@@ -44,7 +44,7 @@ def test_live_estimators_converge_and_match_offline_recomputation(profile, tmp_p
     points = []
 
     async def fly():
-        async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)) as station:
+        async with running_station(f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True) as station:
             station.estimation.points.connect(points.extend)
             async with running_sim(f"udpout:127.0.0.1:{port}", profile=profile, script="quad", speed=2.0):
                 await wait_for(lambda: points and points[-1].t > 16.0, 30, "16 s of vehicle time")

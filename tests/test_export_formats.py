@@ -47,7 +47,7 @@ def recorded(tmp_path_factory) -> dict:
 
 async def record(port: int, root: Path) -> dict:
     async with (
-        running_station(f"udpin:127.0.0.1:{port}", record_dir=str(root)) as station,
+        running_station(f"udpin:127.0.0.1:{port}", sessions_dir=str(root), record=True) as station,
         sim_process(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0),
     ):
         server = DashboardServer(station, port=0, viser=False)

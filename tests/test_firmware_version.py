@@ -36,7 +36,9 @@ def test_pixhawk_version_requested_at_connect_reaches_the_metadata(udp_port, tmp
     async def scenario():
         async with (
             running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk") as sim,
-            running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False, record_dir=str(tmp_path)) as station,
+            running_station(
+                f"udpin:127.0.0.1:{udp_port}", estimate=False, sessions_dir=str(tmp_path), record=True
+            ) as station,
         ):
             await wait_for(lambda: station.vehicle.firmware is not None, 20, "the firmware version")
             assert sim.received.get("COMMAND_LONG", 0) >= 1

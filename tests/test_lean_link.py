@@ -37,7 +37,12 @@ def test_every_packet_is_counted_forwarded_and_recorded_but_only_read_types_are_
     out_port = out_rx.getsockname()[1]
 
     async def scenario():
-        config = {"record_dir": str(tmp_path), "outputs": [f"udpout:127.0.0.1:{out_port}"], "request_streams": False}
+        config = {
+            "sessions_dir": str(tmp_path),
+            "record": True,
+            "outputs": [f"udpout:127.0.0.1:{out_port}"],
+            "request_streams": False,
+        }
         async with running_station(f"udpin:127.0.0.1:{udp_port}", **config) as station:
             everything = station.bus.subscribe("test", maxlen=1000)  # every type, as the recorder
             await wait_for(lambda: station.link.is_open and station.bus.wants("ATTITUDE"), 10, "the socket, readers")

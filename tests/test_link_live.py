@@ -171,7 +171,9 @@ def test_a_serial_port_that_vanishes_is_one_clear_line_in_the_session(tmp_path):
     path = tmp_path / "ttyUSB-sim"
 
     async def scenario():
-        async with running_station(str(path), heartbeat_timeout=1.5, record_dir=str(tmp_path / "rec")) as station:
+        async with running_station(
+            str(path), heartbeat_timeout=1.5, sessions_dir=str(tmp_path / "rec"), record=True
+        ) as station:
             link, pipeline = station.link, station.estimation.pipeline
             async with running_sim(f"pty:{path}", profile="apm25"):
                 await wait_for(lambda: pipeline.imu_samples > 50, 20, "samples")
@@ -216,7 +218,9 @@ def test_a_port_that_came_back_with_the_vehicle_rebooted_scores_each_boot_agains
     path = tmp_path / "ttyUSB-sim"
 
     async def scenario():
-        async with running_station(str(path), heartbeat_timeout=1.5, record_dir=str(tmp_path / "rec")) as station:
+        async with running_station(
+            str(path), heartbeat_timeout=1.5, sessions_dir=str(tmp_path / "rec"), record=True
+        ) as station:
             pipeline = station.estimation.pipeline
             async with sim_process(f"pty:{path}", profile="apm25", script="quad", speed=2.0):
                 await wait_for(lambda: pipeline.imu_samples > 400, 60, "the first boot's flight")

@@ -23,7 +23,9 @@ def test_a_vanished_serial_port_is_the_reason_of_the_loss_everywhere_it_is_shown
     path = tmp_path / "ttyUSB-sim"
 
     async def scenario():
-        async with running_station(str(path), heartbeat_timeout=1.5, record_dir=str(tmp_path / "rec")) as station:
+        async with running_station(
+            str(path), heartbeat_timeout=1.5, sessions_dir=str(tmp_path / "rec"), record=True
+        ) as station:
             link = station.link
             async with running_sim(f"pty:{path}", profile="apm25"):
                 assert await link.wait_connected(10)

@@ -183,7 +183,11 @@ async def _dashboard_download(tmp_path, udp_port):
     token = "s3cret-token"
     async with (
         running_station(
-            f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False, record_dir=str(tmp_path)
+            f"udpin:127.0.0.1:{udp_port}",
+            request_streams=False,
+            estimate=False,
+            sessions_dir=str(tmp_path),
+            record=True,
         ) as station,
         log_vehicle(f"udpout:127.0.0.1:{udp_port}", "apm25", 10.0) as sim,
     ):

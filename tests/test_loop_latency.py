@@ -153,7 +153,8 @@ from gcs.sessions import columnar
 from gcs.transport.address import free_port
 
 async def main():
-    config = StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", record_dir=tempfile.mkdtemp(), estimate=False)
+    root = tempfile.mkdtemp()
+    config = StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", sessions_dir=root, record=True, estimate=False)
     station = Station(config)
     await station.start()
     before = set(sys.modules)

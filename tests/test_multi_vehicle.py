@@ -84,7 +84,7 @@ def truth_params(sysid: int, profile: str) -> dict[str, float]:
 
 def test_three_vehicles_on_two_links(tmp_path: Path) -> None:
     ports = [free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)]
-    config = StationConfig(connect=f"udpin:127.0.0.1:{ports[0]}", record_dir=str(tmp_path))
+    config = StationConfig(connect=f"udpin:127.0.0.1:{ports[0]}", sessions_dir=str(tmp_path), record=True)
 
     async def scenario():
         fleet = Fleet(config, [f"udpin:127.0.0.1:{port}" for port in ports])
@@ -231,7 +231,7 @@ def test_dashboard_vehicle_selector(tmp_path: Path) -> None:
     port = free_port(socket.SOCK_DGRAM)
 
     async def scenario() -> tuple[list[str], list[str], str, list[str]]:
-        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+        fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True))
         server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
         await fleet.start()
         await server.start()
@@ -617,7 +617,7 @@ def _assert_replays_as_live(folder: Path) -> None:
 async def _two_vehicles_heard(tmp_path: Path, port: int, feed: Callable[[], Awaitable[None]]) -> list[int | None]:
     """A fleet recording into tmp_path on UDP `port`, fed by `feed` until both vehicles are
     served; the system ids of its vehicles, in the order they were taken."""
-    fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)))
+    fleet = Fleet(StationConfig(connect=f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True))
     await fleet.start()
     try:
         await wait_for(lambda: fleet.links[0].is_open, 30, "the UDP port open")

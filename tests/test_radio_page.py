@@ -48,7 +48,7 @@ def test_radio_table_and_log_download_button(udp_port, tmp_path):
         )
         try:
             async with running_station(
-                f"udpin:127.0.0.1:{udp_port}", estimate=False, record_dir=str(tmp_path / "rec")
+                f"udpin:127.0.0.1:{udp_port}", estimate=False, sessions_dir=str(tmp_path / "rec"), record=True
             ) as station:
                 await wait_for(lambda: station.radio.present, 60, "the radio's RADIO_STATUS")
                 async with dashboard(station, viser=False) as server, async_playwright() as pw:

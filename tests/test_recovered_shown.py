@@ -42,7 +42,7 @@ def test_the_sessions_tab_names_the_session_a_crash_left_open(tmp_path, udp_port
     async def restart() -> str:
         errors: list[str] = []
         async with (
-            running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(root)) as station,
+            running_station(f"udpin:127.0.0.1:{free_port()}", sessions_dir=str(root), record=True) as station,
             dashboard(station, viser=False) as server,
             async_playwright() as pw,
         ):

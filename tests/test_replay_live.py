@@ -25,7 +25,7 @@ def test_replay_of_recorded_session_equals_live(tmp_path):
     live = []
 
     async def record():
-        async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path)) as station:
+        async with running_station(f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True) as station:
             async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0):
                 station.estimation.points.connect(live.extend)
                 pipeline = station.estimation.pipeline
@@ -72,7 +72,7 @@ def test_a_gain_change_in_a_session_started_later_replays_where_it_happened(udp_
 
     async def record():
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station,
             running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
         ):
             pipeline = station.estimation.pipeline

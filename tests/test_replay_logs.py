@@ -20,6 +20,7 @@ from gcs.commands.cli import main
 from gcs.logs.dataflash import TYPES
 from gcs.logs.readers import InputError
 from gcs.logs.ulog import ATTITUDE_TOPIC, IMU_TOPIC
+from gcs.mavlink.sampling import IMU_TYPES
 from gcs.mavlink.tlog import read_tlog_records
 from gcs.runtime.replay import ReplaySession, session_table, whole_table
 from gcs.sessions.sources import open_source
@@ -354,19 +355,29 @@ def test_a_paced_replay_goes_past_a_damaged_timestamp(logs_dir, tmp_path):
     assert 35 <= speed <= 51, speed
 
 
-def test_a_tlog_without_raw_imu_says_so_rather_than_a_rate(logs_dir, tmp_path, capsys):
-    """The first 1000 bytes of the hop's tlog (heartbeats, no IMU message): the table is empty and
-    the note read "raw IMU at 0.0 Hz, below the 50 Hz needed ... request RAW_IMU at 50 Hz or
-    more", as if a slow IMU had been logged."""
-    path = tmp_path / "no-imu.tlog"
-    path.write_bytes((logs_dir / "arducopter-sitl-hop.tlog").read_bytes()[:1000])
-    assert main(["replay", "--fast", str(path)]) == 0
-    out, err = capsys.readouterr()
-    assert len(out.splitlines()) == 2  # the table's header, the timing line
-    note = (
-        f"gcs replay: note: {path} holds no raw IMU samples: the estimators had nothing to run on (the table is empty)"
-    )
-    assert note in err.splitlines() and "0.0 Hz" not in err
+@pytest.mark.parametrize("cut", [False, True])
+def test_a_tlog_without_imu_is_refused_by_replay_as_by_estimate(logs_dir, hop_without_imu, tmp_path, capsys, cut):
+    """The hop's tlog without its IMU messages (88 s of everything else), or its first 1000 bytes
+    (heartbeats, commands and one SCALED_IMU3, which gives no sample): `gcs replay` printed an
+    empty table and a note, exit 0, where `gcs estimate` refused the same file, exit 2. Both
+    refuse it in the same one line, exit 2, and write nothing."""
+    path = hop_without_imu
+    if cut:
+        path = tmp_path / "no-imu.tlog"
+        path.write_bytes((logs_dir / "arducopter-sitl-hop.tlog").read_bytes()[:1000])
+        why = f"{path}: no IMU samples: nothing to estimate from"
+    else:
+        why = f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES)}) in the log: nothing to estimate from"
+    out = tmp_path / "estimates.csv"
+    for argv in (
+        ["replay", "--fast", str(path)],
+        ["replay", "--speed", "1000", str(path)],
+        ["estimate", str(path), "-e", "dcm", "--out", str(out)],
+    ):
+        assert main(argv) == 2, argv
+        printed, err = capsys.readouterr()
+        assert printed == "" and err.splitlines()[-1:] == [f"gcs {argv[0]}: error: {why}"], err
+    assert not out.exists()
 
 
 def test_replay_and_report_say_what_the_log_lacks_as_estimate_does(logs_dir, tmp_path, capsys):

@@ -105,7 +105,7 @@ async def replay_beside_live(udp_port: int, flights: Path, artifacts_dir: Path, 
     root.mkdir()
     shutil.copy(flight(flights, "short.tlog", 30), root / "short.tlog")  # a symlink out of the folder is refused
     errors: list[str] = []
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station:
         async with dashboard(station, viser=False) as server:
             emitted: Counter[str] = Counter()
             station.points.connect(lambda points: emitted.update(p.source for p in points))
@@ -192,7 +192,7 @@ async def whatif_during_flight(udp_port: int, flights: Path, tmp_path: Path) -> 
     root = tmp_path / "sessions"
     root.mkdir()
     shutil.copy(flight(flights, "long.tlog", 600), root / "long.tlog")
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station:
         async with dashboard(station, viser=False) as server:
             watch = LinkWatch(station)
             async with (

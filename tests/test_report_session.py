@@ -20,7 +20,7 @@ from gcs.server.colors import colors_script
 def record_session(udp_port: int, root) -> str:
     async def scenario() -> str:
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station,
             sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=2.0),
         ):
             await wait_for(lambda: station.estimation.pipeline.imu_samples > 400, 90, "IMU samples")

@@ -70,7 +70,7 @@ def test_a_body_of_the_wrong_type_or_with_a_misspelt_field_is_refused_and_change
 
 
 async def scenario(udp_port: int, tmp_path, requests) -> list[tuple[int, str]]:
-    async with running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(tmp_path)) as station:
+    async with running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(tmp_path), record=True) as station:
         server = DashboardServer(station, port=0, viser=False)
         await server.start()
         headers = {"Content-Type": "application/json"}

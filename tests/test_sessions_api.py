@@ -34,7 +34,7 @@ def test_sessions_api(udp_port, tmp_path):
 
 async def scenario(udp_port: int, root) -> None:
     async with (
-        running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+        running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station,
         sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=4.0),
     ):
         server = DashboardServer(station, port=0, viser=False)
@@ -121,6 +121,25 @@ def test_a_station_that_does_not_record_lists_the_sessions_of_its_record_dir(tmp
     (tmp_path / "2026-12-01_10-00-00_quad" / layout.META).write_text("{}")
     argv = ["serve", "--connect", f"udpin:127.0.0.1:{free_port()}", "--no-record", "--record-dir", str(tmp_path)]
     assert asyncio.run(listed(station_config(build_parser(["serve"]).parse_args(argv)))) == ["2026-12-01_10-00-00_quad"]
+
+
+def test_the_record_flags_give_the_one_sessions_folder_and_whether_to_record(tmp_path):
+    """StationConfig kept the folder twice: record_dir (None when not recording) and sessions_dir
+    (the lists' folder when not recording), equal whenever both were set, the second unread then.
+    The flags now set the one folder and whether to record into it, as they did."""
+    link = ["--connect", f"udpin:127.0.0.1:{free_port()}"]
+    folder = ["--record-dir", str(tmp_path)]
+    for command, flags, record in (
+        (["serve"], folder, True),
+        (["serve"], [*folder, "--no-record"], False),
+        (["status"], folder, False),  # a quick look records only when asked
+        (["status"], [*folder, "--record"], True),
+        (["params", "get"], [*folder, "--record"], True),
+    ):
+        config = station_config(build_parser(command).parse_args([*command, *link, *flags]))
+        assert (config.sessions_dir, config.record) == (str(tmp_path), record), (command, flags)
+    config = station_config(build_parser(["serve"]).parse_args(["serve", *link]))
+    assert (config.sessions_dir, config.record) == ("sessions", True)
 
 
 async def listed(config: StationConfig) -> list[str]:

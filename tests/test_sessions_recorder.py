@@ -109,7 +109,7 @@ def test_kill9_loses_under_a_second_and_session_is_recovered(tmp_path):
     assert columnar.read_stream(layout.stream_path(folder, "attitude"), columnar.ATTITUDE_SCHEMA)[0].num_rows > 0
 
     async def restart() -> dict:
-        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(root)) as station:
+        async with running_station(f"udpin:127.0.0.1:{free_port()}", sessions_dir=str(root), record=True) as station:
             return dataclasses.asdict(station.recorder.snapshot())
 
     status = asyncio.run(restart())
@@ -161,7 +161,7 @@ def test_full_disk_gives_clear_error_and_keeps_valid_files(tmp_path):
 
     async def record() -> tuple[dict, int, int, list]:
         async with running_sim(f"udpout:127.0.0.1:{port}", profile="pixhawk", script="quad", speed=4.0):
-            async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(disk)) as station:
+            async with running_station(f"udpin:127.0.0.1:{port}", sessions_dir=str(disk), record=True) as station:
                 await wait_for(lambda: station.recorder.state == "failed", 30, "the disk to fill")
                 imu_at_failure = station.estimation.pipeline.imu_samples
                 pipeline = station.estimation.pipeline
@@ -199,7 +199,9 @@ def test_unwritable_folder_is_reported_not_raised(tmp_path):
     blocked.write_text("")
 
     async def run() -> dict:
-        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(blocked / "sessions")) as st:
+        async with running_station(
+            f"udpin:127.0.0.1:{free_port()}", sessions_dir=str(blocked / "sessions"), record=True
+        ) as st:
             return dataclasses.asdict(st.recorder.snapshot())  # start() reported it synchronously
 
     status = asyncio.run(run())
@@ -218,7 +220,9 @@ def test_a_malformed_meta_json_does_not_stop_start_up(tmp_path, bad):
     assert listing.returncode == 0 and json.loads(listing.stdout)[0]["name"] == damaged.name, listing.stderr
 
     async def start() -> str:
-        async with running_station(f"udpin:127.0.0.1:{free_port()}", record_dir=str(tmp_path)) as station:
+        async with running_station(
+            f"udpin:127.0.0.1:{free_port()}", sessions_dir=str(tmp_path), record=True
+        ) as station:
             return station.recorder.snapshot().state
 
     assert asyncio.run(start()) == "waiting"  # started (not failed), the session opens at the first byte
@@ -310,7 +314,9 @@ def test_the_event_log_follows_the_session_folder_to_its_vehicle_name(tmp_path, 
     async def record() -> None:
         async with (
             running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"),
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root), estimate=False) as station,
+            running_station(
+                f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True, estimate=False
+            ) as station,
         ):
 
             def moved() -> bool:
@@ -343,7 +349,7 @@ def test_recording_ignores_what_the_working_directory_holds(tmp_path, udp_port, 
     async def record() -> None:
         async with (
             running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"),
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+            running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station,
         ):
 
             def attitude_written_or_failed() -> bool:

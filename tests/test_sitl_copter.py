@@ -196,7 +196,7 @@ def test_cold_sitl_ekf_yaw_follows_simstate_and_the_tlog_gives_the_live_estimate
     points: list[AttitudePoint] = []
 
     async def session():
-        async with running_station(f"tcp:127.0.0.1:{sitl}", record_dir=str(record_dir)) as station:
+        async with running_station(f"tcp:127.0.0.1:{sitl}", sessions_dir=str(record_dir), record=True) as station:
             station.points.connect(points.extend)
             await wait_for(lambda: len(points) > 0, 60, "the first estimates")
             dec_at = await _fly(station, points)

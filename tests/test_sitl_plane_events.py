@@ -30,7 +30,9 @@ def test_plane_mode_changes_and_arming_are_in_the_session_and_its_report(plane, 
     record_dir = tmp_path / "sessions"
 
     async def scenario() -> None:
-        async with running_station(f"tcp:127.0.0.1:{plane}", record_dir=str(record_dir), estimate=False) as station:
+        async with running_station(
+            f"tcp:127.0.0.1:{plane}", sessions_dir=str(record_dir), record=True, estimate=False
+        ) as station:
             vehicle = station.vehicle
             # booted (INITIALISING, then MANUAL) and its RC input read, which sets the mode once more
             await wait_for(lambda: vehicle.mode == "MANUAL", 60, "MANUAL after the boot")

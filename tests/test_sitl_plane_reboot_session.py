@@ -49,7 +49,9 @@ def rebooted_session(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rebooted")
 
     async def scenario(port: int):
-        async with running_station(f"tcp:127.0.0.1:{port}", record_dir=str(folder / "sessions")) as station:
+        async with running_station(
+            f"tcp:127.0.0.1:{port}", sessions_dir=str(folder / "sessions"), record=True
+        ) as station:
             clock = station.vehicle.clock
             await wait_for(lambda: (clock.last or 0.0) > BOOT_S, 120, "the first boot's clock")
             changed = [clock.last]  # a gain change in each boot, at this vehicle time
@@ -146,7 +148,9 @@ def test_the_replay_view_plays_a_rebooted_plane_boot_after_boot(rebooted_session
 
     async def scenario():
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(rebooted_session.parent)) as station,
+            running_station(
+                f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(rebooted_session.parent), record=True
+            ) as station,
             dashboard(station, viser=False) as server,
             async_playwright() as pw,
         ):
@@ -175,7 +179,9 @@ def test_the_what_if_chart_lays_a_rebooted_plane_boot_after_boot(rebooted_sessio
 
     async def scenario():
         async with (
-            running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(rebooted_session.parent)) as station,
+            running_station(
+                f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(rebooted_session.parent), record=True
+            ) as station,
             served_api(station) as api,
         ):
             body = {"source": rebooted_session.name, "estimator": "dcm", "gains": {"kp_rp": 0.5}}

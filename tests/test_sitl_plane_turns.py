@@ -55,7 +55,7 @@ def plane_flight(tmp_path_factory):
     record_dir = scratch / "sessions"
 
     async def fly(port: int) -> tuple[list[dict[str, float | None]], dict[str, ComparisonSummary]]:
-        async with running_station(f"tcp:127.0.0.1:{port}", record_dir=str(record_dir)) as station:
+        async with running_station(f"tcp:127.0.0.1:{port}", sessions_dir=str(record_dir), record=True) as station:
             vehicle, estimation = station.vehicle, station.estimation
             assert estimation is not None
             pipeline = estimation.pipeline

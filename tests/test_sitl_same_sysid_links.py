@@ -41,7 +41,7 @@ def test_a_second_vehicle_at_the_same_system_id_on_another_link_is_named(tmp_pat
 
     async def scenario(plane: int, copter: int):
         links = [f"tcp:127.0.0.1:{plane}", f"tcp:127.0.0.1:{copter}"]
-        fleet = Fleet(StationConfig(connect=links[0], estimate=False, record_dir=None), links)
+        fleet = Fleet(StationConfig(connect=links[0], estimate=False), links)
         server = DashboardServer(fleet.first, port=0, viser=False, fleet=fleet)
         await fleet.start()
         await server.start()

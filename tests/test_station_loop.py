@@ -59,7 +59,9 @@ def test_gain_changes_at_400_hz_land_on_the_loop_and_replay_reproduces_live(tmp_
 
     async def record() -> tuple[int, object]:
         plan = StreamPlan(imu_hz=400, attitude_hz=50)
-        async with running_station(f"udpin:127.0.0.1:{port}", record_dir=str(tmp_path), plan=plan) as station:
+        async with running_station(
+            f"udpin:127.0.0.1:{port}", sessions_dir=str(tmp_path), record=True, plan=plan
+        ) as station:
             loop_thread = threading.get_ident()
             set_gain = station.set_gain
 

@@ -24,7 +24,7 @@ def test_failed_part_is_reported_and_the_rest_keeps_running(udp_port, tmp_path):
 async def scenario(udp_port: int, root) -> dict:
     report: dict = {}
     async with (
-        running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(root)) as station,
+        running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(root), record=True) as station,
         sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad", speed=2.0),
     ):
         server = DashboardServer(station, port=0, viser=False)

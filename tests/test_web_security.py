@@ -86,7 +86,7 @@ def test_a_page_of_another_origin_changes_nothing(udp_port, tmp_path, attacker_s
 
 async def scenario(udp_port: int, record_dir, site_dir, site: str) -> None:
     async with (
-        running_station(f"udpin:127.0.0.1:{udp_port}", record_dir=str(record_dir)) as station,
+        running_station(f"udpin:127.0.0.1:{udp_port}", sessions_dir=str(record_dir), record=True) as station,
         sim_process(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk", script="quad"),
     ):
         server = DashboardServer(station, port=0, viser=False)

@@ -29,6 +29,7 @@ import re
 import secrets
 import shutil
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
@@ -230,14 +231,18 @@ def write_failure(dataset: Path, flight: str, path: str, reason: str) -> None:
     write_locked(target, lambda tmp: pq.write_table(table, tmp), folder=False)
 
 
+def no_flights(dataset: str | os.PathLike) -> FileNotFoundError:
+    missing = not Path(dataset).is_dir()
+    why = "no such dataset folder (gcs batch --out makes one)" if missing else "no flights in the dataset"
+    return FileNotFoundError(f"{dataset}: {why}")
+
+
 def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:
     """One table of every flight as a single table with a `flight` column (Hive partitions)."""
     root = Path(dataset) / FLIGHTS
     files = sorted(str(p) for p in root.glob(f"flight=*/{table}.parquet"))
     if not files:
-        missing = not Path(dataset).is_dir()
-        why = "no such dataset folder (gcs batch --out makes one)" if missing else "no flights in the dataset"
-        raise FileNotFoundError(f"{dataset}: {why}")
+        raise no_flights(dataset)
     parts = ds.partitioning(pa.schema([("flight", pa.string())]), flavor="hive")
     try:
         return ds.dataset(files, format="parquet", partitioning=parts, partition_base_dir=str(root)).to_table()
@@ -245,11 +250,53 @@ def read_table(dataset: str | os.PathLike, table: str) -> pa.Table:
         raise InputError(f"{dataset}: unreadable {table} table ({' '.join(str(exc).split())})") from None
 
 
-def read_failures(dataset: str | os.PathLike) -> pa.Table:
-    """Every failure row, with its `flight`."""
+@dataclass(frozen=True)
+class Unreadable:
+    """A flight whose file could not be read (cut, overwritten, not Parquet): left out, and why."""
+
+    flight: str
+    reason: str  # one line naming the file
+
+
+@dataclass(frozen=True)
+class Readable:
+    """The rows of every flight whose file could be read (with a `flight` column), and the flights
+    left out (one damaged file failed the whole fleet's report)."""
+
+    table: pa.Table
+    unreadable: list[Unreadable]
+
+
+def _read_each(files: list[tuple[str, Path]], schema: pa.Schema, what: str) -> Readable:
+    """(flight, file) pairs read one by one into `schema` (more columns are dropped), with the
+    flight's name as a column; `what` names the table in a reason."""
+    tables, unreadable = [], []
+    for flight, path in files:
+        try:
+            table = columnar.read_parquet(path)
+            rows = table.select(schema.names).cast(schema)
+        except InputError as exc:
+            unreadable.append(Unreadable(flight, str(exc)))
+            continue
+        except (KeyError, pa.ArrowException) as exc:  # a Parquet file of some other table
+            unreadable.append(Unreadable(flight, f"{path}: not a {what} table ({' '.join(str(exc).split())})"))
+            continue
+        tables.append(rows.append_column("flight", pa.array([flight] * rows.num_rows, pa.string())))
+    empty = schema.append(pa.field("flight", pa.string())).empty_table()
+    return Readable(pa.concat_tables([empty, *tables]), unreadable)
+
+
+def read_summaries(dataset: str | os.PathLike) -> Readable:
+    """Every flight's summary rows, leaving out (and naming) the flights whose summary cannot be
+    read. FileNotFoundError when the dataset has no flights."""
+    root = Path(dataset) / FLIGHTS
+    files = sorted(root.glob("flight=*/summary.parquet"))
+    if not files:
+        raise no_flights(dataset)
+    return _read_each([(f.parent.name.removeprefix("flight="), f) for f in files], SUMMARY_SCHEMA, "summary")
+
+
+def read_failures(dataset: str | os.PathLike) -> Readable:
+    """Every failure row, with its `flight`, leaving out (and naming) the files that cannot be read."""
     files = sorted((Path(dataset) / FAILURES).glob("flight=*.parquet"))
-    tables = [
-        columnar.read_parquet(f).append_column("flight", pa.array([f.stem.removeprefix("flight=")], pa.string()))
-        for f in files
-    ]
-    return pa.concat_tables(tables) if tables else FAILURE_SCHEMA.append(pa.field("flight", pa.string())).empty_table()
+    return _read_each([(f.stem.removeprefix("flight="), f) for f in files], FAILURE_SCHEMA, "failure")

@@ -12,6 +12,7 @@ import html
 import math
 import os
 from collections import defaultdict
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -123,11 +124,21 @@ def sweep_section(folder: Path) -> str:
     )
 
 
-def write_fleet_report(path: str | os.PathLike, out: str | os.PathLike, worst: int = 3) -> int:
-    """Write the page (and the worst flights' own reports into OUT_flights/); returns the number
-    of flights on it. FileNotFoundError when the dataset has no flights."""
+@dataclass(frozen=True)
+class FleetPage:
+    """What a fleet page holds: its flights, and those left out because a file of theirs could not
+    be read (listed on the page, and for the command to name)."""
+
+    flights: int
+    skipped: list[dataset.Unreadable]
+
+
+def write_fleet_report(path: str | os.PathLike, out: str | os.PathLike, worst: int = 3) -> FleetPage:
+    """Write the page (and the worst flights' own reports into OUT_flights/). FileNotFoundError
+    when the dataset has no flights."""
     root, target = Path(path), Path(out)
-    summary = dataset.read_table(root, "summary").to_pylist()
+    summaries = dataset.read_summaries(root)
+    summary = summaries.table.to_pylist()
     rows = scored_rows(summary)
     flights = sorted({r["flight"] for r in summary})
     estimators = sorted({r["estimator"] for r in summary})
@@ -173,14 +184,18 @@ def write_fleet_report(path: str | os.PathLike, out: str | os.PathLike, worst: i
                 )
             )
         sections.append("<h2>Worst flights</h2>" + _link_table(linked))
-    failures = dataset.read_failures(root).to_pylist()
-    if failures:
-        sections.append(
-            "<h2>Failures</h2>" + html_table(["flight", "reason"], [[f["flight"], f["reason"]] for f in failures])
-        )
+    failures = dataset.read_failures(root)
+    if failures.table.num_rows:
+        failed = [[f["flight"], f["reason"]] for f in failures.table.to_pylist()]
+        sections.append("<h2>Failures</h2>" + html_table(["flight", "reason"], failed))
+    skipped = summaries.unreadable + failures.unreadable
+    if skipped:
+        left_out = [[s.flight, s.reason] for s in skipped]
+        title = "<h2>Skipped: a file of theirs in the dataset cannot be read</h2>"
+        sections.append(title + html_table(["flight", "reason"], left_out))
     sweep = latest_sweep(root)
     if sweep is not None:
         sections.append(sweep_section(sweep))
     text = page(f"gcs fleet report: {root}", sections)
     write_beside(target, lambda tmp: tmp.write_text(text))
-    return len(flights)
+    return FleetPage(len(flights), skipped)

@@ -152,6 +152,7 @@ def process_flight(
     root = Path(out)
     try:
         source = open_source(path)
+        source.require_imu()  # a failure row, as `gcs replay` and `gcs estimate` refuse it
         pipeline, points = replay_flight(source, estimators, gains or {})
         comparison = comparison_table(pipeline)
         events = events_table(read_events(Path(path))) if source.kind == "session" else events_table([])

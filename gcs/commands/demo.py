@@ -9,7 +9,7 @@ import math
 import sys
 
 from gcs.commands.common import os_error_line
-from gcs.commands.options import add_record_arguments, record_dir
+from gcs.commands.options import add_record_arguments, recording
 from gcs.commands.serve import add_server_arguments, announce, dashboard, presets_or_report
 from gcs.commands.sim import PROFILES
 from gcs.core.gains import PresetFile
@@ -92,8 +92,8 @@ async def _demo(args: argparse.Namespace, presets: list[PresetFile]) -> None:
     config = StationConfig(
         f"udpin:127.0.0.1:{port}",
         outputs=args.out,
-        record_dir=record_dir(args),
         sessions_dir=args.record_dir,
+        record=recording(args),
         presets=presets,
     )
     fleet = Fleet(config)

@@ -36,7 +36,7 @@ from gcs.core.estimators import registry
 from gcs.core.gains import GainError
 from gcs.core.rotation import quat_to_euler
 from gcs.core.samples import ImuSample
-from gcs.logs.logfile import InputError, LogFile
+from gcs.logs.logfile import InputError, LogFile, no_imu_samples
 from gcs.logs.readers import READERS, Sample, read_samples
 from gcs.logs.tlog import read_tlog
 from gcs.mavlink.sampling import MessageInputs
@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         with open(tmp, "w", newline="") as out:
             rows = estimate(args.input, estimator, out, args.imu, declination)
         if rows == 0:
-            raise InputError(f"{args.input}: no IMU samples")  # OUT is left as it was
+            raise no_imu_samples(args.input)  # OUT is left as it was
         return rows
 
     try:

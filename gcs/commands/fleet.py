@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from gcs.commands.common import run_reporting_errors
 
@@ -29,10 +30,20 @@ def flight_count(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Exit 2 when no page could be written; 1 when it was, without the flights whose file in the
+    dataset cannot be read (one line each, as `gcs batch` names its failed flights), so that a
+    script publishing the page knows it is incomplete; else 0."""
     from gcs.batch.fleet_report import write_fleet_report  # noqa: PLC0415 - matplotlib, pyarrow only now
 
-    def work() -> str:
-        written = write_fleet_report(args.dataset, args.out, args.worst)
-        return f"wrote {args.out} ({written} flights)"
+    skipped = 0
 
-    return run_reporting_errors("fleet report", args.out, work)
+    def work() -> str:
+        nonlocal skipped
+        written = write_fleet_report(args.dataset, args.out, args.worst)
+        for left_out in written.skipped:
+            print(f"skipped {left_out.flight}: {left_out.reason}", file=sys.stderr)
+        skipped = len(written.skipped)
+        return f"wrote {args.out} ({written.flights} flights, {skipped} skipped)"
+
+    code = run_reporting_errors("fleet report", args.out, work)
+    return 1 if code == 0 and skipped else code

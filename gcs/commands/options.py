@@ -113,12 +113,10 @@ def add_record_arguments(parser: argparse.ArgumentParser, opt_in: bool = False) 
     parser.add_argument("--no-record", action="store_true", help="do not record this session")
 
 
-def record_dir(args: argparse.Namespace) -> str | None:
-    """Where to record, or None: --no-record, an opt-in command without --record, or a command
-    that never records."""
-    if not hasattr(args, "record_dir") or getattr(args, "no_record", False) or not getattr(args, "record", True):
-        return None
-    return args.record_dir
+def recording(args: argparse.Namespace) -> bool:
+    """Whether to record: not with --no-record, for an opt-in command without --record, or for a
+    command that never records."""
+    return hasattr(args, "record_dir") and not getattr(args, "no_record", False) and getattr(args, "record", True)
 
 
 def station_config(args: argparse.Namespace):
@@ -149,8 +147,8 @@ def station_config(args: argparse.Namespace):
         baud=baud,
         outputs=outputs,
         heartbeat_timeout=args.heartbeat_timeout,
-        record_dir=record_dir(args),
         sessions_dir=getattr(args, "record_dir", "sessions"),
+        record=recording(args),
         signing_key=signing_key(args),
         signing_required=args.signing == "required",
     )

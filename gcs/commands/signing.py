@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         print("gcs signing setup: give the key with --signing-key (or --disable)", file=sys.stderr)
         return 2
     # The vehicle does not know the key yet: the link itself is unsigned.
-    config.signing_key, config.request_streams, config.estimate, config.record_dir = None, False, False, None
+    config.signing_key, config.request_streams, config.estimate, config.record = None, False, False, False
     done, message = asyncio.run(_setup(config, args.sysid, key, args.timeout, disable=args.disable))
     print(message if done else f"gcs signing setup: {message}", file=sys.stdout if done else sys.stderr)
     return 0 if done else 1

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     config = station_config_or_report(args, "status")
     if config is None:
         return 2
-    if config.record_dir and any(parse_address(a).kind == "tlog" for a in links_of(args)):
+    if config.record and any(parse_address(a).kind == "tlog" for a in links_of(args)):
         # the report then said only "recording  off", as if --record had been ignored
         print(
             "gcs status: note: --record: a replayed .tlog is not recorded again (it is the recording)", file=sys.stderr

@@ -181,7 +181,7 @@ class DataflashLog(LogFile):
             self.damage += f" ({len(places) - 1} more damaged places)" if len(places) > 1 else ""
         self.vehicle, self.firmware = _vehicle(contents)
         streams = self._streams(contents)
-        return _Merged(self, streams).table()
+        return _Merged(self, streams, contents.offsets).table()
 
     def _contents(self) -> DataflashContents:
         return read_dataflash(self.path, COLUMNS)
@@ -255,8 +255,8 @@ class DataflashLog(LogFile):
 class _Merged:
     """The used records of every type in file order, and the input table they make."""
 
-    def __init__(self, log: DataflashLog, streams: dict[str, Records]) -> None:
-        self.log, self.streams = log, streams
+    def __init__(self, log: DataflashLog, streams: dict[str, Records], offsets: Ints) -> None:
+        self.log, self.streams, self.offsets = log, streams, offsets
         names = list(streams)
         self.which = np.concatenate([np.full(len(streams[n].position), k, dtype=np.int64) for k, n in enumerate(names)])
         self.row = np.concatenate([np.arange(len(streams[n].position), dtype=np.int64) for n in names])
@@ -281,9 +281,8 @@ class _Merged:
         present = [self.streams[n] for n in types if n in self.streams]
         if len(present) > 1:
             names = ", ".join(s.name for s in present)
-            raise InputError(
-                f"{self.log.path}: offset {int(present[1].position[0])}: {names} records hold the same instance"
-            )
+            at = self.log._where(int(self.offsets[present[1].position[0]]))  # position: an index among the records
+            raise InputError(f"{self.log.path}: {at}: {names} records hold the same instance")
         return present[0] if present else None
 
     def table(self) -> InputTable:

@@ -129,11 +129,13 @@ class RecordFormat:
 class DataflashContents:
     """What `read_dataflash` found. `records[name]`: every record of that type in file order
     (structured, raw stored values: see `scaled`), `positions[name]` their indexes among all the
-    file's records (so types merge in file order); `formats` every type defined; `end` the byte
-    offset where reading stopped."""
+    file's records (so types merge in file order); `offsets` every record's byte offset, by that
+    index (a place to name to the user: an index is no offset in the file); `formats` every type
+    defined; `end` the byte offset where reading stopped."""
 
     records: dict[str, npt.NDArray[np.void]] = field(default_factory=dict)
     positions: dict[str, npt.NDArray[np.int64]] = field(default_factory=dict)
+    offsets: npt.NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     formats: dict[str, RecordFormat] = field(default_factory=dict)
     damage: list[Damage] = field(default_factory=list)
     end: int = 0
@@ -200,7 +202,7 @@ def read_dataflash(
     lengths = np.zeros(256, dtype=np.int64)
     lengths[FMT_TYPE] = FMT_LENGTH
     offsets, end, why, first_bad, bad_kind, bad_bytes = record_index(buf, lengths)
-    contents = DataflashContents(end=end)
+    contents = DataflashContents(offsets=offsets, end=end)
     if not len(offsets):
         raise InputError(f"{path}: offset 0: not a DataFlash log (no record header 0xA3 0x95 with a defined type)")
     kinds = buf[offsets + 2]

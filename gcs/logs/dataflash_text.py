@@ -13,6 +13,7 @@ skipped and named by its line number, as is every place the binary reader finds.
 from __future__ import annotations
 
 import bisect
+import re
 import struct
 from collections.abc import Collection
 from dataclasses import dataclass, field
@@ -100,6 +101,25 @@ def _record(name: str, line: str, fmt: TextFormat) -> bytes:
         raise ValueError(f"{name}: a value is no number of its FMT ({exc})") from None
 
 
+#: A record the CLI log dump of APM 2.x firmware printed before logs carried FMT lines, its name
+#: followed by "," or ":" (ArduPlane and ArduCopter 2.x Log.pde, Log_Read_*): fixed layouts that
+#: changed between releases, and no time in the RAW (gyro, accel) and ATT records.
+FIXED_FORMAT_RECORD = re.compile(r"\s*(RAW|ATT|GPS|CTUN|NTUN|PM|CMD|CURR|MOD)\s*[,:]")
+
+
+def _without_fmt(path: str, text: str) -> InputError:
+    """Why a text with no FMT line is refused: records of firmware that wrote no FMT lines (the
+    first named: no format to read them by, nor the IMU sample times an estimator needs, and no
+    conversion can add what was never logged), else no DataFlash text log at all."""
+    for number, line in enumerate(text.splitlines(), start=1):
+        if found := FIXED_FORMAT_RECORD.match(line):
+            return InputError(
+                f"{path}: line {number}: {found[1]} record of a log with no FMT lines (APM 2.x firmware's fixed "
+                "formats, IMU records without time; no conversion adds them): cannot be read, use the flight's .tlog"
+            )
+    return InputError(f"{path}: line 1: not a DataFlash text log (no FMT line such as 'FMT, 128, 89, FMT, ...')")
+
+
 def text_image(path: str, wanted: Collection[str]) -> TextImage:
     """The binary image of the text log at path (the FMT lines and the records of `wanted` types);
     InputError when it cannot be read or has no FMT line."""
@@ -130,6 +150,6 @@ def text_image(path: str, wanted: Collection[str]) -> TextImage:
         chunks.append(chunk)
         size += len(chunk)
     if not fmt_lines:
-        raise InputError(f"{path}: line 1: not a DataFlash text log (no FMT line such as 'FMT, 128, 89, FMT, ...')")
+        raise _without_fmt(path, text)
     image.buf = np.frombuffer(b"".join(chunks), dtype=np.uint8)
     return image

@@ -15,6 +15,12 @@ class InputError(ValueError):
     """Unreadable input; the message says which file, where, which field and what value."""
 
 
+def no_imu_samples(path: str) -> InputError:
+    """Why a log whose IMU messages or records gave no sample makes no estimate: every command that
+    estimates refuses it with this line."""
+    return InputError(f"{path}: no IMU samples: nothing to estimate from")
+
+
 class LogFile:
     """Base of the log readers: iterate it for samples; afterwards `counts` per record type or
     topic used, `first_us` / `last_us` (the time span of those records, µs), `damage` (None,

@@ -3,7 +3,7 @@ sample stream, decoded by the same framing and `MessageSampler` as the live link
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from gcs.core.estimation import EstimationInput
 from gcs.logs.logfile import InputError
@@ -34,9 +34,13 @@ def _imu_stream(path: str, imu: int) -> tuple[str, int]:
     for kind in IMU_TYPES if imu == 0 else (wanted,):
         if kind in seen:
             return kind, seen[kind]
-    raise InputError(
-        f"{path}: offset 0: no IMU message ({', '.join(IMU_TYPES if imu == 0 else (wanted,))}) found; is this a .tlog?"
-    )
+    raise no_imu(path, IMU_TYPES if imu == 0 else (wanted,))
+
+
+def no_imu(path: str, types: Sequence[str]) -> InputError:
+    """Why a .tlog (or a session's) gives no estimate: every command that estimates from one
+    refuses it with this line (`gcs replay` ran on, printed an empty table and exited 0)."""
+    return InputError(f"{path}: offset 0: no IMU message ({', '.join(types)}) in the log: nothing to estimate from")
 
 
 def read_tlog(

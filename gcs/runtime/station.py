@@ -80,10 +80,11 @@ class StationConfig:
     plan: StreamPlan = field(default_factory=StreamPlan)
     request_streams: bool = True
     estimate: bool = True
-    record_dir: str | None = None  # where sessions are recorded; None: no recording
-    #: where the sessions, replay and what-if lists look when the station does not record
-    #: (`--no-record --record-dir DIR`)
+    #: the sessions folder (--record-dir): recorded into when `record`, and what the sessions,
+    #: replay and what-if lists read either way (one owner: a second field for the lists of a
+    #: station that does not record could only ever repeat it)
     sessions_dir: str = "sessions"
+    record: bool = False  # record every session (the commands' default; --no-record)
     ascii_format: AsciiFormat = SEED000  # the text lines of an ascii: link
     presets: list[PresetFile] = field(default_factory=list)  # estimators start from these (--preset-file)
     signing_key: bytes | None = None  # MAVLink 2 signing key (--signing-key); None: no signing
@@ -154,7 +155,7 @@ class Station:
         if self.estimation is not None:
             self.estimation.points.connect(self.points.emit)
         replaying = self.link.address.kind == "tlog"  # a replayed log is not a new session
-        self.recorder = SessionRecorder(self, config.record_dir) if config.record_dir and not replaying else None
+        self.recorder = SessionRecorder(self, config.sessions_dir) if config.record and not replaying else None
         #: the test protocol being run (or the last one), see gcs.runtime.protocol
         self.protocol: LiveProtocol | None = None
         self._tuning: TuningSession | None = None
@@ -334,9 +335,7 @@ class Station:
     @property
     def recording_root(self) -> Path:
         """Where sessions are recorded (and where replay and what-if sources are looked up)."""
-        if self.recorder is not None:
-            return self.recorder.root
-        return Path(self.config.record_dir or self.config.sessions_dir)
+        return Path(self.config.sessions_dir)
 
     def recording_snapshot(self) -> RecordingSnapshot:
         """The recorder's state now (not at the last published snapshot)."""

@@ -31,14 +31,15 @@ from gcs.core.estimators.whole import InputKind as Kind
 from gcs.core.plausibility import attitude_rows_accepted
 from gcs.logs.dataflash import DataflashLog, DataflashTextLog
 from gcs.logs.input_table import InputTable, InputTableBuilder
-from gcs.logs.logfile import InputError, LogFile
+from gcs.logs.logfile import InputError, LogFile, no_imu_samples
+from gcs.logs.tlog import no_imu
 from gcs.logs.ulog import UlogFile
 from gcs.mavlink.decoding import decode
 from gcs.mavlink.dialect import MAVLinkMessage
 from gcs.mavlink.firmware_version import banner_version, version_of
 from gcs.mavlink.framing import FramingCounters, MavlinkDecoder
 from gcs.mavlink.identity import heartbeat_label, is_vehicle_heartbeat
-from gcs.mavlink.sampling import INPUT_TYPES, SAMPLED_TYPES, MessageInputs
+from gcs.mavlink.sampling import IMU_TYPES, INPUT_TYPES, SAMPLED_TYPES, MessageInputs
 from gcs.mavlink.tlog import packet_length, read_tlog_records
 from gcs.sessions import layout
 
@@ -103,6 +104,14 @@ class ReplaySource:
     def nbytes(self) -> int:
         """Bytes of array data held (frames and inputs)."""
         return self.frames.nbytes + self.table.nbytes
+
+    def require_imu(self) -> None:
+        """InputError when the source holds no IMU sample, so no estimate can be made from it: a
+        .bin's, .log's or .ulg's reader refuses one as it opens; a .tlog or session opens (its
+        messages still export and replay to the dashboard), and a run of the estimators asks this."""
+        path = self.packet_file or self.path
+        if not len(self.table.imu):  # as `gcs estimate` tells a log with no IMU message from one whose gave none
+            raise no_imu_samples(path) if set(IMU_TYPES) & set(self.counts) else no_imu(path, IMU_TYPES)
 
     def inputs(self, start_frame: int = 0, stop_frame: int | None = None) -> Iterator[EstimationInput]:
         """The estimation inputs of frames start_frame..stop_frame-1 (default: all), in order."""
