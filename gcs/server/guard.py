@@ -6,6 +6,11 @@
 - **Origin**, when a browser sends one, must be this server's own (or one given with
   `--allow-origin`): another page the engineer has open cannot write, whatever it sends
   (text/plain, forms, no-cors), and cannot open the WebSocket.
+- **Sec-Fetch-Site** (Fetch Metadata, which browsers send to loopback and https servers): a GET
+  that another page made without an Origin header (an image, a no-cors fetch, a frame) is refused
+  unless it opens a top-level document (the engineer following a link). Such a GET carried the
+  engineer's cookie from another loopback port (same site, which SameSite does not tell apart) and
+  spent the export and replay budget that the engineer's own page, on the same address, shares.
 - **Bodies** over `MAX_BODY` are refused with 413 before they are read.
 - **Headers** on every response: no framing by other pages, no content sniffing, no referrer (the
   start-up URL carries the token), and `Origin-Agent-Cluster` (see `ORIGIN_AGENT_CLUSTER`).
@@ -28,6 +33,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 MAX_BODY = 64 * 1024
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+#: Sec-Fetch-Site of a request made by a page of another origin ("same-site": another port)
+OTHER_SITES = ("cross-site", "same-site")
 #: The ASGI extension for answering a WebSocket handshake with an HTTP response (uvicorn has it):
 #: a refused WebSocket then gets the status and the reason a refused request gets.
 DENIAL_RESPONSE = "websocket.http.response"
@@ -48,7 +55,7 @@ SECURITY_HEADERS = [
 
 @dataclass(frozen=True)
 class Refusal:
-    reason: str  # "host", "origin" or "size"
+    reason: str  # "host", "origin", "site" or "size"
     client: str  # "ADDRESS:PORT"
     origin: str | None
     host: str | None
@@ -113,6 +120,8 @@ class RequestGuard:
             reason = "host"
         elif origin is not None and not self.origin_allowed(origin, host_header):
             reason = "origin"
+        elif origin is None and another_page(headers):
+            reason = "site"
         elif scope["type"] == "http" and _too_long(headers):
             reason, status = "size", 413
         if reason is not None:
@@ -136,6 +145,14 @@ class RequestGuard:
             client = scope.get("client") or ("?", 0)
             agent = Headers(scope=scope).get("user-agent")
             self.on_refused(Refusal(reason, f"{client[0]}:{client[1]}", origin, host, scope.get("path", ""), agent))
+
+
+def another_page(headers: Headers) -> bool:
+    """A request another origin's page made, by its Fetch Metadata, other than opening a top-level
+    document (a link followed). Clients that send no Sec-Fetch-Site (scripts, old browsers) pass."""
+    if headers.get("sec-fetch-site") not in OTHER_SITES:
+        return False
+    return (headers.get("sec-fetch-mode"), headers.get("sec-fetch-dest")) != ("navigate", "document")
 
 
 def _too_long(headers: Headers) -> bool:
@@ -179,6 +196,7 @@ async def _reject(scope: Scope, receive: Receive, send: Send, reason: str, statu
     text = {
         "host": "refused: the Host header does not name this server (DNS rebinding?)",
         "origin": "refused: requests from another web page's origin are not accepted",
+        "site": "refused: another web page made this request (Sec-Fetch-Site); open the dashboard itself",
         "size": f"refused: request body larger than {MAX_BODY} bytes",
     }[reason]
     if scope["type"] == "websocket" and DENIAL_RESPONSE not in scope.get("extensions", {}):
