@@ -6,12 +6,9 @@ holds the token cookie. Nothing changes, and each attempt is refused and logged 
 from __future__ import annotations
 
 import asyncio
-import functools
-import http.server
 import importlib
 import json
 import os
-import threading
 
 import pytest
 from fastapi.routing import APIRoute
@@ -63,18 +60,6 @@ def state_changing() -> list[tuple[str, str]]:
                 )
                 out.append((method, path))
     return sorted(set(out))
-
-
-@pytest.fixture
-def attacker_site(tmp_path):
-    """A plain static server on another loopback port: another origin."""
-    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
-    handler.log_message = lambda *args: None  # type: ignore[attr-defined]
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    yield tmp_path, f"http://127.0.0.1:{server.server_address[1]}"
-    server.shutdown()
 
 
 def test_a_page_of_another_origin_changes_nothing(udp_port, tmp_path, attacker_site):

@@ -16,13 +16,15 @@
   start-up URL carries the token), and `Origin-Agent-Cluster` (see `ORIGIN_AGENT_CLUSTER`).
 
 Each refusal is told to `on_refused` (the station's event log) with the client and the origin.
+Host, Origin and Sec-Fetch-Site are decided by `FrontDoor`, which viser's port has too
+(gcs.server.viser_door).
 The model as a whole: docs/security.md.
 """
 
 from __future__ import annotations
 
 import ipaddress
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from starlette.datastructures import Headers
@@ -51,6 +53,15 @@ SECURITY_HEADERS = [
     (b"x-content-type-options", b"nosniff"),
     (b"referrer-policy", b"no-referrer"),
 ]
+
+
+#: The one line a refused client gets, by reason.
+REASONS = {
+    "host": "refused: the Host header does not name this server (DNS rebinding?)",
+    "origin": "refused: requests from another web page's origin are not accepted",
+    "site": "refused: another web page made this request (Sec-Fetch-Site); open the dashboard itself",
+    "size": f"refused: request body larger than {MAX_BODY} bytes",
+}
 
 
 @dataclass(frozen=True)
@@ -84,19 +95,20 @@ def host_name(header: str) -> str:
     return header.rsplit(":", 1)[0] if header.count(":") == 1 else header
 
 
-class RequestGuard:
-    def __init__(
-        self,
-        app: ASGIApp,
-        *,
-        bound_host: str,
-        allow_origins: Iterable[str] = (),
-        on_refused: Callable[[Refusal], None] | None = None,
-    ) -> None:
-        self.app = app
-        self.bound_host = bound_host
-        self.allow_origins = frozenset(o.rstrip("/") for o in allow_origins)
-        self.on_refused = on_refused
+@dataclass(frozen=True)
+class FrontDoor:
+    """Which requests name this server and come from its own pages (Host, Origin, Sec-Fetch-Site):
+    one policy for the dashboard's port (RequestGuard) and viser's (gcs.server.viser_door)."""
+
+    bound_host: str
+    allow_origins: frozenset[str] = frozenset()
+    #: its page is shown in another page's frame (viser's, in the dashboard's): another page
+    #: opening it in a frame is no refused request
+    framed: bool = False
+
+    @classmethod
+    def of(cls, bound_host: str, allow_origins: Iterable[str] = (), framed: bool = False) -> FrontDoor:
+        return cls(bound_host, frozenset(o.rstrip("/") for o in allow_origins), framed)
 
     def host_allowed(self, name: str) -> bool:
         if is_wildcard(self.bound_host):
@@ -108,6 +120,32 @@ class RequestGuard:
     def origin_allowed(self, origin: str, host_header: str) -> bool:
         return origin in (f"http://{host_header}", f"https://{host_header}") or origin in self.allow_origins
 
+    def refusal(self, headers: Mapping[str, str]) -> str | None:
+        """Why a request with these headers is refused ("host", "origin", "site"), or None."""
+        host_header = headers.get("host", "")
+        origin = headers.get("origin")
+        if not self.host_allowed(host_name(host_header)):
+            return "host"
+        if origin is not None and not self.origin_allowed(origin, host_header):
+            return "origin"
+        if origin is None and another_page(headers, ("document", "iframe") if self.framed else ("document",)):
+            return "site"
+        return None
+
+
+class RequestGuard:
+    def __init__(
+        self,
+        app: ASGIApp,
+        *,
+        bound_host: str,
+        allow_origins: Iterable[str] = (),
+        on_refused: Callable[[Refusal], None] | None = None,
+    ) -> None:
+        self.app = app
+        self.door = FrontDoor.of(bound_host, allow_origins)
+        self.on_refused = on_refused
+
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
@@ -115,14 +153,8 @@ class RequestGuard:
         headers = Headers(scope=scope)
         host_header = headers.get("host", "")
         origin = headers.get("origin")
-        reason, status = None, 403
-        if not self.host_allowed(host_name(host_header)):
-            reason = "host"
-        elif origin is not None and not self.origin_allowed(origin, host_header):
-            reason = "origin"
-        elif origin is None and another_page(headers):
-            reason = "site"
-        elif scope["type"] == "http" and _too_long(headers):
+        reason, status = self.door.refusal(headers), 403
+        if reason is None and scope["type"] == "http" and _too_long(headers):
             reason, status = "size", 413
         if reason is not None:
             self._refuse(scope, reason, origin, host_header)
@@ -147,12 +179,13 @@ class RequestGuard:
             self.on_refused(Refusal(reason, f"{client[0]}:{client[1]}", origin, host, scope.get("path", ""), agent))
 
 
-def another_page(headers: Headers) -> bool:
-    """A request another origin's page made, by its Fetch Metadata, other than opening a top-level
-    document (a link followed). Clients that send no Sec-Fetch-Site (scripts, old browsers) pass."""
+def another_page(headers: Mapping[str, str], opens: tuple[str, ...] = ("document",)) -> bool:
+    """A request another origin's page made, by its Fetch Metadata, other than a navigation that
+    opens one of `opens` (a top-level document: a link followed). Clients that send no
+    Sec-Fetch-Site (scripts, old browsers) pass."""
     if headers.get("sec-fetch-site") not in OTHER_SITES:
         return False
-    return (headers.get("sec-fetch-mode"), headers.get("sec-fetch-dest")) != ("navigate", "document")
+    return headers.get("sec-fetch-mode") != "navigate" or headers.get("sec-fetch-dest") not in opens
 
 
 def _too_long(headers: Headers) -> bool:
@@ -193,12 +226,7 @@ def _with_headers(send: Send) -> Send:
 
 
 async def _reject(scope: Scope, receive: Receive, send: Send, reason: str, status: int) -> None:
-    text = {
-        "host": "refused: the Host header does not name this server (DNS rebinding?)",
-        "origin": "refused: requests from another web page's origin are not accepted",
-        "site": "refused: another web page made this request (Sec-Fetch-Site); open the dashboard itself",
-        "size": f"refused: request body larger than {MAX_BODY} bytes",
-    }[reason]
+    text = REASONS[reason]
     if scope["type"] == "websocket" and DENIAL_RESPONSE not in scope.get("extensions", {}):
         await send({"type": "websocket.close", "code": 1008, "reason": text})  # seen as a bare 403
         return
