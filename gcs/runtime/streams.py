@@ -307,7 +307,11 @@ class StreamRequester:
         )
         deadline = time.monotonic() + self.ack_timeout
         while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
-            if item.type == "PARAM_VALUE" and param_name(item.msg) == "SCHED_LOOP_RATE":
+            if (
+                item.type == "PARAM_VALUE"
+                and item.sysid == self.link.target_system
+                and param_name(item.msg) == "SCHED_LOOP_RATE"
+            ):
                 return float(item.msg.param_value) or None
         return None
 
@@ -347,7 +351,8 @@ class StreamRequester:
             self._arrived.discard(name)
             deadline = time.monotonic() + self.ack_timeout
             while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
-                if item.type == "COMMAND_ACK" and item.msg.command == command:
+                # the vehicle's answer: another system's ack (a second GCS, a companion) is not
+                if item.type == "COMMAND_ACK" and item.sysid == self.link.target_system and item.msg.command == command:
                     result = enum_result(item.msg.result)
                     if name in self.negotiated:
                         self.negotiated[name].ack = result
