@@ -3,7 +3,10 @@ generations and as a tlog without IMU, free ports."""
 
 from __future__ import annotations
 
+import functools
+import http.server
 import socket
+import threading
 from pathlib import Path
 
 import pytest
@@ -75,3 +78,15 @@ def hop_without_imu(tmp_path_factory: pytest.TempPathFactory) -> Path:
             kept.append(usec.to_bytes(8, "big") + packet)
     path.write_bytes(b"".join(kept))
     return path
+
+
+@pytest.fixture
+def attacker_site(tmp_path):
+    """A plain static server on another loopback port: another origin."""
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
+    handler.log_message = lambda *args: None  # type: ignore[attr-defined]
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield tmp_path, f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()

@@ -150,3 +150,45 @@ async def resend_until(condition, what: str, resend, timeout: float = 90.0, ever
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         resend()
         await asyncio.sleep(every)
+
+
+@contextlib.contextmanager
+def other_system(port: int, answer, sysid: int = 200):
+    """Another system on a station's udpin `port` (a second ground station, a companion, a hostile
+    peer): a thread that sends GCS heartbeats as `sysid`, so the station sends it what it sends
+    the vehicle, and answers each of those messages with `answer(msg, mav)`'s messages at once.
+    Yields the messages it answered."""
+    import socket
+    import threading
+
+    from gcs.mavlink.dialect import mavlink
+
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.settimeout(0.05)
+    stop = threading.Event()
+    answered: list = []
+    mav, parser = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1), mavlink.MAVLink(None)
+
+    def run() -> None:
+        heartbeat = mav.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(mav)
+        while not stop.is_set():
+            peer.sendto(heartbeat, ("127.0.0.1", port))
+            try:
+                data = peer.recv(65535)
+            except TimeoutError:
+                continue
+            for msg in parser.parse_buffer(data) or []:
+                replies = answer(msg, mav)
+                for reply in replies:
+                    peer.sendto(reply.pack(mav), ("127.0.0.1", port))
+                if replies:
+                    answered.append(msg)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        yield answered
+    finally:
+        stop.set()
+        thread.join()
+        peer.close()

@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import io
 import os
+import shutil
 
 import pyarrow.parquet as pq
 import pytest
@@ -219,8 +220,9 @@ async def sessions_scenario(udp_port: int, root, artifacts_dir, logs_dir) -> Non
                     )
                     assert bytes(data).startswith(magic), (fmt, bytes(data[:20]))
 
-                # Logs from other tools in the recording folder are offered as sources too.
-                os.symlink(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")
+                # Logs from other tools in the recording folder are offered as sources too (a copy:
+                # a link to a file elsewhere is neither opened nor listed, docs/security.md).
+                shutil.copyfile(logs_dir / "ardupilot-fragment.bin", root / "fragment.bin")
                 await page.click("#sessions-refresh")
                 await page.wait_for_selector(
                     "#whatif-source option[value='fragment.bin']", state="attached", timeout=20_000

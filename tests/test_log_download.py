@@ -12,7 +12,7 @@ import sys
 
 import httpx
 import pytest
-from live import running_sim, running_station, stop_process, wait_for
+from live import other_system, running_sim, running_station, stop_process, wait_for
 from pymavlink.DFReader import DFReader_binary
 
 from gcs.mavlink.dialect import Encoder, mavlink
@@ -320,3 +320,33 @@ def test_a_download_never_replaces_another_log_of_the_same_name(tmp_path, udp_po
     assert (tmp_path / "log1-2.bin").read_bytes() == log
     assert all(f"-> {tmp_path / 'log1-2.bin'}\n" in out for out in outputs), outputs
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log1-2.bin", "log1.bin"]
+
+
+def test_log_data_from_another_system_is_not_written_into_the_vehicles_log(tmp_path, udp_port):
+    """Another system on the link answers each LOG_REQUEST_DATA the station sends, at once, with
+    zeros for the asked bytes, and each listing with a log of its own: the log in the recording
+    folder is still the vehicle's, byte for byte."""
+
+    def forge(msg, mav):
+        if msg.get_type() == "LOG_REQUEST_DATA":
+            count = min(msg.count, LOG_DATA_LEN)
+            return [mav.log_data_encode(msg.id, msg.ofs, count, bytes(LOG_DATA_LEN))]
+        if msg.get_type() == "LOG_REQUEST_LIST":
+            return [mav.log_entry_encode(7, 1, 7, 0, 123)]
+        return []
+
+    async def scenario():
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", request_streams=False, estimate=False) as station:
+            with other_system(udp_port, forge) as forged:
+                await wait_for(lambda: station.link.stats.framing.packets > 0, 10, "the other system heard")
+                async with log_vehicle(f"udpout:127.0.0.1:{udp_port}", "apm25", 5.0) as sim:
+                    assert await station.link.wait_connected(30)
+                    downloader = LogDownloader(station.link)
+                    entries = await downloader.list_logs(30)
+                    path = await asyncio.wait_for(downloader.download(entries[0], tmp_path), 120)
+                    return entries, path.read_bytes(), sim.logs.finished[0], len(forged)
+
+    entries, downloaded, flown, forged = asyncio.run(scenario())
+    assert forged  # the other system was asked and answered
+    assert 7 not in [e.id for e in entries]  # the other system's log is not listed as the vehicle's
+    assert downloaded == flown

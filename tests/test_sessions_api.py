@@ -152,3 +152,37 @@ async def listed(config: StationConfig) -> list[str]:
             return [s["name"] for s in (await api.get("/api/sessions")).json()]
     finally:
         await station.stop()
+
+
+def test_a_link_in_the_record_dir_to_elsewhere_is_not_listed(tmp_path):
+    """A log or session folder in the recording folder that links elsewhere (a folder copied from
+    a stick): replay and export refuse it (404), so the lists do not offer it, nor tell the size
+    of the file it points to."""
+    root, elsewhere = tmp_path / "sessions", tmp_path / "elsewhere"
+    root.mkdir()
+    (elsewhere / "2026-12-01_10-00-00_quad").mkdir(parents=True)
+    (elsewhere / "2026-12-01_10-00-00_quad" / layout.META).write_text("{}")
+    (elsewhere / "secret.tlog").write_bytes(b"x" * 1234)
+    (root / "2026-12-02_10-00-00_quad").symlink_to(elsewhere / "2026-12-01_10-00-00_quad")
+    (root / "flight.tlog").symlink_to(elsewhere / "secret.tlog")
+    (root / "2026-12-03_10-00-00_quad").mkdir()
+    (root / "2026-12-03_10-00-00_quad" / layout.META).write_text("{}")
+    (root / "own.tlog").write_bytes(b"")
+
+    async def scenario() -> tuple[list[str], list[str], list[int]]:
+        config = StationConfig(connect=f"udpin:127.0.0.1:{free_port()}", sessions_dir=str(root))
+        station = Station(config)
+        await station.start()
+        try:
+            async with served_api(station) as api:
+                sessions = [s["name"] for s in (await api.get("/api/sessions")).json()]
+                logs = [log["name"] for log in (await api.get("/api/logs")).json()]
+                refused = [(await api.get("/api/replay", params={"source": n})).status_code for n in ("flight.tlog",)]
+                return sessions, logs, refused
+        finally:
+            await station.stop()
+
+    sessions, logs, refused = asyncio.run(scenario())
+    assert refused == [404]
+    assert sessions == ["2026-12-03_10-00-00_quad"]
+    assert logs == ["own.tlog"]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import asyncio
 
-from live import running_sim, running_station, served_api, wait_for
+from live import other_system, running_sim, running_station, served_api, wait_for
 
 from gcs.commands.status import format_report
 from gcs.mavlink.dialect import mavlink
@@ -251,3 +251,29 @@ def test_ekf_status_report_is_asked_of_an_ardupilot_with_an_ekf_not_of_an_apm25(
     apm25, radio, _ = asyncio.run(run("apm25", udp_port, told_absent("SCALED_IMU2")))
     assert "RAW_IMU" in apm25 and "EKF_STATUS_REPORT" not in apm25, apm25
     assert "EKF_STATUS_REPORT" not in radio, radio
+
+
+def test_acks_from_another_system_are_not_the_vehicles_answer(udp_port):
+    """Another system on the link (a second ground station, a companion, a hostile peer: udpin
+    answers any sender) answers each SET_MESSAGE_INTERVAL the station sends with a refusal, at
+    once: the station waits for its vehicle's own answer and every stream keeps the rate the
+    vehicle accepted."""
+
+    def refuse(msg, mav):
+        if msg.get_type() == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return [mav.command_ack_encode(msg.command, mavlink.MAV_RESULT_DENIED)]
+        return []
+
+    async def scenario():
+        async with running_station(f"udpin:127.0.0.1:{udp_port}", estimate=False) as station:
+            with other_system(udp_port, refuse) as refused:
+                await wait_for(lambda: station.link.stats.framing.packets > 0, 10, "the other system heard")
+                async with running_sim(f"udpout:127.0.0.1:{udp_port}", profile="pixhawk"):
+                    await wait_for(lambda: station.streams.requested, 30, "stream requests")
+                    return station.publish().streams, len(refused)
+
+    streams, refused = asyncio.run(scenario())
+    assert refused  # the other system got the station's commands and refused them
+    for name, hz in REQUESTED.items():
+        row = streams.messages[name]
+        assert row.method == "SET_MESSAGE_INTERVAL" and row.accepted_hz == hz and row.reason is None, (name, row)

@@ -6,12 +6,9 @@ holds the token cookie. Nothing changes, and each attempt is refused and logged 
 from __future__ import annotations
 
 import asyncio
-import functools
-import http.server
 import importlib
 import json
 import os
-import threading
 
 import pytest
 from fastapi.routing import APIRoute
@@ -63,18 +60,6 @@ def state_changing() -> list[tuple[str, str]]:
                 )
                 out.append((method, path))
     return sorted(set(out))
-
-
-@pytest.fixture
-def attacker_site(tmp_path):
-    """A plain static server on another loopback port: another origin."""
-    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(tmp_path))
-    handler.log_message = lambda *args: None  # type: ignore[attr-defined]
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    yield tmp_path, f"http://127.0.0.1:{server.server_address[1]}"
-    server.shutdown()
 
 
 def test_a_page_of_another_origin_changes_nothing(udp_port, tmp_path, attacker_site):
@@ -152,3 +137,65 @@ def test_a_50_mb_body_is_refused_at_once(udp_port):
                 await server.stop()
 
     asyncio.run(scenario())
+
+
+#: Requests another loopback origin's page makes without any script reading the answer: an image,
+#: a credentialed no-cors fetch, and a link opened in a new window. Same site as the dashboard
+#: (another port), so the browser sends the engineer's SameSite=Strict cookie with them, and no
+#: Origin header (a GET).
+SUBRESOURCES = """<!doctype html><html><body><a id="open" href="%s" target="_blank">tuning</a><script>
+window.done = (async () => {
+  for (const url of %s) {
+    await new Promise(r => { const img = new Image(); img.onload = img.onerror = r; img.src = url; });
+    try { await fetch(url, {mode: "no-cors", credentials: "include"}); } catch (e) {}
+  }
+  return true;
+})();
+</script></body></html>"""
+
+
+def test_a_page_of_another_origin_neither_opens_tuning_nor_spends_the_engineers_budget(tmp_path, attacker_site):
+    """GET /api/tuning with the token opens the tuning session (it reads the profile's parameters
+    from the vehicle); the export and the replay cost seconds of the worker, and each client
+    address may ask for only so many a minute. Another page on loopback sends the cookie along
+    and shares the engineer's address: it must get none of them."""
+    site_dir, site = attacker_site
+    asyncio.run(subresource_scenario(tmp_path / "sessions", site_dir, site))
+
+
+async def subresource_scenario(record_dir, site_dir, site: str) -> None:
+    from test_params_protocol import station_and_sim
+
+    async with station_and_sim("apm25", estimate=True) as (station, _sim):
+        server = DashboardServer(station, port=0, viser=False)
+        await server.start()
+        try:
+            await station.params.download(timeout=60)
+            base = f"http://127.0.0.1:{server.port}"
+            costly = [f"{base}/api/replay?source=none", f"{base}/api/sessions/none/export"] * 10
+            attack = SUBRESOURCES % (f"{base}/api/tuning", json.dumps([f"{base}/api/tuning", *costly]))
+            (site_dir / "attack.html").write_text(attack)
+            async with async_playwright() as pw:
+                browser = await pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                context = await browser.new_context()
+                dashboard = await context.new_page()
+                await dashboard.goto(server.url)
+                page = await context.new_page()
+                await page.goto(f"{site}/attack.html")
+                assert await page.evaluate("window.done") is True
+                async with context.expect_page() as opened:
+                    await page.click("#open")  # the engineer clicks a link on that page
+                popup = await opened.value
+                await popup.wait_for_load_state()
+                assert "not opened yet" in await popup.content()  # the page opens, read-only
+                assert station.started_tuning() is None  # the cookie opened it
+                # the engineer's own budget is whole: a 404 for no such source, not a 429
+                own = "(u) => fetch(u).then((r) => r.status)"
+                assert await dashboard.evaluate(own, f"{base}/api/replay?source=none") == 404
+                assert await dashboard.evaluate(own, f"{base}/api/sessions/none/export") == 404
+                await browser.close()
+            refused = [e for e in station.events.recent if e.kind == "refused"]
+            assert {e.data["reason"] for e in refused} == {"site"}
+            assert {e.data["path"] for e in refused} == {"/api/tuning", "/api/replay", "/api/sessions/none/export"}
+        finally:
+            await server.stop()

@@ -19,7 +19,9 @@ another ground station) answers as the new id at once, and its echo, a PARAM_VAL
 parameter equal to its sender's id, is the first thing heard from it: its core follows it under
 the new id (`_renamed`) rather than a second core starting beside the first, which was left
 "lost" for ever. With that echo lost, the new id's stream going on from the vehicle's (its
-sequence numbers, the vehicle silent since) tells it (gcs.runtime.sysid_change).
+sequence numbers, the vehicle silent since) tells it (gcs.runtime.sysid_change). Should the old id
+send a vehicle heartbeat again, the change was not the vehicle's (another system on the link said
+so): the core goes back to it (`_back`).
 """
 
 from __future__ import annotations
@@ -127,6 +129,8 @@ class Fleet:
         self._unbound_system: int | None = None
         self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._ignored: set[tuple[int, int]] = set()  # (link, sysid): served on another link, or not followed
+        #: (link, sysid) → the system id its core follows since (`_renamed`; undone by `_back`)
+        self._left: dict[tuple[int, int], int] = {}
         self._started = False
         #: the sysid of every vehicle heard, followed or not (what a `--sysid` never heard is told)
         self.heard: set[int] = set()
@@ -192,8 +196,8 @@ class Fleet:
         """A vehicle's first heartbeat on this link: bind the waiting first core, or start a new one."""
         link = self.links[index]
         self.heard.add(item.sysid)
-        if (renamed := self._renamed(index, item)) is not None:
-            renamed.deliver(item)
+        if (moved := self._back(index, item) or self._renamed(index, item)) is not None:
+            moved.deliver(item)
             return
         if self._may_be_renamed(index, item):
             return  # a vehicle here renamed, maybe: a later heartbeat tells (gcs.runtime.sysid_change)
@@ -254,6 +258,26 @@ class Fleet:
         if len(chosen) != 1:
             return None  # none, or two vehicles with that component id here, neither writing it
         i, entry = chosen[0]
+        assert entry.sysid is not None  # (a bound core's entry)
+        self._left[(index, entry.sysid)] = new
+        return self._move(index, i, new, "system id changed")
+
+    def _back(self, index: int, item: Message) -> VehicleLink | None:
+        """The core that left `item`'s system id for another, moved back to it (its view; None
+        when no core left that id): the vehicle still sends heartbeats as itself, so the change
+        was not its own. Another system saying "my SYSID_THISMAV is my id" looks like the echo of
+        a write by another ground station: one such PARAM_VALUE moved the first vehicle's page,
+        recording and writes to that system, and the vehicle itself became a second vehicle."""
+        moved = self._left.pop((index, item.sysid), None)
+        here = [(i, e) for i, e in enumerate(self._entries) if _view(e.station) in self._on_link[index]]
+        found = [i for i, e in here if e.sysid == moved]
+        if moved is None or len(found) != 1 or self.vehicle(item.sysid) is not None:
+            return None
+        return self._move(index, found[0], item.sysid, "system id change undone")
+
+    def _move(self, index: int, i: int, new: int, event: str) -> VehicleLink:
+        """Entry `i`'s core, on link `index`, follows system `new` from now on."""
+        entry = self._entries[i]
         old, view, link = entry.sysid, _view(entry.station), self.links[index]
         assert old is not None  # (a bound core's entry)
         bus = self._buses[index]
@@ -266,7 +290,7 @@ class Fleet:
         self.heard.add(new)
         MessageBus.epoch += 1
         address = str(link.address)
-        entry.station.events.record("vehicle", "fleet", event="system id changed", old=old, new=new, link=address)
+        entry.station.events.record("vehicle", "fleet", event=event, old=old, new=new, link=address)
         return view
 
     def _may_be_renamed(self, index: int, item: Message) -> bool:

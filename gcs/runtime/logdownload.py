@@ -20,6 +20,7 @@ from pathlib import Path
 
 from gcs.mavlink.dialect import mavlink
 from gcs.mavlink.logtransfer import LOG_DATA_LEN, LogEntry, LogListing, LogTransfer
+from gcs.runtime.bus import Message
 from gcs.runtime.link import Link
 from gcs.sessions.export import write_beside
 
@@ -80,6 +81,12 @@ class LogDownloader:
     def _target(self) -> tuple[int, int]:
         return self.link.target_system or 1, self.link.target_component or 1
 
+    def _from_vehicle(self, item: Message | None) -> bool:
+        """Nothing, or something the vehicle sent. Another system on the link (a second ground
+        station, a companion, a hostile peer) answering the same requests had its LOG_ENTRY listed
+        and its LOG_DATA written into the vehicle's log."""
+        return item is None or item.sysid == self.link.target_system
+
     async def list_logs(self, timeout: float = 10.0) -> list[LogEntry]:
         """Every log the vehicle has (LOG_REQUEST_LIST, then the entries missed, one by one)."""
         self.progress = LogDownloadProgress("listing")
@@ -90,6 +97,10 @@ class LogDownloader:
             self.link.send(mavlink.MAVLink_log_request_list_message(*self._target(), 0, 0xFFFF))
             while not listing.complete:
                 item = await sub.get(timeout=min(1.0, max(deadline - time.monotonic(), 0.0)))
+                if not self._from_vehicle(item):
+                    if time.monotonic() < deadline:
+                        continue
+                    item = None
                 if item is None:
                     if time.monotonic() >= deadline:
                         raise LogDownloadError(f"no complete log list from the vehicle within {timeout:g} s")
@@ -135,6 +146,7 @@ class LogDownloader:
                         )
                     )
                 item = await sub.get(timeout=self.idle_timeout / 2)
+                item = item if self._from_vehicle(item) else None
                 now = time.monotonic()
                 if item is not None:
                     _check_refusal(item)

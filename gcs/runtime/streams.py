@@ -308,7 +308,11 @@ class StreamRequester:
         )
         deadline = time.monotonic() + self.ack_timeout
         while (item := await replies.get(timeout=max(deadline - time.monotonic(), 0.0))) is not None:
-            if item.type == "PARAM_VALUE" and param_name(item.msg) == "SCHED_LOOP_RATE":
+            if (
+                item.type == "PARAM_VALUE"
+                and item.sysid == self.link.target_system
+                and param_name(item.msg) == "SCHED_LOOP_RATE"
+            ):
                 return float(item.msg.param_value) or None
         return None
 

@@ -15,8 +15,9 @@ import uvicorn
 from gcs.runtime import heap
 from gcs.runtime.facade import FleetFacade, StationFacade
 from gcs.server.addresses import local_host, shared_hosts, url_host
-from gcs.server.app import create_app
+from gcs.server.app import create_app, record_refusal
 from gcs.server.deps import TOKEN_HEADER
+from gcs.server.guard import FrontDoor, Refusal
 from gcs.server.live import LiveHub
 from gcs.server.uvicorn_server import DashboardUvicorn
 from gcs.server.ws_direct import DirectFrameProtocol
@@ -141,7 +142,13 @@ class DashboardServer:
         from gcs.server.pose_refresh import PoseRefresh  # noqa: PLC0415 - imports viser
         from gcs.server.scene import LocalViserServer  # noqa: PLC0415
 
-        server = LocalViserServer(self.host, self.viser_port or self.port + 1)
+        loop = asyncio.get_running_loop()
+
+        def refused(refusal: Refusal) -> None:  # told on viser's thread; the event log is the loop's
+            loop.call_soon_threadsafe(record_refusal, self.station, refusal)
+
+        door = FrontDoor.of(self.host, self.allow_origins, framed=True)  # the page frames its view
+        server = LocalViserServer(self.host, self.viser_port or self.port + 1, door, refused)
         self.viser = server
         self.viser_port = server.get_port()
         self.scene: FleetScene = FleetScene(server, self.station, self.fleet)

@@ -22,6 +22,7 @@ from starlette.requests import HTTPConnection
 
 from gcs.runtime.events import Client
 from gcs.runtime.facade import FleetFacade, StationFacade
+from gcs.server.guard import OTHER_SITES
 from gcs.server.live import LiveHub
 
 TOKEN_HEADER = "X-GCS-Token"
@@ -74,7 +75,16 @@ def presented_token(conn: HTTPConnection) -> str | None:
     auth = conn.headers.get("authorization", "")
     if auth.lower().startswith("bearer "):
         return auth[7:].strip()
-    return conn.cookies.get(cookie_name(conn)) or conn.query_params.get("token")
+    return page_cookie(conn) or conn.query_params.get("token")
+
+
+def page_cookie(conn: HTTPConnection) -> str | None:
+    """The token cookie, on the page's own requests only. Browsers send it to this port from any
+    page on the same host (SameSite does not tell ports apart): a link that another loopback page
+    opens in a new window, GET /api/tuning, opened the tuning session with it."""
+    if conn.headers.get("sec-fetch-site") in OTHER_SITES:
+        return None
+    return conn.cookies.get(cookie_name(conn))
 
 
 def token_matches(given: str | None, expected: str) -> bool:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 
 import numpy as np
 import viser
@@ -27,6 +28,8 @@ from gcs.runtime.event_loop import loops_made_fast
 from gcs.runtime.events import Event
 from gcs.runtime.facade import StationFacade
 from gcs.server.colors import COLORS, OTHER
+from gcs.server.guard import FrontDoor, Refusal
+from gcs.server.viser_door import guarded_viser
 
 GHOST_OPACITY = 0.35
 
@@ -59,10 +62,18 @@ class LocalViserServer(viser.ViserServer):
     """viser, kept on this network: its share button asks viser's relay for a public URL to the
     view, and any client may send that request (viser has no authentication). At the field there
     is no internet, and nobody but the operator may publish the view, so the button is hidden and the
-    request refused."""
+    request refused. Its port has the dashboard's front door (`door`, default: the dashboard's
+    on `host` with no other origin), and a message size (gcs.server.viser_door)."""
 
-    def __init__(self, host: str, port: int) -> None:
-        with loops_made_fast():  # viser's thread makes its loop before this returns
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        door: FrontDoor | None = None,
+        on_refused: Callable[[Refusal], None] | None = None,
+    ) -> None:
+        # viser's thread makes its loop and starts its server before this returns
+        with loops_made_fast(), guarded_viser(door or FrontDoor.of(host, framed=True), on_refused):
             super().__init__(host=host, port=port, verbose=False, label="gcs pose")
         self.gui.configure_theme(show_share_button=False, show_logo=False)
         # The page's gain panel is the control: viser's panel starts minimized to its title bar, so

@@ -53,6 +53,11 @@ UDP_READ_BATCH = 256
 #: Seconds after its last datagram a `udpin` peer is still sent to (a restarted sender's old port
 #: is forgotten after that).
 UDP_PEER_TIMEOUT = 10.0
+#: Senders a `udpin` socket keeps and answers at most, the most recently heard: a datagram from
+#: each of 25 000 source ports (anyone who can reach the port; with forged source addresses,
+#: millions) made each of the station's packets go to all of them, 25 000 sendto per heartbeat,
+#: and a reflector towards every forged address. 64: a fleet on one port, with room to spare.
+UDP_MAX_PEERS = 64
 UDP_MAX_DATAGRAM = 65535
 #: Linux's SO_RXQ_OVFL (socket(7); Python has no constant for it): the drop count per datagram.
 SO_RXQ_OVFL = 40
@@ -107,9 +112,9 @@ class Transport(ABC):
 
 
 class UdpTransport(Transport):
-    """`udpin` binds and answers every peer heard in the last UDP_PEER_TIMEOUT s (several
-    vehicles or simulators sending to one port each get what the station sends, and each picks
-    what is addressed to it, as on a radio); `udpout` sends to a fixed peer.
+    """`udpin` binds and answers every peer heard in the last UDP_PEER_TIMEOUT s, UDP_MAX_PEERS at
+    most (several vehicles or simulators sending to one port each get what the station sends, and
+    each picks what is addressed to it, as on a radio); `udpout` sends to a fixed peer.
 
     A UDP pipe never "closes" when the peer goes away: the link notices silence by the
     missing heartbeats and resumes as soon as packets return.
@@ -132,7 +137,8 @@ class UdpTransport(Transport):
     def __init__(self, address: Address) -> None:
         super().__init__(address)
         self.peer: tuple | None = None  # the last sender (udpin) or the fixed peer (udpout)
-        self.peers: dict[tuple, float] = {}  # udpin: every sender, with when it was last heard (loop time)
+        #: udpin: the senders (at most UDP_MAX_PEERS), with when each was last heard (loop time)
+        self.peers: dict[tuple, float] = {}
         self._sock: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._on_data: DataCallback | None = None
@@ -245,13 +251,23 @@ class UdpTransport(Transport):
                         self.peer = addr
                         heard = None
                     if heard is None:
-                        heard = self.peers[addr] = self._loop.time() if self._loop is not None else 0.0
+                        heard = self._loop.time() if self._loop is not None else 0.0
+                        self._heard(addr, heard)
                 datagrams.append(data)
         finally:
             for level, kind, payload in ancdata:
                 if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
                     self.kernel_drops = struct.unpack("=I", payload[:4])[0]
         return datagrams
+
+    def _heard(self, addr: tuple, when: float) -> None:
+        """`addr` is the newest peer; past UDP_MAX_PEERS the one heard least lately is forgotten
+        (`peers` is kept in the order last heard)."""
+        peers = self.peers
+        peers.pop(addr, None)
+        if len(peers) >= UDP_MAX_PEERS:
+            del peers[next(iter(peers))]
+        peers[addr] = when
 
     def write(self, data: bytes) -> None:
         if self._sock is None or self.peer is None:

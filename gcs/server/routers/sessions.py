@@ -53,9 +53,16 @@ def named_source(station: StationFacade, name: str) -> Path:
     """The session or log called `name` in the recording folder; 404 otherwise."""
     root = station.recording_root.resolve()
     path = (root / name).resolve()
-    if path.parent != root or not path.exists():
+    if not inside(root, path) or not path.exists():
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no session or log {name!r} in {root}")
     return path
+
+
+def inside(root: Path, path: Path) -> bool:
+    """Is `path`, its links followed, an entry of the (resolved) recording folder `root`? The
+    lists offer only what `named_source` opens: a link to a file elsewhere was listed, with
+    that file's size, and its replay answered 404."""
+    return path.resolve().parent == root
 
 
 def conflict(exc: StationError) -> HTTPException:
@@ -64,20 +71,21 @@ def conflict(exc: StationError) -> HTTPException:
 
 @router.get("/sessions")
 async def list_recorded(station: StationDep) -> list[dict[str, Any]]:
-    return [s.as_dict() for s in layout.list_sessions(station.recording_root)]
+    root = station.recording_root.resolve()
+    return [s.as_dict() for s in layout.list_sessions(station.recording_root) if inside(root, Path(s.path))]
 
 
 @router.get("/logs")
 async def list_logs(station: StationDep) -> list[dict[str, Any]]:
     """Log files from other tools (.tlog, .bin, .log, .ulg) in the recording folder: replay and what-if
     sources, by name, beside the recorded sessions."""
-    root = station.recording_root
+    root = station.recording_root.resolve()
     if not root.is_dir():
         return []
     return [
         {"name": p.name, "kind": KINDS[p.suffix.lower()], "size_bytes": p.stat().st_size}
         for p in sorted(root.iterdir())
-        if p.is_file() and p.suffix.lower() in KINDS
+        if p.is_file() and p.suffix.lower() in KINDS and inside(root, p)
     ]
 
 
