@@ -20,8 +20,8 @@ parameter equal to its sender's id, is the first thing heard from it: its core f
 the new id (`_renamed`) rather than a second core starting beside the first, which was left
 "lost" for ever. With that echo lost, the new id's stream going on from the vehicle's (its
 sequence numbers, the vehicle silent since) tells it (gcs.runtime.sysid_change). Should the old id
-send a vehicle heartbeat again, the change was not the vehicle's (another system on the link said
-so): the core goes back to it (`_back`).
+send a vehicle heartbeat before the new id's first, the change was not the vehicle's (another
+system on the link said so): the core goes back to it (`_back`).
 """
 
 from __future__ import annotations
@@ -129,8 +129,9 @@ class Fleet:
         self._unbound_system: int | None = None
         self._on_link: list[list[VehicleLink]] = [[] for _ in self.links]  # bound views per link
         self._ignored: set[tuple[int, int]] = set()  # (link, sysid): served on another link, or not followed
-        #: (link, sysid) → the system id its core follows since (`_renamed`; undone by `_back`)
-        self._left: dict[tuple[int, int], int] = {}
+        #: (link, sysid) → the system id its core follows since, and when it moved (host monotonic
+        #: s; `_renamed`, undone by `_back`)
+        self._left: dict[tuple[int, int], tuple[int, float]] = {}
         self._started = False
         #: the sysid of every vehicle heard, followed or not (what a `--sysid` never heard is told)
         self.heard: set[int] = set()
@@ -259,7 +260,7 @@ class Fleet:
             return None  # none, or two vehicles with that component id here, neither writing it
         i, entry = chosen[0]
         assert entry.sysid is not None  # (a bound core's entry)
-        self._left[(index, entry.sysid)] = new
+        self._left[(index, entry.sysid)] = (new, item.host_time)
         return self._move(index, i, new, "system id changed")
 
     def _back(self, index: int, item: Message) -> VehicleLink | None:
@@ -267,11 +268,20 @@ class Fleet:
         when no core left that id): the vehicle still sends heartbeats as itself, so the change
         was not its own. Another system saying "my SYSID_THISMAV is my id" looks like the echo of
         a write by another ground station: one such PARAM_VALUE moved the first vehicle's page,
-        recording and writes to that system, and the vehicle itself became a second vehicle."""
-        moved = self._left.pop((index, item.sysid), None)
+        recording and writes to that system, and the vehicle itself became a second vehicle. Only
+        until the new id's first vehicle heartbeat: after that the rename was real, and a vehicle
+        heard as the old id is another airframe (one switched on with the default id 1, which is
+        why the first was renamed)."""
+        left = self._left.pop((index, item.sysid), None)
+        if left is None:
+            return None
+        moved, at = left
         here = [(i, e) for i, e in enumerate(self._entries) if _view(e.station) in self._on_link[index]]
         found = [i for i, e in here if e.sysid == moved]
-        if moved is None or len(found) != 1 or self.vehicle(item.sysid) is not None:
+        if len(found) != 1 or self.vehicle(item.sysid) is not None:
+            return None
+        beat = _view(self._entries[found[0]].station).last_heartbeat
+        if beat is not None and beat >= at:
             return None
         return self._move(index, found[0], item.sysid, "system id change undone")
 
