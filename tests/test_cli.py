@@ -90,7 +90,9 @@ def test_demo_shows_live_data_and_stops_on_ctrl_c():
     seen: list[str] = []
     deadline = time.monotonic() + 90
     try:
-        while not any(line.startswith("link connected") and "ekf" in line for line in seen):
+        # a line with the link's rates beside the estimators: the rates of a vehicle start when it
+        # is identified, and need a second sample, so the first estimator lines may come without
+        while not any(line.startswith("link connected") and "ekf" in line and "ATTITUDE" in line for line in seen):
             try:
                 seen.append(lines.get(timeout=max(0.1, deadline - time.monotonic())))
             except queue.Empty:
@@ -100,7 +102,7 @@ def test_demo_shows_live_data_and_stops_on_ctrl_c():
         proc.wait(60)
     assert proc.returncode == 0, proc.stderr.read()
     assert f"dashboard at http://127.0.0.1:{port}" in "".join(seen)
-    assert "ATTITUDE" in seen[-1] and "truth" in seen[-1], seen[-1]
+    assert "truth" in seen[-1], seen[-1]
 
 
 def test_status_says_where_it_forwarded_and_how_many_packets(logs_dir, udp_port, tcp_port):

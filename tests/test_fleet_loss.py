@@ -11,6 +11,7 @@ from live import wait_for
 
 from gcs.mavlink.dialect import Encoder, mavlink
 from gcs.runtime.fleet import Fleet
+from gcs.runtime.link_stats import LinkStats
 from gcs.runtime.station import StationConfig
 
 
@@ -191,3 +192,15 @@ def test_a_vehicles_rates_are_its_own_systems(udp_port):
     stats = asyncio.run(scenario())
     assert set(stats.counts) == {"HEARTBEAT"} and set(stats.rates_hz) == {"HEARTBEAT"}
     assert stats.rates_hz["HEARTBEAT"] < 12  # 10 Hz sent, give or take the loop's pace
+
+
+def test_a_vehicles_rates_come_at_the_first_sample_after_it_is_identified():
+    """A vehicle's rates start again from its own counts once it is identified (its history was
+    of the link's): they came only at the second sample after, 1-2 s with no rates on the page,
+    `gcs status` and `gcs demo`'s lines (a demo line then read without its ATTITUDE rate)."""
+    stats = LinkStats()
+    counts = {"ATTITUDE": 100}
+    stats.follow(counts, 10.0)
+    counts["ATTITUDE"] = 150
+    stats.sample(11.0)
+    assert stats.rates() == {"ATTITUDE": 50.0}

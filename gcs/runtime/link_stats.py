@@ -25,12 +25,14 @@ class LinkStats:
     window: float = 5.0  # s over which rates are measured
     _history: deque = field(default_factory=deque, repr=False)
 
-    def follow(self, counts: dict[str, int]) -> None:
-        """Count from `counts` (kept up to date elsewhere: a vehicle's system's on a shared link):
-        the rates start again, their history being of other counts."""
+    def follow(self, counts: dict[str, int], now: float) -> None:
+        """Count from `counts` (kept up to date elsewhere: a vehicle's system's on a shared link)
+        from `now` (host monotonic s): the rates start again from the totals now, their history
+        being of other counts, so the next `sample` gives them (not the one after)."""
         if counts is not self.counts:
             self.counts = counts
             self._history.clear()
+            self.sample(now)
 
     def sample(self, now: float) -> None:
         """Remember the totals at `now` (host monotonic s); call about once a second."""

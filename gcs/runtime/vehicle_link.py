@@ -10,6 +10,7 @@ addressed to the vehicle and in the MAVLink version the vehicle speaks.
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from typing import ClassVar
 
@@ -81,7 +82,8 @@ class VehicleLink(Link):
         held every other system's messages that reach each vehicle (another ground station's, a
         companion's): a GCS's heartbeats doubled the vehicle's HEARTBEAT rate."""
         stats, target = self._shown.stats, self.target_system
-        self.stats.follow(stats.counts if target is None else stats.by_system.setdefault(target, {}))
+        counts = stats.counts if target is None else stats.by_system.setdefault(target, {})
+        self.stats.follow(counts, time.monotonic())
 
     # ---- receive path: the fleet hands over this vehicle's messages ------------------------------
     def deliver(self, item: Message) -> None:
